@@ -1,0 +1,1 @@
+"""carapost.model."""
