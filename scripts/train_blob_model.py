@@ -1,0 +1,182 @@
+"""Fit the blob detector's probability model on synthetic images with known truth.
+
+Renders face images with ``carapost.algorithms._blob_synth`` (all presets, motion blur,
+noise levels, merged pairs, saturated highlights, dark exposure, white markers),
+collects every blob candidate with its features, labels it true when it lies on a
+truth marker centre, and fits a logistic regression (Newton / IRLS with a small ridge).
+The weights go to ``src/carapost/resources/blob_model.json``. A held-out set of images
+gives the reliability table (predicted probability vs observed fraction of true
+candidates) printed here and drawn to ``docs/blob-reliability.png``.
+
+Run from the repository root::
+
+    python scripts/train_blob_model.py            # ~1-2 minutes on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from carapost.algorithms._blob_synth import match_to_truth, render_face
+from carapost.algorithms.blobs import BLACK, FEATURE_NAMES, WHITE, blob_candidates
+
+ROOT = Path(__file__).resolve().parents[1]
+MODEL_PATH = ROOT / "src" / "carapost" / "resources" / "blob_model.json"
+PLOT_PATH = ROOT / "docs" / "blob-reliability.png"
+
+
+def _scenario(i: int, rng: np.random.Generator) -> dict:
+    presets = ["standard", "dense156", "speech", "fast"]
+    kw: dict = {"preset": presets[i % 4]}
+    kw["noise"] = float(rng.choice([1.0, 2.0, 3.5, 6.0, 9.0]))
+    kw["motion_blur"] = bool(rng.random() < 0.3) or kw["preset"] == "fast"
+    kw["merged"] = bool(rng.random() < 0.3)
+    kw["highlights"] = bool(rng.random() < 0.4)
+    kw["dark"] = bool(rng.random() < 0.15)
+    kw["white"] = bool(rng.random() < 0.15)
+    return kw
+
+
+def collect(n_images: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Features [N, F] and true/false labels [N] of all candidates of ``n_images``."""
+    rng = np.random.default_rng(seed)
+    feats, labels = [], []
+    for i in range(n_images):
+        kw = _scenario(i, rng)
+        s = render_face(rng, **kw)
+        colour = WHITE if kw["white"] else BLACK
+        # Both polarities: the other one supplies realistic negatives.
+        for pol in (colour, 1 - colour):
+            c = blob_candidates(s.image, pol, 2.0, 50.0)
+            if pol == colour:
+                d2t, _ = match_to_truth(c.centre, s.centre, s.axes[:, 1])
+                lab = d2t >= 0
+            else:
+                lab = np.zeros(len(c.centre), bool)
+            feats.append(c.features)
+            labels.append(lab)
+    return np.vstack(feats), np.concatenate(labels)
+
+
+def fit_logistic(x: np.ndarray, y: np.ndarray, ridge: float = 1e-3, iters: int = 50):
+    """Newton's method for L2-regularised logistic regression; returns (w, b)."""
+    n, f = x.shape
+    xa = np.hstack([x, np.ones((n, 1))])
+    beta = np.zeros(f + 1)
+    reg = np.full(f + 1, ridge * n)
+    reg[-1] = 0.0
+    for _ in range(iters):
+        z = np.clip(xa @ beta, -40, 40)
+        p = 1 / (1 + np.exp(-z))
+        g = xa.T @ (p - y) + reg * beta
+        hess = (xa * (p * (1 - p))[:, None]).T @ xa + np.diag(reg)
+        step = np.linalg.solve(hess, g)
+        beta -= step
+        if np.abs(step).max() < 1e-8:
+            break
+    return beta[:-1], float(beta[-1])
+
+
+def expand(f: np.ndarray) -> np.ndarray:
+    """Model inputs: the features themselves (kept linear so the model stays readable)."""
+    return f
+
+
+def reliability(p: np.ndarray, y: np.ndarray, n_bins: int = 10):
+    edges = np.linspace(0, 1, n_bins + 1)
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (p >= lo) & (p < hi if hi < 1 else p <= hi)
+        if sel.sum():
+            rows.append((lo, hi, int(sel.sum()), float(p[sel].mean()), float(y[sel].mean())))
+    return rows
+
+
+def draw_plot(rows, path: Path) -> None:
+    """Reliability diagram drawn with OpenCV (matplotlib is not a dependency)."""
+    size, m = 480, 60
+    img = np.full((size + 2 * m, size + 2 * m, 3), 255, np.uint8)
+
+    def pt(px, py):
+        return int(m + px * size), int(m + (1 - py) * size)
+
+    for t in np.linspace(0, 1, 6):
+        cv2.line(img, pt(t, 0), pt(t, 1), (225, 225, 225), 1)
+        cv2.line(img, pt(0, t), pt(1, t), (225, 225, 225), 1)
+        cv2.putText(img, f"{t:.1f}", (pt(t, 0)[0] - 12, pt(t, 0)[1] + 20),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(img, f"{t:.1f}", (pt(0, t)[0] - 40, pt(0, t)[1] + 5),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.rectangle(img, pt(0, 1), pt(1, 0), (0, 0, 0), 1)
+    cv2.line(img, pt(0, 0), pt(1, 1), (150, 150, 150), 1, cv2.LINE_AA)
+    prev = None
+    for _lo, _hi, count, pm, frac in rows:
+        c = pt(pm, frac)
+        r = int(3 + 2 * np.log10(max(count, 1)))
+        cv2.circle(img, c, r, (200, 80, 0), -1, cv2.LINE_AA)
+        if prev is not None:
+            cv2.line(img, prev, c, (200, 80, 0), 2, cv2.LINE_AA)
+        prev = c
+    cv2.putText(img, "Blob score reliability (held-out synthetic candidates)", (m - 20, 35),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "mean predicted probability", (m + size // 2 - 110, size + 2 * m - 12),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "fraction true", (8, m - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                (0, 0, 0), 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), img)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--train-images", type=int, default=80)
+    ap.add_argument("--test-images", type=int, default=40)
+    ap.add_argument("--no-write", action="store_true", help="report only, keep the model")
+    args = ap.parse_args()
+
+    x_tr, y_tr = collect(args.train_images, seed=1)
+    x_te, y_te = collect(args.test_images, seed=2)
+    print(f"train: {len(y_tr)} candidates ({y_tr.mean():.1%} true); "
+          f"test: {len(y_te)} ({y_te.mean():.1%} true)")
+    e_tr = expand(x_tr)
+    mean = e_tr.mean(axis=0)
+    scale = e_tr.std(axis=0) + 1e-9
+    w, b = fit_logistic((e_tr - mean) / scale, y_tr.astype(float))
+    z = ((expand(x_te) - mean) / scale) @ w + b
+    p = 1 / (1 + np.exp(-np.clip(z, -40, 40)))
+    eps = 1e-12
+    ll = -np.mean(y_te * np.log(p + eps) + (1 - y_te) * np.log(1 - p + eps))
+    brier = float(np.mean((p - y_te) ** 2))
+    print(f"held-out log-loss {ll:.4f}, Brier {brier:.4f}")
+    rows = reliability(p, y_te.astype(float))
+    print("| predicted p bin | candidates | mean predicted | fraction true |")
+    print("|---|---|---|---|")
+    for lo, hi, cnt, pm, fr in rows:
+        print(f"| {lo:.1f}-{hi:.1f} | {cnt} | {pm:.3f} | {fr:.3f} |")
+    for th in (0.2, 0.4, 0.5, 0.8):
+        acc = p >= th
+        print(f"threshold {th}: recall {np.mean(acc[y_te]):.4f}, "
+              f"precision {np.mean(y_te[acc]):.4f}")
+    for name, wi in zip(FEATURE_NAMES, w, strict=True):
+        print(f"  {name:>14s} {wi:+.3f}")
+    if not args.no_write:
+        model = {
+            "features": list(FEATURE_NAMES),
+            "weights": [round(float(v), 6) for v in w],
+            "bias": round(b, 6),
+            "mean": [round(float(v), 6) for v in mean],
+            "scale": [round(float(v), 6) for v in scale],
+            "trained_on": f"{args.train_images} synthetic images (scripts/train_blob_model.py)",
+        }
+        MODEL_PATH.write_text(json.dumps(model, indent=1) + "\n")
+        draw_plot(rows, PLOT_PATH)
+        print(f"wrote {MODEL_PATH.relative_to(ROOT)} and {PLOT_PATH.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,195 @@
+"""The ``carapost`` command line.
+
+Subcommands import their machinery lazily, so ``carapost --help`` is instant and the
+headless commands never import Qt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Sequence
+
+from carapost import __version__
+
+log = logging.getLogger("carapost")
+
+
+class CliError(Exception):
+    """A problem the user can fix; printed without a traceback, exit status 2."""
+
+
+def _cmd_gui(args: argparse.Namespace) -> int:
+    from carapost.ui.app import run_gui
+
+    return run_gui(args.project)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from carapost.demo import run_demo
+
+    return run_demo(headless=args.headless, frames=args.frames, out=args.output)
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from carapost.synth.cli import main_synth
+
+    return main_synth(args.rest)
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    import json
+
+    from carapost.api import evaluate
+
+    print(json.dumps(evaluate(args.project, args.truth), indent=1))
+    return 0
+
+
+def _cmd_export_c3d(args: argparse.Namespace) -> int:
+    from carapost.api import export_c3d, open_project
+
+    project = open_project(args.project)
+    export_c3d(project, args.output, frame_range=args.range, include_brim=args.brim,
+               stabilized=args.stabilized)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _cmd_export_fbx(args: argparse.Namespace) -> int:
+    from carapost.api import export_fbx, open_project
+
+    project = open_project(args.project)
+    export_fbx(project, args.output, frame_range=args.range, include_brim=args.brim,
+               up_axis=args.up, include_cameras=args.cameras)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _cmd_export_xcp(args: argparse.Namespace) -> int:
+    from carapost.api import export_xcp, open_project
+
+    project = open_project(args.project)
+    export_xcp(project, args.output, frame=args.frame)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from carapost.api import import_take, save_project
+
+    project = import_take(args.take)
+    out = save_project(project, args.output)
+    print(f"wrote {out}")
+    return 0
+
+
+def _cmd_process(args: argparse.Namespace) -> int:
+    from carapost.api import process_take
+
+    result = process_take(
+        args.take,
+        output=args.output,
+        rom=args.rom,
+        brim=args.brim,
+        c3d=args.c3d,
+        fbx=args.fbx,
+    )
+    for key, value in result.items():
+        print(f"{key}: {value}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``carapost`` command."""
+    p = argparse.ArgumentParser(
+        prog="carapost",
+        description="Post-processing of head-mounted facial motion capture.",
+    )
+    p.add_argument("--version", action="version", version=f"carapost {__version__}")
+    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    def add(name: str, func: Callable[[argparse.Namespace], int], help: str):
+        sp = sub.add_parser(name, help=help, description=help)
+        sp.set_defaults(func=func)
+        return sp
+
+    sp = add("gui", _cmd_gui, "open the main window (optionally on a project or take)")
+    sp.add_argument("project", nargs="?", help=".cara project or take file/folder")
+
+    sp = add("demo", _cmd_demo, "generate a demo take, process it and open it (or run headless)")
+    sp.add_argument("--headless", action="store_true", help="never open a window")
+    sp.add_argument("--frames", type=int, default=120, help="length of the demo take")
+    sp.add_argument("-o", "--output", help="folder for the demo results")
+
+    sp = add("synth", _cmd_synth, "generate a synthetic take with ground truth")
+    sp.add_argument("rest", nargs=argparse.REMAINDER, help="OUTDIR and generator options")
+
+    sp = add("import", _cmd_import, "import a take's camera files into a new .cara project")
+    sp.add_argument("take", help="one camera file of the take, or its folder")
+    sp.add_argument("-o", "--output", required=True, help="project file to write")
+
+    sp = add("process", _cmd_process,
+             "headless pipeline: import, detect, solve, initialise, track, export")
+    sp.add_argument("take", help="one camera file of the take, or its folder")
+    sp.add_argument("--rom", help="ROM .cara project to initialise from")
+    sp.add_argument("--brim", help="brim model (.csv label,x,y,z in mm, or .svg)")
+    sp.add_argument("-o", "--output", required=True, help="project file to write")
+    sp.add_argument("--c3d", help="also export C3D here")
+    sp.add_argument("--fbx", help="also export FBX here")
+
+    sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
+    sp.add_argument("project")
+    sp.add_argument("truth")
+
+    for name, func, what in (
+        ("export-c3d", _cmd_export_c3d, "C3D"),
+        ("export-fbx", _cmd_export_fbx, "FBX"),
+    ):
+        sp = add(name, func, f"export a project's points as {what}")
+        sp.add_argument("project")
+        sp.add_argument("output")
+        sp.add_argument("--range", choices=("active", "all"), default="all")
+        sp.add_argument("--brim", action="store_true", help="include brim points")
+        if name == "export-c3d":
+            sp.add_argument("--stabilized", action="store_true",
+                            help="export stabilised coordinates")
+        else:
+            sp.add_argument("--up", choices=("y", "z"), default="y", help="up axis")
+            sp.add_argument("--cameras", action="store_true", help="include animated cameras")
+
+    sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
+    sp.add_argument("project")
+    sp.add_argument("output")
+    sp.add_argument("--frame", type=int, default=None, help="frame (default: current frame)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``carapost`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if args.command is None:
+        parser.print_help()
+        return 0
+    from carapost.commands.stack import CommandError
+    from carapost.io.errors import CaraFileError
+
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, CaraFileError, CommandError, FileNotFoundError, ValueError) as exc:
+        print(f"carapost {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("carapost: cancelled", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,725 @@
+"""Vicon ``.xcp`` camera calibration files: import and export.
+
+An XCP file is XML: a ``<Cameras>`` root holding one ``<Camera>`` per device, each with
+a ``<KeyFrames>`` list. Every ``<KeyFrame>`` carries the calibration valid from its
+``FRAME`` until the next KeyFrame's (run-length encoding; static cameras have one).
+
+Conventions (verified on real Nexus/Tracker files, see ``docs/file-formats.md``):
+
+- ``ORIENTATION`` is the quaternion ``qx qy qz qw`` (real part last) of the world->camera
+  rotation ``R``.
+- ``POSITION`` is the camera centre ``C`` in world millimetres, so ``t = -R C`` and
+  ``x_cam = R X + t``; the camera looks down +z.
+- Distortion is either ``VICON_RADIAL="w0 w1"`` (centre = principal point) or
+  ``VICON_RADIAL2="Vicon3Parameter cx cy k1 k2 k3"`` (own centre); see
+  `carapost.algorithms.camera`.
+
+Everything this module does not interpret (unknown attributes of the root, cameras and
+KeyFrames, child elements such as ``ThresholdGrid`` or ``Capture``) is kept in
+`XcpCalibration.extras` as plain JSON-compatible data and written back on export.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from lxml import etree
+from numpy.typing import ArrayLike, NDArray
+
+from carapost.algorithms.camera import (
+    VICON_RADIAL,
+    VICON_RADIAL2,
+    CameraIntrinsics,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+)
+from carapost.io.errors import CaraFileError
+
+__all__ = ["XcpCalibration", "read_xcp", "write_xcp"]
+
+#: Quaternions whose norm differs from 1 by more than this are rejected; closer ones are
+#: normalised (real files are unit to ~1e-15; hand-edited or truncated ones to ~1e-8).
+QUATERNION_NORM_TOL = 1e-3
+
+_EXTRAS_VERSION = 1
+_KEYFRAMES_SLOT = "__KEYFRAMES__"
+_VICON3 = "Vicon3Parameter"
+# Attributes this module reads and rewrites; everything else is carried in extras.
+_CAMERA_KNOWN = {"PIXEL_ASPECT_RATIO", "SENSOR_SIZE", "SKEW"}
+_KEYFRAME_KNOWN = {
+    "FRAME", "FOCAL_LENGTH", "PRINCIPAL_POINT", "ORIENTATION", "POSITION",
+    "VICON_RADIAL", "VICON_RADIAL2", "IMAGE_ERROR",
+}
+
+
+@dataclass
+class XcpCalibration:
+    """Calibration of ``C`` cameras as read from (or to be written to) an XCP file.
+
+    Attributes
+    ----------
+    intrinsics : CameraIntrinsics
+        Per-camera intrinsics (from each camera's first KeyFrame).
+    keyframes : list of ndarray of int64, each shape (K_c,)
+        Per camera, the sorted ``FRAME`` values of its KeyFrames: the first frame at
+        which each KeyFrame is valid.
+    R : list of ndarray, each shape (K_c, 3, 3)
+        Per camera and KeyFrame, the world->camera rotation.
+    t : list of ndarray, each shape (K_c, 3)
+        Per camera and KeyFrame, the translation (mm), ``x_cam = R X + t``.
+    image_error : list of ndarray, each shape (K_c,)
+        Per camera and KeyFrame, ``IMAGE_ERROR`` (px; 0 where absent).
+    extras : Any
+        Opaque, JSON-compatible record of what the file held that is not modelled here
+        (root attributes, unknown camera/KeyFrame attributes, child elements). ``None``
+        for a calibration built from arrays.
+    notes : list of str
+        Things worth telling the user about the import (e.g. intrinsics that vary
+        between KeyFrames, of which only the first is used). Empty for clean files.
+    """
+
+    intrinsics: CameraIntrinsics
+    keyframes: list[NDArray[np.int64]]
+    R: list[NDArray[np.float64]]
+    t: list[NDArray[np.float64]]
+    image_error: list[NDArray[np.float64]]
+    extras: Any = None
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        n = self.intrinsics.n_cameras
+        lists = {"keyframes": self.keyframes, "R": self.R, "t": self.t,
+                 "image_error": self.image_error}
+        for name, value in lists.items():
+            if len(value) != n:
+                raise ValueError(f"XcpCalibration.{name} needs one entry per camera ({n}), "
+                                 f"got {len(value)}")
+        self.keyframes = [np.asarray(k, dtype=np.int64).reshape(-1) for k in self.keyframes]
+        for c in range(n):
+            k = self.keyframes[c].shape[0]
+            self.R[c] = np.asarray(self.R[c], dtype=np.float64).reshape(k, 3, 3)
+            self.t[c] = np.asarray(self.t[c], dtype=np.float64).reshape(k, 3)
+            self.image_error[c] = np.asarray(self.image_error[c], np.float64).reshape(k)
+            if k == 0:
+                raise ValueError(f"camera {self.intrinsics.names[c]!r} has no KeyFrame")
+            if np.any(np.diff(self.keyframes[c]) <= 0):
+                raise ValueError(f"camera {self.intrinsics.names[c]!r}: KeyFrame frames must "
+                                 "be strictly increasing")
+
+    @property
+    def n_cameras(self) -> int:
+        """Number of cameras ``C``."""
+        return self.intrinsics.n_cameras
+
+    def extrinsics_at(self, frames: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Extrinsics in force at the given frames.
+
+        Each camera uses the last KeyFrame whose ``FRAME`` is <= the frame; frames before
+        a camera's first KeyFrame use that first KeyFrame.
+
+        Parameters
+        ----------
+        frames : array_like of int, shape (F,)
+            Zero-based frame indices.
+
+        Returns
+        -------
+        R : ndarray, shape (F, C, 3, 3)
+            World->camera rotations.
+        t : ndarray, shape (F, C, 3)
+            Translations (mm).
+        """
+        frames = np.asarray(frames, dtype=np.int64).reshape(-1)
+        n = self.n_cameras
+        R = np.empty((frames.shape[0], n, 3, 3))
+        t = np.empty((frames.shape[0], n, 3))
+        for c in range(n):
+            idx = np.searchsorted(self.keyframes[c], frames, side="right") - 1
+            np.clip(idx, 0, None, out=idx)
+            R[:, c] = self.R[c][idx]
+            t[:, c] = self.t[c][idx]
+        return R, t
+
+    @classmethod
+    def from_arrays(
+        cls,
+        intrinsics: CameraIntrinsics,
+        R: ArrayLike,
+        t: ArrayLike,
+        *,
+        first_frame: int = 0,
+        atol: float = 1e-9,
+        image_error: ArrayLike | None = None,
+        extras: Any = None,
+    ) -> XcpCalibration:
+        """Build a calibration from static or per-frame extrinsics.
+
+        Per-frame extrinsics are run-length encoded: a camera gets a new KeyFrame at the
+        first frame whose ``R`` or ``t`` differs from those of the KeyFrame in force by
+        more than ``atol`` (so `extrinsics_at` reproduces the input to within ``atol``).
+
+        Parameters
+        ----------
+        intrinsics : CameraIntrinsics
+            Intrinsics of the ``C`` cameras.
+        R : array_like, shape (C, 3, 3) or (F, C, 3, 3)
+            World->camera rotations.
+        t : array_like, shape (C, 3) or (F, C, 3)
+            Translations (mm).
+        first_frame : int
+            Frame index of ``R[0]`` (the ``FRAME`` of the first KeyFrame).
+        atol : float
+            Largest change (absolute, in rotation-matrix entries and mm) that does not
+            start a new KeyFrame.
+        image_error : array_like, shape (C,) or (F, C), optional
+            ``IMAGE_ERROR`` per camera (and frame); 0 when not given.
+        extras : optional
+            The `extras` of an imported calibration, to keep its unknown content.
+
+        Returns
+        -------
+        XcpCalibration
+
+        Raises
+        ------
+        ValueError
+            On shapes that do not match or non-finite values.
+        """
+        n = intrinsics.n_cameras
+        R = np.asarray(R, dtype=np.float64)
+        t = np.asarray(t, dtype=np.float64)
+        if R.shape == (n, 3, 3) and t.shape == (n, 3):
+            R, t = R[None], t[None]
+        if R.ndim != 4 or R.shape[1:] != (n, 3, 3) or t.shape != (R.shape[0], n, 3):
+            raise ValueError(f"R must be (C,3,3) or (F,C,3,3) and t (C,3) or (F,C,3) with "
+                             f"C={n}; got R {R.shape}, t {t.shape}")
+        if R.shape[0] == 0:
+            raise ValueError("R and t hold no frames")
+        bad = ~(np.isfinite(R).all(axis=(2, 3)) & np.isfinite(t).all(axis=2))
+        if bad.any():
+            f, c = np.argwhere(bad)[0]
+            raise ValueError(f"non-finite extrinsics at frame {first_frame + f}, camera "
+                             f"{intrinsics.names[c]!r}")
+        n_frames = R.shape[0]
+        err = np.zeros((n_frames, n)) if image_error is None else np.broadcast_to(
+            np.asarray(image_error, np.float64), (n_frames, n))
+        # One row of 12 numbers per frame and camera; a KeyFrame starts where it changes.
+        rows = np.concatenate([R.reshape(n_frames, n, 9), t], axis=2)
+        keyframes, Rs, ts, errs = [], [], [], []
+        for c in range(n):
+            starts = _run_starts(rows[:, c], atol)
+            keyframes.append(starts.astype(np.int64) + int(first_frame))
+            Rs.append(R[starts, c].copy())
+            ts.append(t[starts, c].copy())
+            errs.append(np.array(err[starts, c], dtype=np.float64))
+        return cls(intrinsics.copy(), keyframes, Rs, ts, errs, extras=extras)
+
+
+def _run_starts(rows: NDArray[np.float64], atol: float, window: int = 256) -> NDArray[np.intp]:
+    """Indices where a new run starts: the first row differing from the run's first row.
+
+    ``rows`` has shape (F, D). Vectorised where every frame changes (per-frame solves);
+    long static stretches are scanned in windows, one pass per KeyFrame.
+    """
+    n = rows.shape[0]
+    step = np.abs(np.diff(rows, axis=0)).max(axis=1) > atol if n > 1 else np.zeros(0, bool)
+    # Consecutive changes always start a run; within a run of small steps, drift can
+    # still add up beyond atol, so those runs are scanned against their first row.
+    coarse = np.concatenate([[0], np.flatnonzero(step) + 1])
+    ends = np.append(coarse[1:], n)
+    starts: list[int] = []
+    for s, e in zip(coarse.tolist(), ends.tolist(), strict=True):
+        starts.append(s)
+        if e - s < 2:
+            continue
+        ref = s
+        pos = s + 1
+        while pos < e:
+            stop = min(pos + window, e)
+            dev = np.abs(rows[pos:stop] - rows[ref]).max(axis=1) > atol
+            hit = np.flatnonzero(dev)
+            if hit.size:
+                ref = pos + int(hit[0])
+                starts.append(ref)
+                pos = ref + 1
+            else:
+                pos = stop
+    return np.asarray(starts, dtype=np.intp)
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
+    """Read a Vicon ``.xcp`` calibration file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file.
+
+    Returns
+    -------
+    XcpCalibration
+        Cameras in file order; names are ``NAME`` when non-empty, else ``DEVICEID``,
+        else ``USERID``, else ``Camera <i>`` (made unique).
+
+    Raises
+    ------
+    CaraFileError
+        If the file cannot be read, is not XML, has no ``Cameras`` root or no camera, or
+        a camera lacks KeyFrames or has a missing, non-numeric or malformed attribute.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CaraFileError(path, f"cannot be read ({exc.strerror or exc})") from exc
+    parser = etree.XMLParser(remove_blank_text=True, resolve_entities=False, no_network=True)
+    try:
+        root = etree.fromstring(data, parser)
+    except etree.XMLSyntaxError as exc:
+        raise CaraFileError(path, f"is not a valid XML file ({exc})") from exc
+    if root.tag != "Cameras":
+        raise CaraFileError(path, f"is not an XCP calibration file: the root element is "
+                            f"<{root.tag}>, expected <Cameras>")
+
+    extras: dict[str, Any] = {
+        "format": "xcp", "version": _EXTRAS_VERSION,
+        "root_attrib": dict(root.attrib), "root_children": [], "cameras": [],
+    }
+    parsed: list[dict[str, Any]] = []
+    notes: list[str] = []
+    n_cam = 0
+    for child in root:
+        if child.tag == "Camera":
+            cam = _read_camera(path, child, n_cam, notes)
+            parsed.append(cam)
+            extras["cameras"].append(cam.pop("extras"))
+            n_cam += 1
+        else:
+            # Position = number of cameras before it, so it is written back in place.
+            extras["root_children"].append([n_cam, _to_xml(child)])
+    if not parsed:
+        raise CaraFileError(path, "contains no <Camera> element")
+
+    names = _unique([p["name"] for p in parsed])
+    for cam_extras, name in zip(extras["cameras"], names, strict=True):
+        cam_extras["name"] = name
+    intr = CameraIntrinsics(
+        focal=[p["focal"] for p in parsed],
+        principal_point=[p["pp"] for p in parsed],
+        aspect=[p["aspect"] for p in parsed],
+        skew=[p["skew"] for p in parsed],
+        radial=[p["radial"] for p in parsed],
+        distortion_centre=[p["centre"] for p in parsed],
+        image_size=[p["size"] for p in parsed],
+        radial_model=[p["model"] for p in parsed],
+        names=names,
+    )
+    return XcpCalibration(
+        intrinsics=intr,
+        keyframes=[p["frames"] for p in parsed],
+        R=[p["R"] for p in parsed],
+        t=[p["t"] for p in parsed],
+        image_error=[p["image_error"] for p in parsed],
+        extras=extras,
+        notes=notes,
+    )
+
+
+def _read_camera(path: Path, el: etree._Element, index: int, notes: list[str]) -> dict[str, Any]:
+    """Parse one <Camera>; returns plain values plus its extras record."""
+    attrib = dict(el.attrib)
+    name = next((attrib[k].strip() for k in ("NAME", "DEVICEID", "USERID")
+                 if attrib.get(k, "").strip()), f"Camera {index}")
+    label = f"camera {index} ({name!r})"
+
+    def number(owner: dict[str, str], key: str, count: int, where: str,
+               default: list[float] | None = None) -> NDArray[np.float64]:
+        if key not in owner:
+            if default is not None:
+                return np.asarray(default, dtype=np.float64)
+            raise CaraFileError(path, f"{where}: attribute {key} is missing")
+        return _numbers(path, owner[key], key, count, where)
+
+    aspect = float(number(attrib, "PIXEL_ASPECT_RATIO", 1, label, [1.0])[0])
+    size = number(attrib, "SENSOR_SIZE", 2, label)
+    skew = float(number(attrib, "SKEW", 1, label, [0.0])[0])
+    if aspect <= 0:
+        raise CaraFileError(path, f"{label}: PIXEL_ASPECT_RATIO must be positive, got {aspect}")
+    if np.any(size <= 0):
+        raise CaraFileError(path, f"{label}: SENSOR_SIZE must be positive, got {size}")
+
+    children: list[str] = []
+    kf_container = None
+    for child in el:
+        if child.tag == "KeyFrames" and kf_container is None:
+            kf_container = child
+            children.append(_KEYFRAMES_SLOT)
+        else:
+            children.append(_to_xml(child))
+    if kf_container is None:
+        raise CaraFileError(path, f"{label} has no <KeyFrames> element")
+    kf_elements = [k for k in kf_container if k.tag == "KeyFrame"]
+    if not kf_elements:
+        raise CaraFileError(path, f"{label} has no <KeyFrame> inside <KeyFrames>")
+
+    frames, quats, centres, errors, intr_rows, kf_extra = [], [], [], [], [], {}
+    pose_text, kf_text = [], {}
+    for j, kf in enumerate(kf_elements):
+        ka = dict(kf.attrib)
+        where = f"{label}, KeyFrame {j}"
+        if "FRAME" in ka:
+            frame_val = float(_numbers(path, ka["FRAME"], "FRAME", 1, where)[0])
+            if frame_val != int(frame_val) or frame_val < 0:
+                raise CaraFileError(path, f"{where}: FRAME must be a non-negative integer, "
+                                    f"got {ka['FRAME']!r}")
+            frame = int(frame_val)
+        elif len(kf_elements) == 1:
+            frame = 0
+        else:
+            raise CaraFileError(path, f"{where}: attribute FRAME is missing (needed when a "
+                                "camera has several KeyFrames)")
+        where = f"{label}, KeyFrame FRAME={frame}"
+        focal = float(number(ka, "FOCAL_LENGTH", 1, where)[0])
+        if focal <= 0:
+            raise CaraFileError(path, f"{where}: FOCAL_LENGTH must be positive, got {focal}")
+        pp = number(ka, "PRINCIPAL_POINT", 2, where)
+        q = number(ka, "ORIENTATION", 4, where)
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+            raise CaraFileError(path, f"{where}: ORIENTATION is not a unit quaternion "
+                                f"(norm {norm:.6g})")
+        centre_pos = number(ka, "POSITION", 3, where)
+        err = float(number(ka, "IMAGE_ERROR", 1, where, [0.0])[0])
+        if "VICON_RADIAL2" in ka:
+            model = VICON_RADIAL2
+            tokens = ka["VICON_RADIAL2"].split()
+            if not tokens or tokens[0] != _VICON3:
+                raise CaraFileError(path, f"{where}: VICON_RADIAL2 must start with "
+                                    f"'{_VICON3}', got {ka['VICON_RADIAL2'][:40]!r}")
+            vals = _numbers(path, " ".join(tokens[1:]), "VICON_RADIAL2", 5, where,
+                            what="5 numbers after 'Vicon3Parameter'")
+            dcentre, radial = vals[:2], vals[2:]
+        elif "VICON_RADIAL" in ka:
+            model = VICON_RADIAL
+            vals = _numbers(path, ka["VICON_RADIAL"], "VICON_RADIAL", 2, where)
+            dcentre, radial = pp, np.array([vals[0], vals[1], 0.0])
+        else:
+            # No distortion recorded: an ideal pinhole, written back as two zero terms.
+            model = VICON_RADIAL
+            dcentre, radial = pp, np.zeros(3)
+        frames.append(frame)
+        quats.append(q / norm)
+        centres.append(centre_pos)
+        pose_text.append([ka["ORIENTATION"], ka["POSITION"]])
+        errors.append(err)
+        intr_rows.append((model, np.concatenate([[focal], pp, dcentre, radial])))
+        unknown = {k: v for k, v in ka.items() if k not in _KEYFRAME_KNOWN}
+        if model == VICON_RADIAL2 and "VICON_RADIAL" in ka:
+            unknown["VICON_RADIAL"] = ka["VICON_RADIAL"]  # superseded; kept verbatim
+        if unknown:
+            kf_extra[str(frame)] = unknown
+        kf_text[str(frame)] = {k: v for k, v in ka.items() if k in _KEYFRAME_KNOWN}
+
+    frames_arr = np.asarray(frames, dtype=np.int64)
+    if np.unique(frames_arr).size != frames_arr.size:
+        raise CaraFileError(path, f"{label}: two KeyFrames have the same FRAME")
+    order = np.argsort(frames_arr, kind="stable")
+    frames_arr = frames_arr[order]
+    model, first = intr_rows[order[0]]
+    if any(m != model or not np.allclose(v, first, rtol=1e-12, atol=0) for m, v in intr_rows):
+        notes.append(f"{label}: intrinsics differ between KeyFrames; those of the first "
+                     f"KeyFrame (FRAME={frames_arr[0]}) are used")
+    R = quaternion_to_matrix(np.asarray(quats)[order])
+    C = np.asarray(centres)[order]
+    t = -np.einsum("kij,kj->ki", R, C)
+    # The file's own digits, written back while the pose is unchanged, so an export of an
+    # imported file does not churn the last digit through quaternion -> matrix -> quaternion.
+    poses = {
+        str(frames_arr[i]): [*pose_text[k], [*R[i].ravel().tolist(), *t[i].tolist()]]
+        for i, k in enumerate(order.tolist())
+    }
+    return {
+        "name": name,
+        "focal": first[0], "pp": first[1:3], "centre": first[3:5], "radial": first[5:8],
+        "model": model, "aspect": aspect, "skew": skew, "size": size,
+        "frames": frames_arr, "R": R, "t": t,
+        "image_error": np.asarray(errors, dtype=np.float64)[order],
+        "extras": {
+            "attrib": attrib,
+            "children": children,
+            "keyframes_attrib": dict(kf_container.attrib),
+            "keyframe_attrib": kf_extra,
+            "keyframe_text": kf_text,
+            "poses": poses,
+            "keyframes_other": [_to_xml(k) for k in kf_container if k.tag != "KeyFrame"],
+        },
+    }
+
+
+def _numbers(path: Path, text: str, key: str, count: int, where: str,
+             what: str | None = None) -> NDArray[np.float64]:
+    """Parse ``count`` whitespace-separated finite numbers or raise CaraFileError."""
+    tokens = text.split()
+    what = what or (f"{count} number" + ("s" if count > 1 else ""))
+    if len(tokens) != count:
+        raise CaraFileError(path, f"{where}: {key} must hold {what}, got {len(tokens)} "
+                            f"({text[:60]!r})")
+    try:
+        vals = np.array([float(x) for x in tokens])
+    except ValueError:
+        raise CaraFileError(path, f"{where}: {key} is not numeric ({text[:60]!r})") from None
+    if not np.all(np.isfinite(vals)):
+        raise CaraFileError(path, f"{where}: {key} holds a non-finite value ({text[:60]!r})")
+    return vals
+
+
+def _to_xml(el: etree._Element) -> str:
+    return etree.tostring(el, encoding="unicode", with_tail=False)
+
+
+def _from_xml(text: str) -> etree._Element:
+    parser = etree.XMLParser(remove_blank_text=True, resolve_entities=False, no_network=True)
+    return etree.fromstring(text, parser)
+
+
+def _unique(names: Sequence[str]) -> list[str]:
+    seen: dict[str, int] = {}
+    out = []
+    for name in names:
+        candidate = name
+        while candidate in seen:
+            seen[name] += 1
+            candidate = f"{name} ({seen[name]})"
+        seen.setdefault(candidate, 1)
+        out.append(candidate)
+    return out
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def write_xcp(path: str | os.PathLike[str], calib: XcpCalibration, *,
+              frame: int | None = None) -> None:
+    """Write a calibration as a Vicon ``.xcp`` file, atomically.
+
+    Unknown content recorded in ``calib.extras`` by `read_xcp` (root attributes, camera
+    and KeyFrame attributes, child elements) is written back. Each camera keeps its
+    radial model; a ``VICON_RADIAL`` camera whose distortion no longer fits the two-term
+    model (``k3 != 0`` or a centre away from the principal point) is written as
+    ``VICON_RADIAL2`` so nothing is lost.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination; replaced only once the new file is completely on disk.
+    calib : XcpCalibration
+        The cameras to write.
+    frame : int, optional
+        Write only the extrinsics in force at this frame, as a single ``FRAME="0"``
+        KeyFrame per camera (File > Export XCP [Current Frame]). By default every
+        KeyFrame is written.
+
+    Raises
+    ------
+    ValueError
+        If the calibration holds non-finite values.
+    CaraFileError
+        If the file cannot be written (the destination is then left untouched).
+    """
+    path = Path(path)
+    root = _build_tree(calib, frame)
+    body = etree.tostring(root, encoding="UTF-8", pretty_print=True)
+    data = b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n' + body
+    atomic_write_bytes(path, data)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder (fsync, rename).
+
+    Raises
+    ------
+    CaraFileError
+        If the folder is not writable or the disk is full; ``path`` is left untouched.
+    """
+    path = Path(path)
+    tmp_name = None
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
+                                        dir=path.parent if str(path.parent) else ".")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp_name, path)
+        tmp_name = None
+    except OSError as exc:
+        raise CaraFileError(path, f"cannot be written ({exc.strerror or exc})") from exc
+    finally:
+        if tmp_name is not None:
+            try:
+                os.unlink(tmp_name)
+            except OSError:
+                pass
+
+
+def _camera_extras(calib: XcpCalibration) -> list[dict[str, Any] | None]:
+    """Per-camera extras records, matched by position, else by camera name."""
+    ex = calib.extras
+    n = calib.n_cameras
+    if not isinstance(ex, dict) or ex.get("format") != "xcp":
+        return [None] * n
+    cams = ex.get("cameras", [])
+    if len(cams) == n:
+        return list(cams)
+    by_name = {c.get("name"): c for c in cams}
+    return [by_name.get(name) for name in calib.intrinsics.names]
+
+
+def _build_tree(calib: XcpCalibration, frame: int | None) -> etree._Element:
+    intr = calib.intrinsics
+    n = calib.n_cameras
+    arrays = [intr.focal, intr.principal_point, intr.aspect, intr.skew, intr.radial,
+              intr.distortion_centre, intr.image_size, *calib.R, *calib.t, *calib.image_error]
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        raise ValueError("the calibration holds non-finite values; nothing was written")
+    ex = calib.extras if isinstance(calib.extras, dict) and calib.extras.get(
+        "format") == "xcp" else {}
+    root = etree.Element("Cameras")
+    root_attrib = dict(ex.get("root_attrib", {"VERSION": "2.0"}))
+    root_attrib.setdefault("VERSION", "2.0")
+    root_attrib.setdefault("SOURCE", "carapost")
+    _set_sorted(root, root_attrib)
+    root_children: dict[int, list[str]] = {}
+    for pos, xml in ex.get("root_children", []):
+        root_children.setdefault(int(pos), []).append(xml)
+
+    cam_extras = _camera_extras(calib)
+    for c in range(n):
+        for xml in root_children.pop(c, []):
+            root.append(_from_xml(xml))
+        root.append(_camera_element(calib, c, cam_extras[c], frame))
+    for pos in sorted(root_children):
+        for xml in root_children[pos]:
+            root.append(_from_xml(xml))
+    return root
+
+
+def _camera_element(calib: XcpCalibration, c: int, cex: dict[str, Any] | None,
+                    frame: int | None) -> etree._Element:
+    intr = calib.intrinsics
+    cex = cex or {}
+    attrib = dict(cex.get("attrib", {}))
+    name = intr.names[c]
+    original_name = attrib.get("NAME", "")
+    # An unnamed Vicon camera was given its DEVICEID/USERID as name on import; keep the
+    # file's empty NAME unless the user renamed it.
+    if not (original_name == "" and cex.get("name") == name and "attrib" in cex):
+        attrib["NAME"] = name
+    if "DEVICEID" not in attrib:
+        attrib["DEVICEID"] = str(c)
+    original = dict(attrib)
+    attrib["PIXEL_ASPECT_RATIO"] = _fmt(intr.aspect[c])
+    attrib["SENSOR_SIZE"] = _fmt(intr.image_size[c])
+    if "SKEW" in attrib or intr.skew[c] != 0.0:
+        attrib["SKEW"] = _fmt(intr.skew[c])
+    _keep_digits(attrib, original)
+    el = etree.Element("Camera")
+    _set_sorted(el, attrib)
+
+    radial_model = intr.radial_model[c]
+    centre, pp, k = intr.distortion_centre[c], intr.principal_point[c], intr.radial[c]
+    if radial_model == VICON_RADIAL and (k[2] != 0.0 or np.any(np.abs(centre - pp) > 1e-9)):
+        radial_model = VICON_RADIAL2
+    radial_attr: dict[str, str]
+    if radial_model == VICON_RADIAL:
+        radial_attr = {"VICON_RADIAL": _fmt(k[:2])}
+    else:
+        radial_attr = {"VICON_RADIAL2": f"{_VICON3} {_fmt(centre)} {_fmt(k)}"}
+    common = {"FOCAL_LENGTH": _fmt(intr.focal[c]), "PRINCIPAL_POINT": _fmt(pp), **radial_attr}
+
+    frames = calib.keyframes[c]
+    if frame is None:
+        rows = list(range(frames.shape[0]))
+        out_frames = frames.tolist()
+    else:
+        idx = max(int(np.searchsorted(frames, int(frame), side="right")) - 1, 0)
+        rows, out_frames = [idx], [0]
+    kf_extra = cex.get("keyframe_attrib", {})
+    poses = cex.get("poses", {})
+    kf_text = cex.get("keyframe_text", {})
+    kfs = etree.Element("KeyFrames")
+    _set_sorted(kfs, cex.get("keyframes_attrib", {}))
+    for xml in cex.get("keyframes_other", []):
+        kfs.append(_from_xml(xml))
+    R, t = calib.R[c][rows], calib.t[c][rows]
+    quats = matrix_to_quaternion(R)
+    centres = -np.einsum("kji,kj->ki", R, t)
+    for i, (j, out_frame) in enumerate(zip(rows, out_frames, strict=True)):
+        ka = dict(kf_extra.get(str(int(frames[j])), {}))
+        ka.update(common)
+        ka["FRAME"] = str(int(out_frame))
+        ka["IMAGE_ERROR"] = _fmt(calib.image_error[c][j])
+        pose = poses.get(str(int(frames[j])))
+        if pose is not None and np.array_equal(pose[2], [*R[i].ravel(), *t[i]]):
+            ka["ORIENTATION"], ka["POSITION"] = pose[0], pose[1]
+        else:
+            ka["ORIENTATION"], ka["POSITION"] = _fmt(quats[i]), _fmt(centres[i])
+        kf = etree.SubElement(kfs, "KeyFrame")
+        _keep_digits(ka, kf_text.get(str(int(frames[j])), {}))
+        _set_sorted(kf, ka)
+
+    children = cex.get("children", [_KEYFRAMES_SLOT])
+    if _KEYFRAMES_SLOT not in children:
+        children = [*children, _KEYFRAMES_SLOT]
+    for item in children:
+        el.append(kfs if item == _KEYFRAMES_SLOT else _from_xml(item))
+    return el
+
+
+def _keep_digits(attrib: dict[str, str], original: dict[str, str]) -> None:
+    """Use the file's own text for attributes whose values did not change."""
+    for key, text in original.items():
+        if key in attrib and attrib[key] != text and _same_numbers(attrib[key], text):
+            attrib[key] = text
+
+
+def _same_numbers(a: str, b: str) -> bool:
+    ta, tb = a.split(), b.split()
+    if len(ta) != len(tb):
+        return False
+    for x, y in zip(ta, tb, strict=True):
+        if x == y:
+            continue
+        try:
+            if float(x) != float(y):
+                return False
+        except ValueError:
+            return False
+    return True
+
+
+def _set_sorted(el: etree._Element, attrib: dict[str, str]) -> None:
+    # Vicon writes attributes in alphabetical order; so do we.
+    for key in sorted(attrib):
+        el.set(key, str(attrib[key]))
+
+
+def _fmt(values: ArrayLike) -> str:
+    """Shortest text that reads back to the same doubles; whole numbers without '.0'."""
+    arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    return " ".join(_fmt_one(float(v)) for v in arr)
+
+
+def _fmt_one(v: float) -> str:
+    if v == int(v) and abs(v) < 1e15:
+        return str(int(v))
+    return repr(v)

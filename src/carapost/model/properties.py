@@ -1,0 +1,860 @@
+"""The properties registry: every user-adjustable parameter with its default and range.
+
+One typed table (:data:`SPECS`) describes each parameter of the Properties pane
+(Display, Selection, Blob Parameters, Initialize 3D Parameters, Initialize From ROM
+Parameters, Tracking Parameters, Gap-Filling Parameters, Stabilization Parameters,
+Export, Show Again Flags), the Target Tracker settings of the Tracker pane, and our own
+Triangulation Parameters section. The property pane, the command line, the scripting API
+and the project file all read this one table, so a parameter is declared exactly once.
+
+Names, defaults and documented ranges follow the reference guide. Where the guide gives
+no range (or no default), the value is our choice and the help text says so.
+
+The guide's Shortcut section only lists keyboard shortcuts, so it holds no parameter.
+
+Examples
+--------
+>>> props = Properties()
+>>> props["black_threshold"]
+0.4
+>>> props.set("black_threshold", 1.5)
+Traceback (most recent call last):
+...
+carapost.model.properties.PropertyError: Black Threshold must be between 0 and 1 (got 1.5)
+>>> props.section("Blob Parameters")["find_black_blobs"]
+True
+"""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import math
+import numbers
+import re
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "SECTIONS",
+    "SPECS",
+    "Properties",
+    "PropertyError",
+    "PropertySpec",
+    "UnknownPropertyError",
+    "properties_markdown",
+    "spec",
+    "specs_in_section",
+]
+
+# Section names, as displayed (display order is SECTIONS below).
+DISPLAY = "Display"
+SELECTION = "Selection"
+BLOB = "Blob Parameters"
+INITIALIZE_3D = "Initialize 3D Parameters"
+INITIALIZE_FROM_ROM = "Initialize From ROM Parameters"
+TRACKING = "Tracking Parameters"
+TRIANGULATION = "Triangulation Parameters"
+GAP_FILLING = "Gap-Filling Parameters"
+STABILIZATION = "Stabilization Parameters"
+EXPORT = "Export"
+SHOW_AGAIN = "Show Again Flags"
+TARGET_TRACKER = "Target Tracker"
+
+#: Type names accepted in :attr:`PropertySpec.type` besides the Python types
+#: ``bool``, ``int``, ``float`` and ``str``.
+CHOICE = "choice"
+COLOUR = "colour"
+
+_COLOUR_RE = re.compile(r"^#[0-9a-fA-F]{6}$")
+_TRUE_WORDS = {"true", "yes", "on", "1"}
+_FALSE_WORDS = {"false", "no", "off", "0"}
+
+
+class PropertyError(ValueError):
+    """A property value or name was refused.
+
+    The message names the parameter by its displayed label and states what is
+    allowed, so it can be shown to the user as is.
+
+    Attributes
+    ----------
+    key : str or None
+        The property key concerned, when there is one.
+    """
+
+    def __init__(self, message: str, key: str | None = None) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+class UnknownPropertyError(PropertyError, KeyError):
+    """A property key or section name that the registry does not know.
+
+    It is both a :class:`PropertyError` (a ``ValueError``) and a ``KeyError``, so
+    ``props["nope"]`` behaves like a mapping lookup.
+    """
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+def _fmt(value: Any) -> str:
+    """Format a number or value for messages and docs (0.4, 50, True, 'active')."""
+    if isinstance(value, bool):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+@dataclass(frozen=True)
+class PropertySpec:
+    """Declaration of one property.
+
+    Parameters
+    ----------
+    section : str
+        Section it is shown in (one of :data:`SECTIONS`).
+    key : str
+        Unique snake_case identifier used in code, the CLI and project files.
+    label : str
+        Name as displayed (the reference guide's name where it has one).
+    type : type or str
+        ``bool``, ``int``, ``float``, ``str``, ``"choice"`` (one of ``choices``) or
+        ``"colour"`` (``"#rrggbb"``).
+    default : Any
+        Default value; must itself be valid.
+    minimum, maximum : float or None
+        Inclusive bounds for ``int`` and ``float`` properties.
+    choices : tuple of str or None
+        Allowed values of a ``"choice"`` property.
+    unit : str
+        Unit shown beside the value (``"px"``, ``"mm"``, ``"frames"``, ``"0-1"``...).
+    help : str
+        One-line description for tooltips and the docs.
+    """
+
+    section: str
+    key: str
+    label: str
+    type: type | str
+    default: Any
+    minimum: float | None = None
+    maximum: float | None = None
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
+    help: str = ""
+
+    @property
+    def kind(self) -> str:
+        """Type as a plain name: bool, int, float, string, choice or colour."""
+        if isinstance(self.type, str):
+            return self.type
+        return {bool: "bool", int: "int", float: "float", str: "string"}[self.type]
+
+    def range_text(self) -> str:
+        """Allowed values in words, e.g. ``"between 0 and 1"`` (empty if unrestricted)."""
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.minimum is not None and self.maximum is not None:
+            return f"between {_fmt(self.minimum)} and {_fmt(self.maximum)}"
+        if self.minimum is not None:
+            return f"at least {_fmt(self.minimum)}"
+        if self.maximum is not None:
+            return f"at most {_fmt(self.maximum)}"
+        if self.kind == COLOUR:
+            return "a colour '#rrggbb'"
+        return ""
+
+    def _refuse(self, value: Any, expected: str) -> PropertyError:
+        # Show numbers plainly (1.5, not np.float64(1.5)); anything else by repr.
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            shown = str(int(value))
+        elif isinstance(value, numbers.Real) and not isinstance(value, bool):
+            shown = _fmt(float(value))
+        else:
+            shown = repr(value)
+        return PropertyError(f"{self.label} must be {expected} (got {shown})", self.key)
+
+    def validate(self, value: Any) -> Any:
+        """Check ``value`` and return it coerced to the property's type.
+
+        Integers are accepted for float properties, integral floats for int
+        properties and numpy scalars for both; a choice is matched ignoring case.
+
+        Raises
+        ------
+        PropertyError
+            If the value has the wrong type or lies outside the allowed range; the
+            message names the label and the allowed range or choices.
+        """
+        kind = self.kind
+        if kind == "bool":
+            if isinstance(value, (bool, np.bool_)):
+                return bool(value)
+            raise self._refuse(value, "True or False")
+        if kind in ("int", "float"):
+            if isinstance(value, (bool, np.bool_)):
+                raise self._refuse(value, f"a number {self.range_text()}".rstrip())
+            if not isinstance(value, numbers.Real):
+                raise self._refuse(value, f"a number {self.range_text()}".rstrip())
+            try:
+                number = float(value)
+            except OverflowError:
+                number = math.inf
+            if not math.isfinite(number):
+                raise self._refuse(value, f"a finite number {self.range_text()}".rstrip())
+            if kind == "int":
+                if number != int(number):
+                    raise self._refuse(value, f"a whole number {self.range_text()}".rstrip())
+                coerced: int | float = int(number)
+            else:
+                coerced = number
+            low_ok = self.minimum is None or coerced >= self.minimum
+            high_ok = self.maximum is None or coerced <= self.maximum
+            if not (low_ok and high_ok):
+                raise self._refuse(value, self.range_text())
+            return coerced
+        if kind == CHOICE:
+            assert self.choices is not None
+            if isinstance(value, str):
+                for choice in self.choices:
+                    if value.strip().lower() == choice.lower():
+                        return choice
+            raise self._refuse(value, self.range_text())
+        if kind == COLOUR:
+            if isinstance(value, str) and _COLOUR_RE.match(value):
+                return value.lower()
+            raise self._refuse(value, "a colour written '#rrggbb'")
+        if isinstance(value, str):
+            return value
+        raise self._refuse(value, "text")
+
+    def parse(self, text: str) -> Any:
+        """Convert command-line text (``"0.5"``, ``"true"``, ``"Y"``) and validate it.
+
+        Raises
+        ------
+        PropertyError
+            If the text does not read as a valid value.
+        """
+        kind = self.kind
+        stripped = text.strip()
+        if kind == "bool":
+            word = stripped.lower()
+            if word in _TRUE_WORDS:
+                return True
+            if word in _FALSE_WORDS:
+                return False
+            raise self._refuse(text, "true or false")
+        if kind in ("int", "float"):
+            try:
+                number = float(stripped)
+            except ValueError:
+                raise self._refuse(text, f"a number {self.range_text()}".rstrip()) from None
+            return self.validate(number)
+        return self.validate(stripped if kind != "string" else text)
+
+
+def _p(
+    section: str,
+    key: str,
+    label: str,
+    type_: type | str,
+    default: Any,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    *,
+    choices: tuple[str, ...] | None = None,
+    unit: str = "",
+    help: str = "",
+) -> PropertySpec:
+    return PropertySpec(section, key, label, type_, default, minimum, maximum, choices, unit, help)
+
+
+_OURS_RANGE = " Range is our choice."
+_OURS_DEFAULT = " Default is our choice (the guide gives none)."
+
+#: Every property, in display order within each section.
+# fmt: off
+SPECS: tuple[PropertySpec, ...] = (
+    # --- Display ----------------------------------------------------------------------
+    _p(DISPLAY, "point_labels_all", "Point Labels : All", bool, False,
+       help="Draw the label of every labelled point in the 2D and 3D views."),
+    _p(DISPLAY, "point_labels_selected", "Point Labels : Selected", bool, True,
+       help="Draw labels of the selected points."),
+    _p(DISPLAY, "point_labels_preselected", "Point Labels : Pre-Selected", bool, True,
+       help="Draw the label of the point under the mouse cursor (the pre-selection)."),
+    _p(DISPLAY, "label_font_size", "Font Size", int, 10, 4, 72, unit="pt",
+       help="Text size of point labels in the views." + _OURS_RANGE),
+    # --- Selection --------------------------------------------------------------------
+    _p(SELECTION, "select_points", "Points", bool, True,
+       help="Points can be picked in the 2D and 3D views."),
+    _p(SELECTION, "select_detections", "Detections", bool, True,
+       help="Detections (blobs) can be picked in the 2D and 3D views."),
+    _p(SELECTION, "select_sensors", "Sensors", bool, True,
+       help="Cameras can be picked in the 2D and 3D views."),
+    _p(SELECTION, "select_sticks", "Sticks", bool, True,
+       help="Sticks can be picked in the 2D and 3D views."),
+    # --- Blob Parameters --------------------------------------------------------------
+    _p(BLOB, "white_min_radius", "White Min Radius", float, 4.0, 0.5, 500.0, unit="px",
+       help="Smallest long-axis radius of an ellipse accepted as a white blob; lower finds "
+            "tiny blobs but also noise." + _OURS_RANGE),
+    _p(BLOB, "white_max_radius", "White Max Radius", float, 50.0, 0.5, 500.0, unit="px",
+       help="Largest long-axis radius of an ellipse accepted as a white blob; larger is "
+            "slower and admits clutter." + _OURS_RANGE),
+    _p(BLOB, "black_min_radius", "Black Min Radius", float, 4.0, 0.5, 500.0, unit="px",
+       help="Smallest long-axis radius of an ellipse accepted as a black blob." + _OURS_RANGE),
+    _p(BLOB, "black_max_radius", "Black Max Radius", float, 50.0, 0.5, 500.0, unit="px",
+       help="Largest long-axis radius of an ellipse accepted as a black blob." + _OURS_RANGE),
+    _p(BLOB, "find_black_blobs", "Find Black Blobs", bool, True,
+       help="Look for dark markers on lighter skin."),
+    _p(BLOB, "find_white_blobs", "Find White Blobs", bool, False,
+       help="Look for bright markers on darker skin."),
+    _p(BLOB, "black_threshold", "Black Threshold", float, 0.4, 0.0, 1.0, unit="0-1",
+       help="How closely a dark candidate must resemble a model blob: 0 accepts nearly "
+            "anything, 1 only near-perfect blobs."),
+    _p(BLOB, "white_threshold", "White Threshold", float, 0.4, 0.0, 1.0, unit="0-1",
+       help="How closely a bright candidate must resemble a model blob: 0 accepts nearly "
+            "anything, 1 only near-perfect blobs."),
+    # --- Initialize 3D Parameters -----------------------------------------------------
+    _p(INITIALIZE_3D, "max_allowed_depth", "Max Allowed Depth", float, 35.0, 0.0, 1000.0,
+       unit="mm",
+       help="How far a newly initialised point may lie from an existing point; a little more "
+            "than the widest marker spacing (lower it for dense marker sets)." + _OURS_RANGE),
+    _p(INITIALIZE_3D, "max_3d_distance_to_merge", "Max 3D Distance To Merge", float, 5.0,
+       0.0, 100.0, unit="mm",
+       help="Points from the two caddies closer than this are treated as the same marker."
+            + _OURS_RANGE),
+    _p(INITIALIZE_3D, "max_symmetric_epipolar_distance",
+       "Max Allowed Symmetric Epipolar Distance", float, 5.0, 0.0, 100.0, unit="px",
+       help="Largest epipolar error allowed when pairing detections of the two cameras of "
+            "one caddy." + _OURS_RANGE),
+    # --- Initialize From ROM Parameters -----------------------------------------------
+    _p(INITIALIZE_FROM_ROM, "rom_frame_index", "ROM Frame Index", int, 0, 0, 1_000_000,
+       unit="frame",
+       help="Frame of the loaded ROM take whose face and brim pose best resembles the "
+            "frame being initialised." + _OURS_DEFAULT),
+    _p(INITIALIZE_FROM_ROM, "rom_face_point_tracking_distance",
+       "ROM Face Point Tracking Distance", float, 50.0, 0.0, 1000.0, unit="px",
+       help="Search radius when matching face points from the ROM frame to this take; "
+            "larger tolerates more change but risks mismatches." + _OURS_RANGE),
+    _p(INITIALIZE_FROM_ROM, "rom_brim_point_tracking_distance",
+       "ROM Brim Point Tracking Distance", float, 30.0, 0.0, 1000.0, unit="px",
+       help="Search radius when matching brim points from the ROM frame to this take."
+            + _OURS_RANGE),
+    _p(INITIALIZE_FROM_ROM, "rom_max_3d_point_error", "ROM Max Allowed 3D Point Error",
+       float, 5.0, 0.0, 100.0, unit="mm",
+       help="Points further than this from where their ROM neighbours predict are dropped "
+            "(needs Remove Bad 3D Points)." + _OURS_RANGE),
+    # --- Tracking Parameters ----------------------------------------------------------
+    _p(TRACKING, "patch_match_threshold", "Patch Match Threshold", float, 0.8, 0.0, 1.0,
+       unit="0-1",
+       help="Minimum patch similarity for two detections in consecutive frames to count as "
+            "the same marker (1 = identical)."),
+    _p(TRACKING, "face_point_tracking_distance", "Face Point Tracking Distance", float, 35.0,
+       0.0, 1000.0, unit="px",
+       help="Frame-to-frame search radius for face markers; larger follows faster motion "
+            "but mismatches more." + _OURS_RANGE),
+    _p(TRACKING, "face_point_max_elastic_prediction_distance",
+       "Face Point Max Elastic Prediction Distance", float, 15.0, 0.0, 1000.0, unit="px",
+       help="Search radius for face markers once neighbour-based (elastic) prediction is "
+            "available; keep it below Face Point Tracking Distance." + _OURS_RANGE),
+    _p(TRACKING, "brim_point_tracking_distance", "Brim Point Tracking Distance", float, 15.0,
+       0.0, 1000.0, unit="px",
+       help="Frame-to-frame search radius for brim markers, small because the brim barely "
+            "moves." + _OURS_RANGE),
+    _p(TRACKING, "patch_match_size", "Patch Match Size", int, 15, 3, 101, unit="px",
+       help="Side of the square grey-level patch compared around each detection; larger "
+            "rejects more outliers but finds fewer matches." + _OURS_RANGE),
+    _p(TRACKING, "remove_bad_2d_projections", "Remove Bad 2D Projections", bool, True,
+       help="Detach detections whose reprojection error exceeds Max Allowed 2D Projection "
+            "Error."),
+    _p(TRACKING, "max_2d_projection_error", "Max Allowed 2D Projection Error", float, 5.0,
+       0.0, 100.0, unit="px",
+       help="Largest distance between a detection and its point's projection before the "
+            "detection is detached." + _OURS_RANGE),
+    _p(TRACKING, "remove_bad_3d_points", "Remove Bad 3D Points", bool, True,
+       help="Detach detections that put a point somewhere its neighbours say it cannot be "
+            "(slightly slower, cleaner)."),
+    _p(TRACKING, "max_3d_point_error", "Max Allowed 3D Point Error", float, 5.0, 0.0, 100.0,
+       unit="mm",
+       help="Distance from the neighbour-predicted position beyond which a point is "
+            "treated as bad." + _OURS_RANGE),
+    _p(TRACKING, "allow_single_sensor_tracking", "Allow Single Sensor Tracking", bool, True,
+       help="Keep tracking a point seen by one camera only, placing it on that camera's "
+            "ray near its predicted position."),
+    _p(TRACKING, "single_sensor_tracking_threshold", "Single Sensor Tracking Threshold",
+       float, 0.5, 0.0, 100.0, unit="mm",
+       help="A single-camera result further than this from its predicted position is "
+            "rejected." + _OURS_RANGE),
+    _p(TRACKING, "blob_size_difference_threshold", "Blob Size Difference Threshold", float,
+       0.75, 0.0, 1.0, unit="0-1",
+       help="How much a blob's width and height may change between frames and still match "
+            "(0 = none, 1 = any); lower it to reject merged blobs."),
+    # --- Triangulation Parameters (ours) ----------------------------------------------
+    # Keys match carapost.algorithms.triangulation.TriangulationParameters, so
+    # TriangulationParameters(**props.section(TRIANGULATION)) works.
+    _p(TRIANGULATION, "minimum_cameras", "Minimum Cameras for Triangulation", int, 3, 1, 16,
+       unit="cameras",
+       help="A 3D point is only reconstructed from at least this many cameras (lowered to "
+            "the camera count of the take, with a logged warning)."),
+    _p(TRIANGULATION, "flatten_single_camera_data", "Flatten Single Camera Data", bool, True,
+       help="Put points seen by a single camera where their ray meets the world plane Z = 0 "
+            "instead of using a poor single-view depth estimate."),
+    _p(TRIANGULATION, "use_outlier_rejection", "Use Outlier Rejection", bool, False,
+       help="Re-triangulate points with high reprojection error from camera subsets and "
+            "blend them by error (best with more cameras than the minimum)."),
+    _p(TRIANGULATION, "maximum_cameras_to_drop", "Maximum Cameras to Drop", int, 1, 0, 14,
+       unit="cameras",
+       help="Most cameras outlier rejection may leave out of a subset; 0 disables the search."
+            + _OURS_RANGE),
+    _p(TRIANGULATION, "target_reprojection_error", "Target Reprojection Error", float, 2.0,
+       0.01, 1000.0, unit="px",
+       help="Mean reprojection error a subset should reach; subsets are weighted "
+            "exp(-5 error / target)." + _OURS_DEFAULT + _OURS_RANGE),
+    _p(TRIANGULATION, "min_ray_angle_deg", "Minimum Ray Angle", float, 2.0, 0.0, 89.0,
+       unit="deg",
+       help="Camera subsets whose rays meet at a smaller angle are too parallel to fix depth "
+            "and are not used (our own parameter)."),
+    _p(TRIANGULATION, "refine_iterations", "Refinement Iterations", int, 0, 0, 20,
+       help="Gauss-Newton steps on the pixel reprojection error after the linear solution "
+            "(our own parameter)."),
+    # --- Gap-Filling Parameters -------------------------------------------------------
+    _p(GAP_FILLING, "overwrite_existing_filled_gaps", "Overwrite Existing Filled Gaps", bool,
+       False,
+       help="Recompute frames filled earlier (points with at most one attached detection)."),
+    _p(GAP_FILLING, "use_forwards_prediction", "Use Forwards Prediction", bool, True,
+       help="Use the point before the gap when filling it."),
+    _p(GAP_FILLING, "use_backwards_prediction", "Use Backwards Prediction", bool, True,
+       help="Use the point after the gap when filling it."),
+    _p(GAP_FILLING, "allow_single_sensor_gap_filling",
+       "Allow Single Sensor Tracking Gap-Filling", bool, True,
+       help="Where one camera still sees the marker, keep the filled point on that camera's "
+            "ray."),
+    # --- Stabilization Parameters -----------------------------------------------------
+    _p(STABILIZATION, "stabilization_use_brim_points", "Use Brim Points", bool, False,
+       help="Include brim markers in the stabilising set (only if the brim sits still on "
+            "the head)."),
+    _p(STABILIZATION, "base_frame_weighting", "Base Frame Weighting", float, 1.0, 0.0, 1000.0,
+       help="Weight of drift relative to the base frame in the stabilisation cost."
+            + " Upper bound is our choice."),
+    _p(STABILIZATION, "inter_frame_weighting", "Inter Frame Weighting", float, 1.0, 0.0,
+       1000.0,
+       help="Weight of frame-to-frame jitter in the stabilisation cost."
+            + " Upper bound is our choice."),
+    _p(STABILIZATION, "stable_points_percent", "Stable Points Percent", float, 0.25, 0.0, 1.0,
+       unit="0-1",
+       help="Expected fraction of points that stay still in each frame; lower it for very "
+            "expressive takes."),
+    _p(STABILIZATION, "max_processing_iterations", "Max Processing Iterations", int, 50, 1,
+       10_000,
+       help="Iteration cap of the stabilisation optimiser; more is slower but may fit "
+            "better." + _OURS_RANGE),
+    # --- Export (contents are ours: the guide names the section only) -----------------
+    _p(EXPORT, "export_range", "Export Range", CHOICE, "active", choices=("active", "all"),
+       help="Export the active range only or the whole take." + _OURS_DEFAULT),
+    _p(EXPORT, "export_include_brim_points", "Include Brim Points", bool, False,
+       help="Also write the brim markers to C3D/FBX." + _OURS_DEFAULT),
+    _p(EXPORT, "export_stabilized", "Export Stabilized Coordinates", bool, False,
+       help="Write stabilised positions (head motion removed) instead of raw tracked ones."
+            + _OURS_DEFAULT),
+    _p(EXPORT, "fbx_up_axis", "FBX Up Axis", CHOICE, "Y", choices=("Y", "Z"),
+       help="Which axis points up in the FBX scene (Y suits MotionBuilder and Maya)."
+            + _OURS_DEFAULT),
+    _p(EXPORT, "fbx_include_cameras", "FBX Include Cameras", bool, True,
+       help="Write the solved cameras (with their per-frame motion) into the FBX."
+            + _OURS_DEFAULT),
+    _p(EXPORT, "fbx_include_sticks", "FBX Include Sticks", bool, False,
+       help="Write sticks between points into the FBX as line geometry." + _OURS_DEFAULT),
+    # --- Show Again Flags -------------------------------------------------------------
+    _p(SHOW_AGAIN, "show_version_check_dialog", "Show Version Check Dialog On Startup", bool,
+       True,
+       help="At start-up, say when a newer release is available."),
+    # --- Target Tracker (Tracker pane settings) ---------------------------------------
+    _p(TARGET_TRACKER, "tracker_stop_after_n_frames", "Stop after N Frames", bool, False,
+       help="Limit each track forward/backward run to N frames." + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_n_frames", "N", int, 10, 1, 1_000_000, unit="frames",
+       help="Number of frames a limited run covers." + _OURS_DEFAULT + _OURS_RANGE),
+    _p(TARGET_TRACKER, "tracker_overwrite_existing_tracks", "Overwrite Existing Tracks", bool,
+       False,
+       help="Replace 2D data the selected points already have while tracking."
+            + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_auto_add_keyframes", "Automatically Add Keyframes", bool,
+       True,
+       help="Key the selected points at the current frame before tracking if they have no "
+            "keyframe there." + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_stop_on_next_keyframe", "Stop On Next Keyframe", bool, True,
+       help="Stop when any selected point reaches a keyframe in any camera."
+            + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_allow_single_sensor_tracking", "Allow Single Sensor Tracking",
+       bool, True,
+       help="Reconstruct a target-tracked point from one camera by keeping it on that "
+            "camera's ray." + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_break_threshold", "Break Threshold", float, 0.9, 0.0, 1.0,
+       unit="0-1",
+       help="Minimum match between the tracked patch and the keyframe patches; higher "
+            "stops sooner but drifts less."),
+    _p(TARGET_TRACKER, "tracker_update_timeline_every_frame", "Update Timeline Every Frame",
+       bool, True,
+       help="Refresh the continuity chart and Selected Point pane while tracking."
+            + _OURS_DEFAULT),
+    _p(TARGET_TRACKER, "tracker_update_2d_view_every_frame", "Update 2D View Every Frame",
+       bool, False,
+       help="Show each tracked frame in the views while tracking (slower)." + _OURS_DEFAULT),
+)
+# fmt: on
+
+#: Section names in display order.
+SECTIONS: tuple[str, ...] = (
+    DISPLAY,
+    SELECTION,
+    BLOB,
+    INITIALIZE_3D,
+    INITIALIZE_FROM_ROM,
+    TRACKING,
+    TRIANGULATION,
+    GAP_FILLING,
+    STABILIZATION,
+    EXPORT,
+    SHOW_AGAIN,
+    TARGET_TRACKER,
+)
+
+_BY_KEY: dict[str, PropertySpec] = {s.key: s for s in SPECS}
+_BY_SECTION: dict[str, tuple[PropertySpec, ...]] = {
+    name: tuple(s for s in SPECS if s.section == name) for name in SECTIONS
+}
+
+
+def _check_registry() -> None:
+    """Fail at import time if the table itself is inconsistent (a programming error)."""
+    if len(_BY_KEY) != len(SPECS):
+        raise RuntimeError("duplicate property keys in SPECS")
+    for s in SPECS:
+        if s.section not in _BY_SECTION:
+            raise RuntimeError(f"property {s.key!r} is in unknown section {s.section!r}")
+        if s.validate(s.default) != s.default:
+            raise RuntimeError(f"default of {s.key!r} is not in canonical form")
+
+
+_check_registry()
+
+
+def _unknown_key(key: object) -> UnknownPropertyError:
+    hint = difflib.get_close_matches(str(key), list(_BY_KEY), n=3)
+    more = f"; did you mean {', '.join(hint)}?" if hint else ""
+    return UnknownPropertyError(f"unknown property {key!r}{more}", key=str(key))
+
+
+def spec(key: str) -> PropertySpec:
+    """The :class:`PropertySpec` of ``key``.
+
+    Raises
+    ------
+    UnknownPropertyError
+        If no property has that key (the message suggests close keys).
+    """
+    try:
+        return _BY_KEY[key]
+    except (KeyError, TypeError):
+        raise _unknown_key(key) from None
+
+
+def specs_in_section(name: str) -> tuple[PropertySpec, ...]:
+    """Specs of one section in display order.
+
+    Raises
+    ------
+    UnknownPropertyError
+        If ``name`` is not one of :data:`SECTIONS`.
+    """
+    try:
+        return _BY_SECTION[name]
+    except KeyError:
+        raise UnknownPropertyError(
+            f"unknown properties section {name!r}; sections are {', '.join(SECTIONS)}"
+        ) from None
+
+
+def defaults() -> dict[str, Any]:
+    """Every key mapped to its default value."""
+    return {s.key: s.default for s in SPECS}
+
+
+_MISSING: Any = object()
+
+
+class Properties:
+    """The current value of every property, validated on every change.
+
+    Parameters
+    ----------
+    values : mapping of str to Any, optional
+        Initial values; keys not given take their defaults. Unknown keys or invalid
+        values raise :class:`PropertyError` (use :meth:`from_dict` for lenient loading).
+    on_change : callable, optional
+        Called with the set of keys whose value really changed, once per
+        :meth:`set`, :meth:`update` or :meth:`restore_defaults` call that changed
+        anything. It may be replaced later through the ``on_change`` attribute.
+
+    Notes
+    -----
+    Values are plain ``bool``, ``int``, ``float`` and ``str`` objects, so
+    :meth:`to_dict` is JSON-safe as it stands.
+    """
+
+    __hash__ = None  # type: ignore[assignment]  # mutable
+
+    def __init__(
+        self,
+        values: Mapping[str, Any] | None = None,
+        on_change: Callable[[set[str]], None] | None = None,
+    ) -> None:
+        self._values: dict[str, Any] = defaults()
+        self.on_change = on_change
+        if values:
+            self._values.update(self._validated(values))
+
+    # ---- reading -----------------------------------------------------------------------
+    def __getitem__(self, key: str) -> Any:
+        try:
+            return self._values[key]
+        except (KeyError, TypeError):
+            raise _unknown_key(key) from None
+
+    def get(self, key: str, default: Any = _MISSING) -> Any:
+        """Value of ``key``; ``default`` if given and ``key`` is unknown, else raise."""
+        if key in self._values:
+            return self._values[key]
+        if default is not _MISSING:
+            return default
+        raise _unknown_key(key)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._values
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def keys(self) -> tuple[str, ...]:
+        """All property keys in display order."""
+        return tuple(self._values)
+
+    def items(self) -> tuple[tuple[str, Any], ...]:
+        """``(key, value)`` pairs in display order."""
+        return tuple(self._values.items())
+
+    def spec(self, key: str) -> PropertySpec:
+        """The :class:`PropertySpec` of ``key``."""
+        return spec(key)
+
+    def section(self, name: str) -> dict[str, Any]:
+        """Key -> value of one section, e.g. the parameters of an algorithm.
+
+        ``props.section("Blob Parameters")`` gives the blob detector's keyword arguments.
+        """
+        return {s.key: self._values[s.key] for s in specs_in_section(name)}
+
+    def non_defaults(self) -> dict[str, Any]:
+        """Key -> value of the properties that differ from their default."""
+        return {k: v for k, v in self._values.items() if v != _BY_KEY[k].default}
+
+    def problems(self) -> list[str]:
+        """Combinations of values that are each valid but make little sense together.
+
+        Returns
+        -------
+        list of str
+            One readable sentence per problem; empty when all is well. These are
+            advisories for the user, not errors (the guide only recommends them).
+        """
+        v = self._values
+        out = []
+        for colour in ("white", "black"):
+            low, high = v[f"{colour}_min_radius"], v[f"{colour}_max_radius"]
+            if low > high:
+                out.append(
+                    f"{spec(f'{colour}_min_radius').label} ({_fmt(low)}) is larger than "
+                    f"{spec(f'{colour}_max_radius').label} ({_fmt(high)}): no blob can match"
+                )
+        if not (v["find_black_blobs"] or v["find_white_blobs"]):
+            out.append("Neither Find Black Blobs nor Find White Blobs is set: no blob is found")
+        elastic = v["face_point_max_elastic_prediction_distance"]
+        if elastic > v["face_point_tracking_distance"]:
+            out.append(
+                "Face Point Max Elastic Prediction Distance "
+                f"({_fmt(elastic)}) should not exceed Face Point Tracking Distance "
+                f"({_fmt(v['face_point_tracking_distance'])})"
+            )
+        if not (v["use_forwards_prediction"] or v["use_backwards_prediction"]):
+            out.append("Gap filling needs Use Forwards Prediction or Use Backwards Prediction")
+        return out
+
+    # ---- writing -----------------------------------------------------------------------
+    def _validated(self, mapping: Mapping[str, Any]) -> dict[str, Any]:
+        return {key: spec(key).validate(value) for key, value in mapping.items()}
+
+    def _apply(self, new: Mapping[str, Any]) -> set[str]:
+        changed = {k for k, value in new.items() if self._values[k] != value}
+        for k in changed:
+            self._values[k] = new[k]
+        if changed and self.on_change is not None:
+            self.on_change(changed)
+        return changed
+
+    def set(self, key: str, value: Any) -> None:
+        """Validate and store one value; notify ``on_change`` only if it really changed.
+
+        Raises
+        ------
+        PropertyError
+            If ``key`` is unknown or ``value`` is not allowed (nothing changes).
+        """
+        self._apply({key: spec(key).validate(value)})
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        self.set(key, value)
+
+    def update(self, mapping: Mapping[str, Any]) -> set[str]:
+        """Set several values at once, all or nothing.
+
+        Every value is validated before any is stored, so one bad value leaves the
+        properties untouched. ``on_change`` is called once with all changed keys.
+
+        Returns
+        -------
+        set of str
+            The keys whose value changed.
+        """
+        return self._apply(self._validated(mapping))
+
+    def restore_defaults(self, section: str | None = None) -> dict[str, Any]:
+        """Put every property (or one section's) back to its default.
+
+        Parameters
+        ----------
+        section : str, optional
+            Restrict the reset to this section.
+
+        Returns
+        -------
+        dict
+            The values before the reset (of the keys concerned), so that
+            ``props.update(old)`` undoes it.
+        """
+        specs = SPECS if section is None else specs_in_section(section)
+        old = {s.key: self._values[s.key] for s in specs}
+        self._apply({s.key: s.default for s in specs})
+        return old
+
+    # ---- persistence -------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """Key -> value for every property (JSON-safe plain values)."""
+        return dict(self._values)
+
+    @classmethod
+    def from_dict(
+        cls,
+        d: Mapping[str, Any],
+        on_change: Callable[[set[str]], None] | None = None,
+    ) -> Properties:
+        """Lenient loading, e.g. from a project file written by another version.
+
+        Unknown keys are ignored and invalid values replaced by the default; each
+        is reported with a logged warning naming the key. Missing keys take defaults.
+
+        Raises
+        ------
+        PropertyError
+            If ``d`` is not a mapping at all.
+        """
+        if not isinstance(d, Mapping):
+            raise PropertyError(
+                f"properties must be a mapping of key to value, not {type(d).__name__}"
+            )
+        good: dict[str, Any] = {}
+        for key, value in d.items():
+            if key not in _BY_KEY:
+                log.warning("ignoring unknown property %r", key)
+                continue
+            try:
+                good[key] = _BY_KEY[key].validate(value)
+            except PropertyError as exc:
+                log.warning("property %r reset to its default: %s", key, exc)
+        return cls(good, on_change=on_change)
+
+    def copy(self) -> Properties:
+        """An independent copy of the values (without the ``on_change`` callback)."""
+        return Properties(self._values)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Properties):
+            return NotImplemented
+        return self._values == other._values
+
+    def __repr__(self) -> str:
+        changed = self.non_defaults()
+        return f"Properties({changed!r})" if changed else "Properties()"
+
+
+def _md_cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def properties_markdown() -> str:
+    """Reference of every property as Markdown: one table per section.
+
+    Returns
+    -------
+    str
+        The text of ``docs/parts/properties.md``.
+    """
+    lines = [
+        "# Properties reference",
+        "",
+        "Generated from `carapost.model.properties.SPECS` by `properties_markdown()`;",
+        "do not edit by hand. Regenerate with:",
+        "",
+        "```",
+        'python -c "from carapost.model.properties import properties_markdown as m; '
+        "open('docs/parts/properties.md', 'w', encoding='utf-8').write(m())\"",
+        "```",
+        "",
+        "Names and defaults follow the reference guide. Ranges are inclusive; where the",
+        "guide gives no range or default the help text says the value is our choice.",
+        "The guide's Shortcut section only lists shortcuts and has no parameters. The",
+        "Triangulation Parameters section and the contents of the Export section are",
+        "ours (the guide names the Export section without listing its options). Target",
+        "Tracker holds the settings of the Tracker pane. The keys of Blob Parameters and",
+        "Triangulation Parameters are the fields of `BlobParameters` and",
+        "`TriangulationParameters`, so `props.section(...)` can be passed straight in.",
+        "",
+    ]
+    for name in SECTIONS:
+        lines += [
+            f"## {name}",
+            "",
+            "| Label | Key | Type | Default | Range | Unit | Help |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for s in specs_in_section(name):
+            if s.choices is not None:
+                allowed = ", ".join(s.choices)
+            elif s.minimum is not None or s.maximum is not None:
+                allowed = f"{_fmt(s.minimum)} – {_fmt(s.maximum)}"
+            else:
+                allowed = ""
+            cells = [s.label, f"`{s.key}`", s.kind, _fmt(s.default), allowed, s.unit, s.help]
+            lines.append("| " + " | ".join(_md_cell(c) for c in cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
