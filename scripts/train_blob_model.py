@@ -23,7 +23,13 @@ import cv2
 import numpy as np
 
 from carapost.algorithms._blob_synth import match_to_truth, render_face
-from carapost.algorithms.blobs import BLACK, FEATURE_NAMES, WHITE, blob_candidates
+from carapost.algorithms.blobs import (
+    BLACK,
+    FEATURE_NAMES,
+    WHITE,
+    blob_candidates,
+    expand_features,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_PATH = ROOT / "src" / "carapost" / "resources" / "blob_model.json"
@@ -49,17 +55,13 @@ def collect(n_images: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     for i in range(n_images):
         kw = _scenario(i, rng)
         s = render_face(rng, **kw)
-        colour = WHITE if kw["white"] else BLACK
-        # Both polarities: the other one supplies realistic negatives.
-        for pol in (colour, 1 - colour):
+        # Both polarities on every image: the other one supplies realistic negatives.
+        for pol in (BLACK, WHITE):
             c = blob_candidates(s.image, pol, 2.0, 50.0)
-            if pol == colour:
-                d2t, _ = match_to_truth(c.centre, s.centre, s.axes[:, 1])
-                lab = d2t >= 0
-            else:
-                lab = np.zeros(len(c.centre), bool)
+            truth = s.colour == pol
+            d2t, _ = match_to_truth(c.centre, s.centre[truth], s.axes[truth, 1])
             feats.append(c.features)
-            labels.append(lab)
+            labels.append(d2t >= 0)
     return np.vstack(feats), np.concatenate(labels)
 
 
@@ -80,11 +82,6 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, ridge: float = 1e-3, iters: int =
         if np.abs(step).max() < 1e-8:
             break
     return beta[:-1], float(beta[-1])
-
-
-def expand(f: np.ndarray) -> np.ndarray:
-    """Model inputs: the features themselves (kept linear so the model stays readable)."""
-    return f
 
 
 def reliability(p: np.ndarray, y: np.ndarray, n_bins: int = 10):
@@ -143,11 +140,11 @@ def main() -> None:
     x_te, y_te = collect(args.test_images, seed=2)
     print(f"train: {len(y_tr)} candidates ({y_tr.mean():.1%} true); "
           f"test: {len(y_te)} ({y_te.mean():.1%} true)")
-    e_tr = expand(x_tr)
+    e_tr = expand_features(x_tr)
     mean = e_tr.mean(axis=0)
     scale = e_tr.std(axis=0) + 1e-9
     w, b = fit_logistic((e_tr - mean) / scale, y_tr.astype(float))
-    z = ((expand(x_te) - mean) / scale) @ w + b
+    z = ((expand_features(x_te) - mean) / scale) @ w + b
     p = 1 / (1 + np.exp(-np.clip(z, -40, 40)))
     eps = 1e-12
     ll = -np.mean(y_te * np.log(p + eps) + (1 - y_te) * np.log(1 - p + eps))
@@ -162,8 +159,6 @@ def main() -> None:
         acc = p >= th
         print(f"threshold {th}: recall {np.mean(acc[y_te]):.4f}, "
               f"precision {np.mean(y_te[acc]):.4f}")
-    for name, wi in zip(FEATURE_NAMES, w, strict=True):
-        print(f"  {name:>14s} {wi:+.3f}")
     if not args.no_write:
         model = {
             "features": list(FEATURE_NAMES),

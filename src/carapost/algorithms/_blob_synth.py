@@ -44,6 +44,7 @@ class SynthImage:
     colour : ndarray [N] int8, 0 black / 1 white
     region : ndarray [N] uint8, REGION_FACE or REGION_BRIM
     merged : ndarray [N] bool, marker touches or overlaps another marker
+    visible : ndarray [N] bool, marker differs from its surround (False: washed out)
     region_map : ndarray [H, W] uint8, region label of every pixel
     blurred : bool, motion blur was applied
     """
@@ -55,6 +56,7 @@ class SynthImage:
     colour: np.ndarray
     region: np.ndarray
     merged: np.ndarray
+    visible: np.ndarray
     region_map: np.ndarray
     blurred: bool
 
@@ -197,7 +199,7 @@ def render_face(
         ex = fcx + side * fa * 0.38
         feature(ex, eye_y - 45, 65, 11, side * 0.12, 3.0, 0.6)
         feature(ex, eye_y, 48, 17, 0.0, 3.0, 0.55)
-        feature(fcx + side * 16, fcy + fb * 0.08, 10, 6, side * 0.4, 2.0, 0.55)
+        feature(fcx + side * 22, fcy + fb * 0.08, 16, 8, side * 0.4, 4.0, 0.55)
     feature(fcx, fcy + fb * 0.32, 80, 7 + rng.uniform(0, 20), 0.0, 3.0, 0.6)
     # Pores / freckles: small, low-contrast dark spots.
     n_pores = 400
@@ -288,25 +290,30 @@ def render_face(
     if highlights:
         # Saturated specular patches on forehead, nose and cheeks (drawn under the markers
         # only where no marker is; markers are matte paint).
-        for _ in range(int(rng.integers(4, 8))):
+        for _ in range(int(rng.integers(2, 5))):
             hx = fcx + rng.uniform(-0.6, 0.6) * fa
             hy = fcy + rng.uniform(-0.6, 0.5) * fb
-            ha = rng.uniform(8, 45)
+            ha = rng.uniform(8, 35)
             m = _soft_ellipse((h, w), hx, hy, ha, ha * rng.uniform(0.4, 1), rng.uniform(0, 3),
                               ha * 0.3)
             img = img + m * 400.0
 
     base = img.copy()
     marker_refl = rng.uniform(0.08, 0.3)
-    for (cx, cy), (a, b), th in zip(centres, axes, angles, strict=True):
+    colours, visible = [], []
+    for (cx, cy), (a, b), th, reg in zip(centres, axes, angles, regions, strict=True):
         x0, y0, cov = _ellipse_coverage(cx, cy, a, b, th)
         yc = int(np.clip(cy, 0, h - 1))
         xc = int(np.clip(cx, 0, w - 1))
         local = min(base[yc, xc], 255.0)
-        if white:
+        is_white = white and reg == REGION_FACE  # the brim always has black dots
+        if is_white:
             target = min(local * 1.6 + 50, 250.0)
         else:
             target = local * marker_refl
+        colours.append(1 if is_white else 0)
+        # A white marker on a saturated highlight cannot be seen at all.
+        visible.append(abs(target - local) >= 20.0)
         _paint(img, x0, y0, cov, target)
 
     if psf_sigma > 0:
@@ -333,9 +340,10 @@ def render_face(
         centre=np.asarray(centres, np.float64).reshape(n, 2),
         axes=np.asarray(axes, np.float64).reshape(n, 2),
         angle=np.asarray(angles, np.float64).reshape(n),
-        colour=np.full(n, 1 if white else 0, np.int8),
+        colour=np.asarray(colours, np.int8).reshape(n),
         region=np.asarray(regions, np.uint8),
         merged=np.asarray(merged_flags, bool),
+        visible=np.asarray(visible, bool).reshape(n),
         region_map=region_map,
         blurred=bool(motion_blur),
     )

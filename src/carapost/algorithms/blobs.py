@@ -192,11 +192,27 @@ def _model() -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Load the logistic model (weights, bias, feature mean, feature scale)."""
     text = resources.files("carapost").joinpath("resources/blob_model.json").read_text()
     m = json.loads(text)
-    if tuple(m["features"]) != FEATURE_NAMES:
+    if tuple(m["features"]) != FEATURE_NAMES or len(m["weights"]) != len(m["mean"]):
         raise RuntimeError("carapost/resources/blob_model.json does not match FEATURE_NAMES; "
                            "re-run scripts/train_blob_model.py")
     return (np.asarray(m["weights"], np.float64), float(m["bias"]),
             np.asarray(m["mean"], np.float64), np.asarray(m["scale"], np.float64))
+
+
+def expand_features(features: np.ndarray) -> np.ndarray:
+    """Model inputs: the features, their squares and pairwise products.
+
+    Parameters
+    ----------
+    features : ndarray [N, F]
+
+    Returns
+    -------
+    ndarray [N, F + F (F + 1) / 2]
+    """
+    f = np.asarray(features, np.float64)
+    iu, ju = np.triu_indices(f.shape[1])
+    return np.hstack([f, f[:, iu] * f[:, ju]])
 
 
 def blob_probability(features: np.ndarray) -> np.ndarray:
@@ -211,7 +227,7 @@ def blob_probability(features: np.ndarray) -> np.ndarray:
     ndarray [N] float64 in 0-1
     """
     w, b, mean, scale = _model()
-    z = ((features - mean) / scale) @ w + b
+    z = ((expand_features(features) - mean) / scale) @ w + b
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
 
 
@@ -250,6 +266,8 @@ def _noise_sigma(img: np.ndarray) -> float:
 
 #: Minimum contrast of a candidate pixel as a fraction of the surround's headroom.
 REL_FLOOR = 0.2
+#: Grey level from which a pixel counts as saturated.
+SATURATED = 250
 
 _KERNEL_LOCALMAX = cv2.getStructuringElement(cv2.MORPH_RECT, (9, 9))
 _KERNEL_RING = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
@@ -299,8 +317,14 @@ def blob_candidates(
     Candidates
     """
     h, w = image8.shape
-    d = cv2.bitwise_not(image8) if colour == BLACK else image8
-    bg = _background(d, max_radius)
+    if colour == BLACK:
+        d = cv2.bitwise_not(image8)
+        # Saturated highlights are not a surround level: hide them from the opening so
+        # the skin between two highlights keeps its own level (they give no contrast).
+        d_for_bg = cv2.max(d, cv2.compare(image8, SATURATED, cv2.CMP_GE))
+    else:
+        d = d_for_bg = image8
+    bg = _background(d_for_bg, max_radius)
     top = cv2.subtract(d, bg)
     sigma = _noise_sigma(image8) if noise is None else float(noise)
     t_low = max(3.0, 3.5 * sigma)

@@ -245,7 +245,7 @@ def _observation_arrays(
     dx = Rt[0, 0] * xn + Rt[1, 0] * yn + Rt[2, 0]
     dy = Rt[0, 1] * xn + Rt[1, 1] * yn + Rt[2, 1]
     dz = Rt[0, 2] * xn + Rt[1, 2] * yn + Rt[2, 2]
-    inv = w / np.sqrt(dx * dx + dy * dy + dz * dz)
+    inv = np.divide(w, np.sqrt(dx * dx + dy * dy + dz * dz), out=np.zeros_like(w), where=valid)
     d = np.stack([dx * inv, dy * inv, dz * inv])
     c = -np.einsum("ji...,j...->i...", Rt, tt)  # centres -R^T t, [3, C, Fcam, 1]
     return _Obs(w, xn, yn, d, c, m, Rt, tt)
@@ -319,7 +319,11 @@ def _ray_distance_sq(X: NDArray[np.float64], o: _Obs) -> NDArray[np.float64]:
     vy = X[1][None] - o.c[1]
     vz = X[2][None] - o.c[2]
     along = vx * o.d[0] + vy * o.d[1] + vz * o.d[2]
-    return np.maximum(vx * vx + vy * vy + vz * vz - along * along, 0.0)
+    # The perpendicular part explicitly: |v|^2 - along^2 would cancel catastrophically.
+    px = vx - along * o.d[0]
+    py = vy - along * o.d[1]
+    pz = vz - along * o.d[2]
+    return px * px + py * py + pz * pz
 
 
 def _gauss_newton(X: NDArray[np.float64], o: _Obs, mask: NDArray[np.bool_],
@@ -360,12 +364,15 @@ def _drop_table(C: int, max_drop: int) -> list[tuple[int, ...]]:
     return [D for k in range(1, min(max_drop, C) + 1) for D in itertools.combinations(range(C), k)]
 
 
-def _search(o: _Obs, X0: NDArray[np.float64], e0: NDArray[np.float64], floor: int,
-            params: TriangulationParameters) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+def _search(o: _Obs, X0: NDArray[np.float64], e0: NDArray[np.float64],
+            err0: NDArray[np.float64], z0: NDArray[np.float64], floor: int,
+            params: TriangulationParameters) -> tuple[NDArray[np.float64], NDArray[np.bool_],
+                                                      NDArray[np.float64]]:
     """Outlier-rejection search for gathered point-frames (``o`` is ``[..., C, M]``).
 
-    ``X0 [3, M]`` and ``e0 [M]`` are the all-camera point and its mean error. Returns the
-    chosen points ``[3, M]`` and contribution masks ``[C, M]``.
+    ``X0 [3, M]``, ``e0 [M]``, ``err0 [C, M]`` and ``z0 [C, M]`` are the all-camera point,
+    its mean error, and its per-camera errors and depths. Returns the chosen points
+    ``[3, M]``, contribution masks ``[C, M]`` and per-camera errors ``[C, M]``.
     """
     C, Mn = o.w.shape
     valid = o.w > 0
@@ -390,7 +397,6 @@ def _search(o: _Obs, X0: NDArray[np.float64], e0: NDArray[np.float64], floor: in
     level = np.zeros(S, np.intp)
     members = np.ones((S, C), bool)
     Xs[0], es[0] = X0, e0
-    err0, z0 = _pixel_errors(X0, o)
     ok[0] = np.isfinite(e0) & np.where(valid, z0 > 0, True).all(0)
     ok[0] &= absdot.min(0) <= cos_min
     for s, D in enumerate(drops, start=1):
@@ -442,7 +448,7 @@ def _search(o: _Obs, X0: NDArray[np.float64], e0: NDArray[np.float64], floor: in
     use_w = has & (cnt >= 2) & (any_reached | (e_w < e0) | ~np.isfinite(e0))
     Xout = np.where(use_w, Xw, X0)
     contrib = np.where(use_w, contrib_w, valid)
-    return Xout, contrib
+    return Xout, contrib, np.where(use_w, err_w, err0)
 
 
 # --------------------------------------------------------------------------------------
@@ -609,14 +615,15 @@ def _triangulate_chunk(
         need = (n >= floor + 1) & ~(e_mean <= params.target_reprojection_error)
         fi, pi = np.nonzero(need)
         if fi.size:
-            Xs, cs = _search(o.gather(fi, pi), X[:, fi, pi], e_mean[fi, pi], floor, params)
+            Xs, cs, es = _search(o.gather(fi, pi), X[:, fi, pi], e_mean[fi, pi],
+                                 err[:, fi, pi], z[:, fi, pi], floor, params)
             X[:, fi, pi] = Xs
             mask[:, fi, pi] = cs
-            err[:, fi, pi], z[:, fi, pi] = _pixel_errors(Xs, o.gather(fi, pi))
+            err[:, fi, pi] = es
 
     if params.refine_iterations > 0:
         X = _gauss_newton(X, o, mask, int(params.refine_iterations))
-        err, z = _pixel_errors(X, o)
+        err, _ = _pixel_errors(X, o)
 
     has = np.isfinite(X).all(0)
     mask &= has

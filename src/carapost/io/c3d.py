@@ -639,7 +639,8 @@ def _parse_parameters(buf: _Bytes, start: int, end: int, proc: int) -> dict[str,
     group_names: dict[int, str] = {}
     by_id: dict[int, dict[str, Any]] = {}
     pos = start
-    end = min(end, len(buf.data))
+    if end > len(buf.data):
+        raise ValueError("the parameter section is truncated")
     while pos + 2 <= end:
         nlen, gid = buf.unpack("bb", pos)
         if nlen == 0 or gid == 0:
@@ -764,7 +765,7 @@ def _read_c3d_bytes(data: bytes) -> C3DData:
         h_rate = buf.unpack("f", 20)[0]
     pend = pstart + max(n_pblocks, 1) * _BLOCK
     if data_block > pblock:
-        pend = max(pend, (data_block - 1) * _BLOCK)
+        pend = max(pend, min((data_block - 1) * _BLOCK, len(data)))
     groups = _parse_parameters(buf, pstart + 4, pend, proc)
     point = groups.get("POINT", {})
 
@@ -804,6 +805,10 @@ def _read_c3d_bytes(data: bytes) -> C3DData:
     else:
         n_frames = 0
 
+    if n_points == 0:
+        raise _C3DProblem("holds no 3D points")
+    if n_frames == 0:
+        raise _C3DProblem("holds no frames of 3D data (is the file truncated?)")
     raw = np.frombuffer(
         data, dtype=np.uint8, count=n_frames * frame_bytes, offset=min(dstart, len(data))
     )

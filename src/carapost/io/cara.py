@@ -143,7 +143,10 @@ def _write_npy(zf: zipfile.ZipFile, name: str, arr: np.ndarray) -> None:
     info = zipfile.ZipInfo(name, date_time=time.localtime()[:6])
     info.compress_type = zipfile.ZIP_STORED
     with zf.open(info, "w", force_zip64=arr.nbytes > 2**31) as fh:
-        np.lib.format.write_array(fh, arr, allow_pickle=False)
+        # header, then the raw buffer in one write: no tobytes() copy of large arrays
+        np.lib.format.write_array_header_1_0(fh, np.lib.format.header_data_from_array_1_0(arr))
+        if arr.size:
+            fh.write(memoryview(arr.reshape(-1).view(np.uint8)))
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -400,13 +403,13 @@ def _build(
     F, C = take.n_frames, take.n_cameras
     pm = m["points"]
     P = len(pm["ids"])
+    if len(pm["labels"]) != P or len(pm["kind"]) != P:
+        raise CaraFileError(path, "the point labels or kinds do not match the point count")
     pts = project.points
     pts.ids = np.asarray(pm["ids"], dtype=np.int64).reshape(P)
     pts.labels = [str(x) for x in pm["labels"]]
     pts.kind = np.asarray(pm["kind"], dtype=np.int8).reshape(P)
     pts.next_id = int(pm["next_id"])
-    if len(pts.labels) != P:
-        raise CaraFileError(path, "the point labels do not match the point count")
     for name in POINT_ARRAYS:
         arr = _read_npy(zf, f"points/{name}.npy", specs[f"points/{name}.npy"], path)
         if arr.shape[:2] != (F, P) or (name in ("obs", "source") and arr.shape[2] != C):

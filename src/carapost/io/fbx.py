@@ -4,10 +4,11 @@ No library on PyPI writes FBX, so this module writes the binary node tree itself
 the FBX SDK / Blender exporter, see docs/file-formats.md). What a reader sees:
 
 * one animated Null per point, named by its label, under ``<take>/face`` or ``<take>/brim``;
-* keys (``Lcl Translation``, linear) at every valid frame, none in gaps. The key before a gap
-  is *constant* (held) so that readers honouring interpolation flags keep the marker still
-  instead of sliding it along an invented path, and an animated ``Visibility`` (stepped,
-  0 in gaps) says where the point is missing. (Blender ignores both and interpolates.)
+* linear ``Lcl Translation`` keys at every valid frame. Across a gap one extra key on the last
+  gap frame repeats the value before the gap, so every reader (including Blender, which
+  ignores interpolation flags) holds the marker still instead of sliding it along an invented
+  path; an animated ``Visibility`` (stepped, 0 in gaps, switching half a frame before the
+  change) says where the point is missing.
 * frame rate: the FBX ``TimeMode`` enum for standard rates, else mode 14 + ``CustomFrameRate``;
   key times are exact per frame, ``round(frame * 46186158000 / rate)`` ticks;
 * units: millimetres (``UnitScaleFactor`` 0.1, FBX counts in centimetres);
@@ -213,21 +214,22 @@ class _Scene:
 class _Curves:
     """Builds animation curves; caches compressed KeyTime arrays shared by many curves."""
 
-    def __init__(
-        self, scene: _Scene, layer_id: int, ktimes: np.ndarray, pool: ThreadPoolExecutor
-    ) -> None:
+    def __init__(self, scene: _Scene, layer_id: int, rate: float, pool: ThreadPoolExecutor) -> None:
         self.scene = scene
         self.pool = pool
         self.layer = layer_id
-        self.ktimes = ktimes
+        self.ticks_per_frame = KTIME_PER_SECOND / rate
         self._time_cache: dict[bytes, bytes | _Deferred] = {}
 
     def _key_time(self, frames: np.ndarray, cache_key: bytes | None) -> bytes | _Deferred:
-        if cache_key is None:
-            return _arr("l", self.ktimes[frames], self.pool)
-        enc = self._time_cache.get(cache_key)
+        enc = self._time_cache.get(cache_key) if cache_key is not None else None
         if enc is None:
-            enc = self._time_cache[cache_key] = _arr("l", self.ktimes[frames], self.pool)
+            # Exact per key (never an accumulated rounded step): rates like 72 or 59.94 fps
+            # have no whole number of ticks per frame.
+            times = np.rint(np.asarray(frames, np.float64) * self.ticks_per_frame)
+            enc = _arr("l", times.astype(np.int64), self.pool)
+            if cache_key is not None:
+                self._time_cache[cache_key] = enc
         return enc
 
     def curve_node(
@@ -237,11 +239,10 @@ class _Curves:
         channels: Sequence[str],
         frames: np.ndarray,
         values: np.ndarray,
-        flags: np.ndarray,
+        flag: int = _LINEAR,
         cache_key: bytes | None = None,
-        owner_prop_node: _Node | None = None,
     ) -> None:
-        """Animate property ``prop`` of ``model_id``: ``values`` [K, len(channels)] at frames."""
+        """Animate ``prop`` of ``model_id``: ``values`` [K, n_channels] at (fractional) frames."""
         sc = self.scene
         short = {"Lcl Translation": "T", "Lcl Rotation": "R"}.get(prop, prop)
         nid, cnode = sc.obj("AnimationCurveNode", short, "AnimCurveNode", "")
@@ -250,12 +251,10 @@ class _Curves:
             _p(props, f"d|{ch}", "Number", "", "A", _d(values[0, k]))
         sc.oo(nid, self.layer)
         sc.op(nid, model_id, prop)
-        # Run-length encoding of the per-key interpolation flags.
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(flags)) + 1])
-        counts = np.diff(np.concatenate([starts, [len(flags)]]))
-        attr_flags = _arr("i", flags[starts])
-        attr_data = _arr("f", np.tile(_KEY_DATA, len(starts)))
-        attr_ref = _arr("i", counts)
+        # One key-attribute entry shared by all keys (run length = key count).
+        attr_flags = _arr("i", np.array([flag]))
+        attr_data = _arr("f", _KEY_DATA)
+        attr_ref = _arr("i", np.array([len(frames)]))
         key_time = self._key_time(frames, cache_key)
         for k, ch in enumerate(channels):
             cid, curve = sc.obj("AnimationCurve", "", "AnimCurve", "")
@@ -269,18 +268,28 @@ class _Curves:
             sc.op(cid, nid, f"d|{ch}")
 
 
-def _key_flags(frames: np.ndarray) -> np.ndarray:
-    """Linear keys, except constant (hold) on a key followed by a gap."""
-    flags = np.full(len(frames), _LINEAR, dtype=np.int32)
-    if len(frames) > 1:
-        flags[:-1][np.diff(frames) > 1] = _CONSTANT
-    return flags
+def _hold_keys(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Key frames for one track and the frame whose value each key takes.
+
+    Keys sit on every valid frame; across a gap an extra key on the last gap frame repeats the
+    value before the gap, so linear interpolation holds the point still through the gap and
+    jumps in the last frame interval (robust to the tick rounding of any reader).
+    """
+    frames = np.flatnonzero(valid)
+    after = np.flatnonzero(np.diff(frames) > 1)
+    keys = np.concatenate([frames, frames[after + 1] - 1])
+    src = np.concatenate([frames, frames[after]])
+    order = np.argsort(keys, kind="stable")
+    return keys[order], src[order]
 
 
 def _visibility_keys(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Frames where visibility changes (plus frame 0) and the 0/1 value from there on."""
-    change = np.concatenate([[0], np.flatnonzero(np.diff(valid.astype(np.int8))) + 1])
-    return change, valid[change].astype(np.float64)
+    """Stepped visibility keys: frame 0, then half a frame before each change (unambiguous
+    whatever the reader's rounding), with the 0/1 value from there on."""
+    change = np.flatnonzero(np.diff(valid.astype(np.int8))) + 1
+    frames = np.concatenate([[0.0], change - 0.5])
+    values = np.concatenate([valid[:1], valid[change]]).astype(np.float64)
+    return frames, values
 
 
 def _euler_xyz_deg(m: np.ndarray) -> np.ndarray:
@@ -377,9 +386,7 @@ def write_fbx(
 
     axis = _TO_Y_UP if up_axis == "y" else np.eye(3)
     pts = pos @ axis.T if up_axis == "y" else pos
-    frames_all = np.arange(n_frames, dtype=np.float64)
-    ktimes = np.rint(frames_all * (KTIME_PER_SECOND / rate)).astype(np.int64)
-    stop = int(ktimes[-1])
+    stop = round((n_frames - 1) * KTIME_PER_SECOND / rate)
 
     sc = _Scene()
     stack_id, stack = sc.obj("AnimationStack", take_name, "AnimStack", "")
@@ -395,7 +402,7 @@ def write_fbx(
     group_ids = [sc.null("face", take_id)[0], sc.null("brim", take_id)[0]]
 
     with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
-        curves = _Curves(sc, layer_id, ktimes, pool)
+        curves = _Curves(sc, layer_id, rate, pool)
         _add_points(sc, curves, pts, ok, labels, kinds_arr, group_ids)
         if cams is not None:
             _add_cameras(sc, curves, cams, take_id, axis)
@@ -412,8 +419,16 @@ def _write_file(fh: BinaryIO, root: list[_Node]) -> None:
         end = _emit(node, end, parts)
     parts.append(_NULL)
     end += len(_NULL)
+    # Few large writes instead of tens of thousands of small ones.
+    batch: list[bytes] = []
+    size = 0
     for part in parts:
-        fh.write(part)
+        batch.append(part)
+        size += len(part)
+        if size >= 1 << 23:
+            fh.write(b"".join(batch))
+            batch, size = [], 0
+    fh.write(b"".join(batch))
     # SDK footer: code, zero padding to a 16-byte boundary (at least 1 byte), 0, version,
     # 120 zero bytes, magic.
     pad = 16 - ((end + len(_FOOT_ID)) % 16)
@@ -431,35 +446,29 @@ def _add_points(
     group_ids: list[int],
 ) -> None:
     n_frames, n_points, _ = pts.shape
-
+    # Point-major copies: each point's track is then one contiguous block.
+    pts = np.ascontiguousarray(pts.transpose(1, 0, 2), dtype=np.float32)
+    ok = np.ascontiguousarray(ok.T)
     for p in range(n_points):
-        frames = np.flatnonzero(ok[:, p])
-        first = pts[frames[0], p] if len(frames) else np.zeros(3)
+        frames = np.flatnonzero(ok[p])
+        first = pts[p, frames[0]] if len(frames) else np.zeros(3)
         mid, props = sc.null(labels[p], group_ids[int(kinds[p])], first)
         if len(frames) == 0:
             _p(props, "Visibility", "Visibility", "", "A", _d(0.0))
             continue
-        key = np.packbits(ok[:, p]).tobytes()
+        keys, src = _hold_keys(ok[p])
         curves.curve_node(
             mid,
             "Lcl Translation",
             "XYZ",
-            frames,
-            pts[frames, p].astype(np.float32),
-            _key_flags(frames),
-            cache_key=key,
+            keys,
+            pts[p, src],
+            cache_key=np.packbits(ok[p]).tobytes(),
         )
         if len(frames) < n_frames:
             _p(props, "Visibility", "Visibility", "", "A", _d(1.0))
-            vf, vv = _visibility_keys(ok[:, p])
-            curves.curve_node(
-                mid,
-                "Visibility",
-                ["Visibility"],
-                vf,
-                vv[:, None].astype(np.float32),
-                np.full(len(vf), _CONSTANT, np.int32),
-            )
+            vf, vv = _visibility_keys(ok[p])
+            curves.curve_node(mid, "Visibility", ["Visibility"], vf, vv[:, None], _CONSTANT)
 
 
 def _check_cameras(cameras: Mapping[str, Any], n_frames: int) -> dict[str, Any]:
@@ -528,12 +537,12 @@ def _add_cameras(sc: _Scene, curves: _Curves, cams: dict, parent: int, axis: np.
         sc.oo(mid, parent)
         if len(frames) == 0:
             continue
-        flags = _key_flags(frames)
-        key = np.packbits(ok[:, c]).tobytes() + b"cam"
-        curves.curve_node(mid, "Lcl Translation", "XYZ", frames, pos[frames, c], flags, key)
+        keys, src = _hold_keys(ok[:, c])
+        key = np.packbits(ok[:, c]).tobytes()
+        curves.curve_node(mid, "Lcl Translation", "XYZ", keys, pos[src, c], cache_key=key)
         # Unwrap so linear interpolation between frames never spins through +-180 degrees.
-        angles = np.unwrap(euler[frames, c], period=360.0, axis=0)
-        curves.curve_node(mid, "Lcl Rotation", "XYZ", frames, angles, flags, key)
+        angles = np.unwrap(euler[src, c], period=360.0, axis=0)
+        curves.curve_node(mid, "Lcl Rotation", "XYZ", keys, angles, cache_key=key)
 
 
 def _build_document(sc: _Scene, take: str, rate: float, up_axis: str, stop: int) -> list[_Node]:

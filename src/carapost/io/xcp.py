@@ -21,9 +21,11 @@ KeyFrames, child elements such as ``ThresholdGrid`` or ``Capture``) is kept in
 
 from __future__ import annotations
 
+import math
 import os
-import tempfile
-from collections.abc import Sequence
+import secrets
+import stat
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -335,26 +337,30 @@ def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
 
 
 def _read_camera(path: Path, el: etree._Element, index: int, notes: list[str]) -> dict[str, Any]:
-    """Parse one <Camera>; returns plain values plus its extras record."""
+    """Parse one <Camera>; returns plain values plus its extras record.
+
+    KeyFrame attributes are parsed column-wise (one attribute over all KeyFrames at once),
+    so per-frame files with tens of thousands of KeyFrames load quickly; only when a
+    column is bad are the KeyFrames visited one by one to name the culprit.
+    """
     attrib = dict(el.attrib)
     name = next((attrib[k].strip() for k in ("NAME", "DEVICEID", "USERID")
                  if attrib.get(k, "").strip()), f"Camera {index}")
     label = f"camera {index} ({name!r})"
 
-    def number(owner: dict[str, str], key: str, count: int, where: str,
-               default: list[float] | None = None) -> NDArray[np.float64]:
-        if key not in owner:
+    def camera_number(key: str, count: int, default: float | None = None) -> list[float]:
+        if key not in attrib:
             if default is not None:
-                return np.asarray(default, dtype=np.float64)
-            raise CaraFileError(path, f"{where}: attribute {key} is missing")
-        return _numbers(path, owner[key], key, count, where)
+                return [default]
+            raise CaraFileError(path, f"{label}: attribute {key} is missing")
+        return _numbers(path, attrib[key], key, count, label)
 
-    aspect = float(number(attrib, "PIXEL_ASPECT_RATIO", 1, label, [1.0])[0])
-    size = number(attrib, "SENSOR_SIZE", 2, label)
-    skew = float(number(attrib, "SKEW", 1, label, [0.0])[0])
+    aspect = camera_number("PIXEL_ASPECT_RATIO", 1, 1.0)[0]
+    size = camera_number("SENSOR_SIZE", 2)
+    skew = camera_number("SKEW", 1, 0.0)[0]
     if aspect <= 0:
         raise CaraFileError(path, f"{label}: PIXEL_ASPECT_RATIO must be positive, got {aspect}")
-    if np.any(size <= 0):
+    if min(size) <= 0:
         raise CaraFileError(path, f"{label}: SENSOR_SIZE must be positive, got {size}")
 
     children: list[str] = []
@@ -367,106 +373,136 @@ def _read_camera(path: Path, el: etree._Element, index: int, notes: list[str]) -
             children.append(_to_xml(child))
     if kf_container is None:
         raise CaraFileError(path, f"{label} has no <KeyFrames> element")
-    kf_elements = [k for k in kf_container if k.tag == "KeyFrame"]
-    if not kf_elements:
+    kfa = [dict(k.attrib) for k in kf_container if k.tag == "KeyFrame"]
+    if not kfa:
         raise CaraFileError(path, f"{label} has no <KeyFrame> inside <KeyFrames>")
+    n_kf = len(kfa)
 
-    frames, quats, centres, errors, intr_rows, kf_extra = [], [], [], [], [], {}
-    pose_text, kf_text = [], {}
-    for j, kf in enumerate(kf_elements):
-        ka = dict(kf.attrib)
-        where = f"{label}, KeyFrame {j}"
-        if "FRAME" in ka:
-            frame_val = float(_numbers(path, ka["FRAME"], "FRAME", 1, where)[0])
-            if frame_val != int(frame_val) or frame_val < 0:
-                raise CaraFileError(path, f"{where}: FRAME must be a non-negative integer, "
-                                    f"got {ka['FRAME']!r}")
-            frame = int(frame_val)
-        elif len(kf_elements) == 1:
-            frame = 0
-        else:
-            raise CaraFileError(path, f"{where}: attribute FRAME is missing (needed when a "
-                                "camera has several KeyFrames)")
-        where = f"{label}, KeyFrame FRAME={frame}"
-        focal = float(number(ka, "FOCAL_LENGTH", 1, where)[0])
-        if focal <= 0:
-            raise CaraFileError(path, f"{where}: FOCAL_LENGTH must be positive, got {focal}")
-        pp = number(ka, "PRINCIPAL_POINT", 2, where)
-        q = number(ka, "ORIENTATION", 4, where)
-        norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > QUATERNION_NORM_TOL:
-            raise CaraFileError(path, f"{where}: ORIENTATION is not a unit quaternion "
-                                f"(norm {norm:.6g})")
-        centre_pos = number(ka, "POSITION", 3, where)
-        err = float(number(ka, "IMAGE_ERROR", 1, where, [0.0])[0])
-        if "VICON_RADIAL2" in ka:
-            model = VICON_RADIAL2
-            tokens = ka["VICON_RADIAL2"].split()
-            if not tokens or tokens[0] != _VICON3:
-                raise CaraFileError(path, f"{where}: VICON_RADIAL2 must start with "
+    if all("FRAME" in ka for ka in kfa):
+        frame_col = _column(path, kfa, "FRAME", 1, lambda j: f"{label}, KeyFrame {j}")[:, 0]
+        bad = np.flatnonzero((frame_col != np.round(frame_col)) | (frame_col < 0))
+        if bad.size:
+            j = int(bad[0])
+            raise CaraFileError(path, f"{label}, KeyFrame {j}: FRAME must be a non-negative "
+                                f"integer, got {kfa[j]['FRAME']!r}")
+        frames_arr = frame_col.astype(np.int64)
+    elif n_kf == 1:
+        frames_arr = np.zeros(1, dtype=np.int64)
+    else:
+        j = next(j for j, ka in enumerate(kfa) if "FRAME" not in ka)
+        raise CaraFileError(path, f"{label}, KeyFrame {j}: attribute FRAME is missing (needed "
+                            "when a camera has several KeyFrames)")
+
+    def where(j: int) -> str:
+        return f"{label}, KeyFrame FRAME={frames_arr[j]}"
+
+    focal = _column(path, kfa, "FOCAL_LENGTH", 1, where)[:, 0]
+    bad = np.flatnonzero(focal <= 0)
+    if bad.size:
+        raise CaraFileError(path, f"{where(int(bad[0]))}: FOCAL_LENGTH must be positive, got "
+                            f"{focal[bad[0]]}")
+    pp = _column(path, kfa, "PRINCIPAL_POINT", 2, where)
+    q = _column(path, kfa, "ORIENTATION", 4, where)
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOL)
+    if bad.size:
+        raise CaraFileError(path, f"{where(int(bad[0]))}: ORIENTATION is not a unit quaternion "
+                            f"(norm {norm[bad[0]]:.6g})")
+    centres = _column(path, kfa, "POSITION", 3, where)
+    errors = _column(path, kfa, "IMAGE_ERROR", 1, where, default=[0.0])[:, 0]
+
+    # Distortion: VICON_RADIAL2 wins where both are present (the older one is kept verbatim).
+    models = [VICON_RADIAL2 if "VICON_RADIAL2" in ka else VICON_RADIAL for ka in kfa]
+    dcentre = pp.copy()
+    radial = np.zeros((n_kf, 3))
+    two = np.flatnonzero([m == VICON_RADIAL2 for m in models])
+    if two.size:
+        sub = [kfa[j] for j in two.tolist()]
+        for k, ka in zip(two.tolist(), sub, strict=True):
+            if not ka["VICON_RADIAL2"].lstrip().startswith(_VICON3 + " "):
+                raise CaraFileError(path, f"{where(k)}: VICON_RADIAL2 must start with "
                                     f"'{_VICON3}', got {ka['VICON_RADIAL2'][:40]!r}")
-            vals = _numbers(path, " ".join(tokens[1:]), "VICON_RADIAL2", 5, where,
-                            what="5 numbers after 'Vicon3Parameter'")
-            dcentre, radial = vals[:2], vals[2:]
-        elif "VICON_RADIAL" in ka:
-            model = VICON_RADIAL
-            vals = _numbers(path, ka["VICON_RADIAL"], "VICON_RADIAL", 2, where)
-            dcentre, radial = pp, np.array([vals[0], vals[1], 0.0])
-        else:
-            # No distortion recorded: an ideal pinhole, written back as two zero terms.
-            model = VICON_RADIAL
-            dcentre, radial = pp, np.zeros(3)
-        frames.append(frame)
-        quats.append(q / norm)
-        centres.append(centre_pos)
-        pose_text.append([ka["ORIENTATION"], ka["POSITION"]])
-        errors.append(err)
-        intr_rows.append((model, np.concatenate([[focal], pp, dcentre, radial])))
-        unknown = {k: v for k, v in ka.items() if k not in _KEYFRAME_KNOWN}
-        if model == VICON_RADIAL2 and "VICON_RADIAL" in ka:
-            unknown["VICON_RADIAL"] = ka["VICON_RADIAL"]  # superseded; kept verbatim
-        if unknown:
-            kf_extra[str(frame)] = unknown
-        kf_text[str(frame)] = {k: v for k, v in ka.items() if k in _KEYFRAME_KNOWN}
+        stripped = [{"VICON_RADIAL2": ka["VICON_RADIAL2"].lstrip()[len(_VICON3):]} for ka in sub]
+        vals = _column(path, stripped, "VICON_RADIAL2", 5, lambda j: where(int(two[j])),
+                       what="5 numbers after 'Vicon3Parameter'")
+        dcentre[two], radial[two] = vals[:, :2], vals[:, 2:]
+    one = np.flatnonzero([m == VICON_RADIAL and "VICON_RADIAL" in ka
+                          for m, ka in zip(models, kfa, strict=True)])
+    if one.size:
+        # A KeyFrame with neither attribute is an ideal pinhole (written back as "0 0").
+        vals = _column(path, [kfa[j] for j in one.tolist()], "VICON_RADIAL", 2,
+                       lambda j: where(int(one[j])))
+        radial[one, :2] = vals
 
-    frames_arr = np.asarray(frames, dtype=np.int64)
-    if np.unique(frames_arr).size != frames_arr.size:
+    if np.unique(frames_arr).size != n_kf:
         raise CaraFileError(path, f"{label}: two KeyFrames have the same FRAME")
     order = np.argsort(frames_arr, kind="stable")
-    frames_arr = frames_arr[order]
-    model, first = intr_rows[order[0]]
-    if any(m != model or not np.allclose(v, first, rtol=1e-12, atol=0) for m, v in intr_rows):
+    first = int(order[0])
+    model = models[first]
+    rows = np.concatenate([focal[:, None], pp, dcentre, radial], axis=1)
+    if any(m != model for m in models) or not np.allclose(rows, rows[first], rtol=1e-12, atol=0):
         notes.append(f"{label}: intrinsics differ between KeyFrames; those of the first "
-                     f"KeyFrame (FRAME={frames_arr[0]}) are used")
-    R = quaternion_to_matrix(np.asarray(quats)[order])
-    C = np.asarray(centres)[order]
-    t = -np.einsum("kij,kj->ki", R, C)
-    # The file's own digits, written back while the pose is unchanged, so an export of an
-    # imported file does not churn the last digit through quaternion -> matrix -> quaternion.
-    poses = {
-        str(frames_arr[i]): [*pose_text[k], [*R[i].ravel().tolist(), *t[i].tolist()]]
-        for i, k in enumerate(order.tolist())
-    }
+                     f"KeyFrame (FRAME={frames_arr[first]}) are used")
+    R = quaternion_to_matrix(q[order] / norm[order, None])
+    t = -np.einsum("kij,kj->ki", R, centres[order])
+
+    kf_extra: dict[str, dict[str, str]] = {}
+    for j, ka in enumerate(kfa):
+        unknown = {k: v for k, v in ka.items() if k not in _KEYFRAME_KNOWN}
+        if models[j] == VICON_RADIAL2 and "VICON_RADIAL" in ka:
+            unknown["VICON_RADIAL"] = ka["VICON_RADIAL"]  # superseded; kept verbatim
+        if unknown:
+            kf_extra[str(frames_arr[j])] = unknown
+    frames_sorted = frames_arr[order]
     return {
         "name": name,
-        "focal": first[0], "pp": first[1:3], "centre": first[3:5], "radial": first[5:8],
-        "model": model, "aspect": aspect, "skew": skew, "size": size,
-        "frames": frames_arr, "R": R, "t": t,
-        "image_error": np.asarray(errors, dtype=np.float64)[order],
+        "focal": rows[first, 0], "pp": rows[first, 1:3], "centre": rows[first, 3:5],
+        "radial": rows[first, 5:8], "model": model, "aspect": aspect, "skew": skew,
+        "size": size, "frames": frames_sorted, "R": R, "t": t,
+        "image_error": errors[order],
         "extras": {
             "attrib": attrib,
             "children": children,
             "keyframes_attrib": dict(kf_container.attrib),
-            "keyframe_attrib": kf_extra,
-            "keyframe_text": kf_text,
-            "poses": poses,
             "keyframes_other": [_to_xml(k) for k in kf_container if k.tag != "KeyFrame"],
+            "keyframe_attrib": kf_extra,
+            # The file's own digits, written back where the values did not change, so that
+            # exporting an imported file does not churn last digits (quaternion -> matrix
+            # -> quaternion is not exact): intrinsics of the first KeyFrame, pose per frame.
+            "intrinsics_text": {k: v for k, v in kfa[first].items()
+                                if k in _KEYFRAME_KNOWN - {"FRAME", "ORIENTATION", "POSITION"}},
+            "poses": {str(frames_arr[j]): [kfa[j]["ORIENTATION"], kfa[j]["POSITION"]]
+                      for j in range(n_kf)},
         },
     }
 
 
+def _column(path: Path, kfa: list[dict[str, str]], key: str, count: int,
+            where: Callable[[int], str], default: list[float] | None = None,
+            what: str | None = None) -> NDArray[np.float64]:
+    """One numeric attribute over all KeyFrames, shape (K, count); errors name the KeyFrame."""
+    texts = [ka.get(key) for ka in kfa]
+    if default is not None:
+        texts = [" ".join(map(repr, default)) if s is None else s for s in texts]
+    try:
+        tokens = " ".join(texts).split()  # type: ignore[arg-type]
+        if len(tokens) == count * len(kfa):
+            vals = np.array(tokens, dtype=np.float64).reshape(len(kfa), count)
+            if np.isfinite(vals).all():
+                return vals
+    except (TypeError, ValueError):
+        pass
+    # Slow path: find and name the first bad KeyFrame (a count can also balance out).
+    out = np.empty((len(kfa), count))
+    for j, text in enumerate(texts):
+        if text is None:
+            raise CaraFileError(path, f"{where(j)}: attribute {key} is missing")
+        out[j] = _numbers(path, text, key, count, where(j), what)
+    return out
+
+
 def _numbers(path: Path, text: str, key: str, count: int, where: str,
-             what: str | None = None) -> NDArray[np.float64]:
+             what: str | None = None) -> list[float]:
     """Parse ``count`` whitespace-separated finite numbers or raise CaraFileError."""
     tokens = text.split()
     what = what or (f"{count} number" + ("s" if count > 1 else ""))
@@ -474,10 +510,10 @@ def _numbers(path: Path, text: str, key: str, count: int, where: str,
         raise CaraFileError(path, f"{where}: {key} must hold {what}, got {len(tokens)} "
                             f"({text[:60]!r})")
     try:
-        vals = np.array([float(x) for x in tokens])
+        vals = [float(x) for x in tokens]
     except ValueError:
         raise CaraFileError(path, f"{where}: {key} is not numeric ({text[:60]!r})") from None
-    if not np.all(np.isfinite(vals)):
+    if not all(math.isfinite(v) for v in vals):
         raise CaraFileError(path, f"{where}: {key} holds a non-finite value ({text[:60]!r})")
     return vals
 
@@ -551,24 +587,46 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         If the folder is not writable or the disk is full; ``path`` is left untouched.
     """
     path = Path(path)
-    tmp_name = None
+    folder = path.parent
+    tmp = folder / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    created = False
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
-                                        dir=path.parent if str(path.parent) else ".")
+        # os.open with 0o666 honours the umask (mkstemp would make the file 0600).
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        created = True
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp_name, path)
-        tmp_name = None
+        try:
+            os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))  # keep a replaced file's mode
+        except FileNotFoundError:
+            pass
+        os.replace(tmp, path)
+        created = False
+        _fsync_folder(folder)
     except OSError as exc:
         raise CaraFileError(path, f"cannot be written ({exc.strerror or exc})") from exc
     finally:
-        if tmp_name is not None:
+        if created:
             try:
-                os.unlink(tmp_name)
+                os.unlink(tmp)
             except OSError:
                 pass
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make the rename itself durable (POSIX only; a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _camera_extras(calib: XcpCalibration) -> list[dict[str, Any] | None]:
@@ -655,7 +713,7 @@ def _camera_element(calib: XcpCalibration, c: int, cex: dict[str, Any] | None,
         rows, out_frames = [idx], [0]
     kf_extra = cex.get("keyframe_attrib", {})
     poses = cex.get("poses", {})
-    kf_text = cex.get("keyframe_text", {})
+    intr_text = cex.get("intrinsics_text", {})
     kfs = etree.Element("KeyFrames")
     _set_sorted(kfs, cex.get("keyframes_attrib", {}))
     for xml in cex.get("keyframes_other", []):
@@ -663,18 +721,19 @@ def _camera_element(calib: XcpCalibration, c: int, cex: dict[str, Any] | None,
     R, t = calib.R[c][rows], calib.t[c][rows]
     quats = matrix_to_quaternion(R)
     centres = -np.einsum("kji,kj->ki", R, t)
+    same_pose = _same_poses([poses.get(str(int(frames[j]))) for j in rows], R, t)
     for i, (j, out_frame) in enumerate(zip(rows, out_frames, strict=True)):
         ka = dict(kf_extra.get(str(int(frames[j])), {}))
         ka.update(common)
         ka["FRAME"] = str(int(out_frame))
         ka["IMAGE_ERROR"] = _fmt(calib.image_error[c][j])
         pose = poses.get(str(int(frames[j])))
-        if pose is not None and np.array_equal(pose[2], [*R[i].ravel(), *t[i]]):
+        if pose is not None and same_pose[i]:
             ka["ORIENTATION"], ka["POSITION"] = pose[0], pose[1]
         else:
             ka["ORIENTATION"], ka["POSITION"] = _fmt(quats[i]), _fmt(centres[i])
         kf = etree.SubElement(kfs, "KeyFrame")
-        _keep_digits(ka, kf_text.get(str(int(frames[j])), {}))
+        _keep_digits(ka, intr_text)
         _set_sorted(kf, ka)
 
     children = cex.get("children", [_KEYFRAMES_SLOT])
@@ -683,6 +742,27 @@ def _camera_element(calib: XcpCalibration, c: int, cex: dict[str, Any] | None,
     for item in children:
         el.append(kfs if item == _KEYFRAMES_SLOT else _from_xml(item))
     return el
+
+
+def _same_poses(texts: list[list[str] | None], R: NDArray[np.float64],
+                t: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per KeyFrame: does the file's ORIENTATION/POSITION text read back to exactly R, t?"""
+    same = np.zeros(len(texts), dtype=bool)
+    have = [i for i, p in enumerate(texts) if p is not None]
+    if not have:
+        return same
+    try:
+        q = np.array(" ".join(texts[i][0] for i in have).split(),  # type: ignore[index]
+                     dtype=np.float64).reshape(len(have), 4)
+        centre = np.array(" ".join(texts[i][1] for i in have).split(),  # type: ignore[index]
+                          dtype=np.float64).reshape(len(have), 3)
+    except ValueError:
+        return same
+    # Exactly the arithmetic of read_xcp, so unchanged poses compare equal bit for bit.
+    R0 = quaternion_to_matrix(q / np.linalg.norm(q, axis=1)[:, None])
+    t0 = -np.einsum("kij,kj->ki", R0, centre)
+    same[have] = (R0 == R[have]).all(axis=(1, 2)) & (t0 == t[have]).all(axis=1)
+    return same
 
 
 def _keep_digits(attrib: dict[str, str], original: dict[str, str]) -> None:

@@ -1,0 +1,259 @@
+"""Tests for carapost.algorithms.blobs on synthetic images with exact truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from carapost.algorithms._blob_eval import FaceScore, circlegrid_files, circlegrid_photo
+from carapost.algorithms._blob_synth import _ellipse_coverage, _paint, render_face
+from carapost.algorithms.blobs import (
+    BlobDetections,
+    BlobParameters,
+    detect_blobs,
+    detect_blobs_batch,
+    preview_blobs,
+)
+
+
+def _scene(rng, n=12, size=(160, 240), bg=180.0, fg=30.0, radius=(4.5, 9.0), ratio=(0.5, 1.0),
+           noise=1.5):
+    """Flat-ish background with anti-aliased ellipses on a grid; returns image and truth."""
+    h, w = size
+    img = np.full(size, bg, np.float64) + np.linspace(-10, 10, w)[None, :]
+    centres, axes, angles = [], [], []
+    cols = 6
+    for i in range(n):
+        cx = (i % cols + 0.5) * w / cols + rng.uniform(-2, 2)
+        cy = (i // cols + 0.5) * h / ((n + cols - 1) // cols) + rng.uniform(-2, 2)
+        a = rng.uniform(*radius)
+        b = a * rng.uniform(*ratio)
+        th = rng.uniform(-np.pi / 2, np.pi / 2)
+        x0, y0, cov = _ellipse_coverage(cx, cy, a, b, th)
+        _paint(img, x0, y0, cov, fg)
+        centres.append((cx, cy))
+        axes.append((a, b))
+        angles.append(th)
+    img += rng.standard_normal(size) * noise
+    return (np.clip(np.rint(img), 0, 255).astype(np.uint8), np.array(centres), np.array(axes),
+            np.array(angles))
+
+
+def _match(det_centre, truth):
+    d = np.linalg.norm(det_centre[:, None, :] - truth[None, :, :], axis=2)
+    return d.argmin(axis=0), d.min(axis=0)
+
+
+# ------------------------------------------------------------------ parameters
+
+
+def test_parameter_defaults_follow_the_guide():
+    p = BlobParameters()
+    assert p.find_black_blobs and not p.find_white_blobs
+    assert (p.black_min_radius, p.black_max_radius, p.black_threshold) == (4.0, 50.0, 0.4)
+    assert (p.white_min_radius, p.white_max_radius, p.white_threshold) == (4.0, 50.0, 0.4)
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [({"black_threshold": 1.5}, "black_threshold"),
+     ({"white_threshold": -0.1}, "white_threshold"),
+     ({"black_min_radius": 0.0}, "black_min_radius"),
+     ({"white_max_radius": float("nan")}, "white_max_radius"),
+     ({"black_min_radius": 20.0, "black_max_radius": 10.0}, "black_min_radius"),
+     ({"find_black_blobs": "yes"}, "find_black_blobs")],
+)
+def test_invalid_parameters_name_the_parameter(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        BlobParameters(**kwargs)
+
+
+def test_bad_inputs_raise_clear_errors():
+    p = BlobParameters()
+    with pytest.raises(TypeError, match="uint8 or uint16"):
+        detect_blobs(np.zeros((50, 50), np.float32), p)
+    with pytest.raises(ValueError, match="2-D"):
+        detect_blobs(np.zeros((50, 50, 3), np.uint8), p)
+    with pytest.raises(ValueError, match="mask shape"):
+        detect_blobs(np.zeros((50, 50), np.uint8), p, mask=np.ones((10, 10), bool))
+    with pytest.raises(TypeError, match="BlobParameters"):
+        detect_blobs(np.zeros((50, 50), np.uint8), {"black_threshold": 0.4})
+
+
+# ------------------------------------------------------------------ geometry
+
+
+def test_subpixel_centres_axes_and_angles(rng):
+    img, centres, axes, angles = _scene(rng, n=18, size=(240, 300))
+    det = detect_blobs(img, BlobParameters())
+    assert len(det) == len(centres)
+    idx, dist = _match(det.centre, centres)
+    assert np.median(dist) < 0.05 and dist.max() < 0.15
+    assert np.allclose(det.axes[idx], axes, atol=0.35)
+    # Angle of the major axis, compared modulo pi, only where the ellipse is elongated.
+    elong = axes[:, 1] / axes[:, 0] < 0.8
+    dang = np.angle(np.exp(2j * (det.angle[idx] - angles)))[elong] / 2
+    assert np.abs(dang).max() < 0.1
+    assert det.centre.dtype == np.float32 and det.axes.dtype == np.float32
+    assert np.all(det.colour == 0) and np.all((det.score >= 0.4) & (det.score <= 1))
+
+
+def test_pixel_centre_convention():
+    img = np.full((40, 40), 200, np.uint8)
+    img[10:17, 20:27] = 20  # a 7x7 square: pixel centres 20..26 and 10..16
+    det = detect_blobs(img, BlobParameters(black_min_radius=2.0))
+    assert len(det) == 1
+    np.testing.assert_allclose(det.centre[0], (23.0, 13.0), atol=0.02)
+
+
+def test_radius_range_is_the_semi_major_axis(rng):
+    img, centres, axes, _ = _scene(rng, n=12, radius=(4.5, 9.0), ratio=(0.6, 1.0))
+    det = detect_blobs(img, BlobParameters(black_min_radius=6.5, black_max_radius=50.0))
+    idx, dist = _match(det.centre, centres)
+    found = np.zeros(len(centres), bool)
+    for j, d in enumerate(dist):
+        found[j] = d < 1.0
+    assert np.all(found[axes[:, 0] > 6.8])
+    assert not np.any(found[axes[:, 0] < 6.2])
+    assert np.all(det.axes[:, 0] >= 6.5)
+
+
+def test_white_blobs_only_when_asked(rng):
+    img, centres, _, _ = _scene(rng, n=12, bg=60.0, fg=230.0)
+    assert len(detect_blobs(img, BlobParameters())) == 0
+    det = detect_blobs(img, BlobParameters(find_black_blobs=False, find_white_blobs=True))
+    assert len(det) == len(centres) and np.all(det.colour == 1)
+    _, dist = _match(det.centre, centres)
+    assert dist.max() < 0.15
+
+
+def test_threshold_is_monotonic(rng):
+    s = render_face(rng, preset="standard", noise=4.0)
+    counts = [len(detect_blobs(s.image, BlobParameters(black_threshold=t)))
+              for t in (0.0, 0.4, 0.8, 1.0)]
+    assert counts[0] >= counts[1] >= counts[2] >= counts[3]
+    assert counts[0] > counts[1] and counts[3] < counts[1]
+
+
+# ------------------------------------------------------------------ lighting
+
+
+def test_saturated_regions_give_no_detections(rng):
+    # A skin image with large saturated highlights whose gaps look like dark islands.
+    img = np.full((200, 300), 190, np.uint8)
+    img[20:80, 20:140] = 255
+    img[90:180, 20:140] = 255
+    img[20:180, 150:290] = 255
+    img[40:60, 60:80] = 255
+    noisy = np.clip(img + rng.normal(0, 1.5, img.shape), 0, 255).astype(np.uint8)
+    noisy[img == 255] = 255
+    both = BlobParameters(find_white_blobs=True)
+    assert len(detect_blobs(noisy, both)) == 0
+    all_white = np.full((100, 100), 255, np.uint8)
+    assert len(detect_blobs(all_white, both)) == 0
+
+
+def test_very_dark_image_still_works(rng):
+    img, centres, _, _ = _scene(rng, n=12, bg=26.0, fg=4.0, noise=0.7)  # skin ~16-36
+    det = detect_blobs(img, BlobParameters())
+    assert len(det) == len(centres)
+    _, dist = _match(det.centre, centres)
+    assert dist.max() < 0.3
+
+
+def test_uint16_gives_the_same_result_as_uint8(rng):
+    img, _, _, _ = _scene(rng)
+    a = detect_blobs(img, BlobParameters())
+    b = detect_blobs(img.astype(np.uint16) << 4, BlobParameters())  # 12-bit image
+    np.testing.assert_array_equal(a.centre, b.centre)
+
+
+def test_mask_limits_the_region(rng):
+    img, centres, _, _ = _scene(rng)
+    mask = np.zeros(img.shape, bool)
+    mask[:, : img.shape[1] // 2] = True
+    det = detect_blobs(img, BlobParameters(), mask=mask)
+    assert len(det) == np.sum(centres[:, 0] < img.shape[1] / 2 - 1)
+    assert np.all(det.centre[:, 0] < img.shape[1] / 2)
+
+
+# ------------------------------------------------------------------ face images
+
+
+@pytest.mark.parametrize("preset", ["standard", "fast"])
+def test_synthetic_face_recall_precision_and_centres(preset):
+    rng = np.random.default_rng(2024)
+    params = BlobParameters()
+    score = FaceScore()
+    for _ in range(2):
+        s = render_face(rng, preset=preset, noise=2.0)
+        score.add(s, detect_blobs(s.image, params), params)
+    assert score.recall >= 0.98
+    assert score.precision >= 0.97
+    if preset == "standard":
+        e = np.asarray(score.centre_err)
+        assert np.median(e) <= 0.08 and np.percentile(e, 95) <= 0.25
+
+
+def test_preview_matches_detection(rng):
+    s = render_face(rng, preset="speech")
+    a, b = detect_blobs(s.image, BlobParameters()), preview_blobs(s.image, BlobParameters())
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+# ------------------------------------------------------------------ batch
+
+
+def test_batch_matches_single_images_and_reports_progress(rng):
+    images = {k: _scene(np.random.default_rng(k))[0] for k in range(6)}
+    seen = []
+
+    def progress(done, total):
+        seen.append((done, total))
+        return True
+
+    out = detect_blobs_batch(images.__getitem__, list(images), BlobParameters(),
+                             workers=2, progress=progress)
+    assert set(out) == set(images)
+    for k, img in images.items():
+        np.testing.assert_array_equal(out[k].centre, detect_blobs(img, BlobParameters()).centre)
+    assert [d for d, _ in seen] == list(range(1, 7)) and all(t == 6 for _, t in seen)
+
+
+def test_batch_cancel_keeps_finished_frames():
+    img = _scene(np.random.default_rng(1))[0]
+    fetched = []
+
+    def get(k):
+        fetched.append(k)
+        return img
+
+    out = detect_blobs_batch(get, range(100), BlobParameters(), workers=2,
+                             progress=lambda done, total: done < 3)
+    assert 3 <= len(out) < 100
+    assert set(out) <= set(fetched) and len(fetched) < 100
+    assert all(isinstance(v, BlobDetections) and len(v) == 12 for v in out.values())
+
+
+def test_batch_empty_and_bad_workers():
+    assert detect_blobs_batch(lambda k: None, [], BlobParameters()) == {}
+    with pytest.raises(ValueError, match="workers"):
+        detect_blobs_batch(lambda k: None, [1], BlobParameters(), workers=0)
+
+
+# ------------------------------------------------------------------ real photos
+
+
+def test_real_circlegrid_photos_every_dot_found(fixtures_dir):
+    files = circlegrid_files(fixtures_dir / "circlegrid")
+    if not files:
+        pytest.skip("no circlegrid photos in the fixtures")
+    ours, theirs = [], []
+    for path, pattern, flags in files:
+        r = circlegrid_photo(path, pattern, flags)
+        assert r["matched"] == r["expected"], path.name
+        ours.append(r["rms_ours"])
+        theirs.append(r["rms_opencv"])
+    # Our centres fit the grid at least as well as OpenCV's overall.
+    assert np.sqrt(np.mean(np.square(ours))) <= np.sqrt(np.mean(np.square(theirs))) * 1.02
