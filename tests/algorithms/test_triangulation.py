@@ -165,7 +165,7 @@ def test_subset_with_point_behind_a_camera_is_rejected():
     truth = np.array([[[0.0, 0.0, 250.0]]])
     uv, _ = project(truth, R, t, intr)
     uv = uv.copy()
-    uv[0, 0, 2, 0] += 300.0
+    uv[0, 0, 2, 0] -= 560.0
     params = TriangulationParameters(use_outlier_rejection=True, minimum_cameras=2)
     res = triangulate(uv, R, t, intr, params)
     assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-6
@@ -180,12 +180,13 @@ def test_subset_with_point_behind_a_camera_is_rejected():
 
 
 def test_subset_with_near_parallel_rays_is_rejected():
-    # Cameras 0 and 1 are 4 mm apart (rays meet at < 1 degree); camera 2 is far to the side.
-    R, t, intr = _simple_rig([[-2.0, 0, 0], [2.0, 0, 0], [120.0, 0, 30]])
+    # Cameras 0 and 1 are 4 mm apart; camera 2 is 120 mm above them.
+    R, t, intr = _simple_rig([[-2.0, 0, 0], [2.0, 0, 0], [0.0, 120.0, 30]])
     truth = np.array([[[0.0, 0.0, 250.0]]])
     uv, _ = project(truth, R, t, intr)
     uv = uv.copy()
-    uv[0, 0, 0, 0] += 25.0  # along the short baseline: the pair {0, 1} still fits exactly
+    # Along the short baseline: the pair {0, 1} still fits exactly, at 1.7 degrees, ~140 mm.
+    uv[0, 0, 0, 0] -= 12.0
     robust = TriangulationParameters(use_outlier_rejection=True, minimum_cameras=2)
     res = triangulate(uv, R, t, intr, robust)
     assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-6

@@ -189,7 +189,9 @@ def test_autosave_and_recovery(rng: np.random.Generator, tmp_path: Path) -> None
 
 
 # -- property-based ----------------------------------------------------------------------
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
     frames=st.integers(1, 12),
     cameras=st.integers(2, 6),
@@ -205,7 +207,7 @@ def test_round_trip_property(tmp_path_factory, frames, cameras, points, seed, fp
     rng = np.random.default_rng(seed)
     project = new_project(frames, cameras, fps=fps)
     project.points.append(points, labels=[f"P{i}" for i in range(points)])
-    for name, arr in project.points.arrays.items():
+    for arr in project.points.arrays.values():
         if arr.dtype.kind == "f":
             vals = rng.normal(size=arr.shape).astype(arr.dtype)
             vals[rng.random(arr.shape) < 0.2] = np.nan

@@ -430,3 +430,16 @@ def test_failed_write_leaves_existing_file_untouched(tmp_path: Path) -> None:
             os.chmod(tmp_path, 0o700)
         assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.xcp"]  # no temp files left
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+def test_written_file_gets_normal_permissions(tmp_path: Path) -> None:
+    calib = XcpCalibration.from_arrays(_intrinsics(1), np.eye(3)[None], np.zeros((1, 3)))
+    umask = os.umask(0o022)
+    os.umask(umask)
+    path = tmp_path / "new.xcp"
+    write_xcp(path, calib)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+    os.chmod(path, 0o640)
+    write_xcp(path, calib)  # replacing keeps the file's mode
+    assert path.stat().st_mode & 0o777 == 0o640

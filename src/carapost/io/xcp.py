@@ -419,7 +419,7 @@ def _read_camera(path: Path, el: etree._Element, index: int, notes: list[str]) -
     if two.size:
         sub = [kfa[j] for j in two.tolist()]
         for k, ka in zip(two.tolist(), sub, strict=True):
-            if not ka["VICON_RADIAL2"].lstrip().startswith(_VICON3 + " "):
+            if ka["VICON_RADIAL2"].split()[:1] != [_VICON3]:
                 raise CaraFileError(path, f"{where(k)}: VICON_RADIAL2 must start with "
                                     f"'{_VICON3}', got {ka['VICON_RADIAL2'][:40]!r}")
         stripped = [{"VICON_RADIAL2": ka["VICON_RADIAL2"].lstrip()[len(_VICON3):]} for ka in sub]

@@ -202,7 +202,9 @@ class Detections:
         """Copies of the detections of the given images."""
         return [{k: v.copy() for k, v in self.get(f, c).items()} for f, c in images]
 
-    def replace_images(self, images: list[tuple[int, int]], tables: list[dict[str, NDArray]]) -> None:
+    def replace_images(
+        self, images: list[tuple[int, int]], tables: list[dict[str, NDArray]]
+    ) -> None:
         """Replace the detections of the given images (one table per image).
 
         Rebuilds the flat arrays with one gather, O(total detections).

@@ -352,3 +352,29 @@ def marker_set(name: str) -> list[MarkerSpec]:
         out.append(MarkerSpec(f"{lab}_L", phi, psi, r, lid, lev))
         out.append(MarkerSpec(f"{lab}_R", -phi, psi, r, lid, lev))
     return out
+
+
+_LUT: dict[str, NDArray[np.float32]] = {}
+_LUT_STEP = 0.25  # degrees
+
+
+def head_radius_lut(u: ArrayLike) -> NDArray[np.float32]:
+    """`head_radius` from a tabulated (phi, psi) grid with bilinear interpolation.
+
+    About 20x faster than the analytic form and within a few micrometres of it; used to ray
+    cast the background images (the truth always uses the analytic surface).
+    """
+    if "r" not in _LUT:
+        phi = np.arange(-180.0, 180.0 + _LUT_STEP / 2, _LUT_STEP)
+        psi = np.arange(-90.0, 90.0 + _LUT_STEP / 2, _LUT_STEP)
+        pp, ss = np.meshgrid(phi, psi)
+        _LUT["r"] = head_radius(angles_to_dirs(pp, ss)).astype(np.float32)
+    import cv2  # local: keep the geometry importable without OpenCV
+
+    u = np.asarray(u)
+    phi = np.degrees(np.arctan2(u[..., 0], u[..., 2]))
+    psi = np.degrees(np.arctan2(u[..., 1], np.hypot(u[..., 0], u[..., 2])))
+    mx = ((phi + 180.0) / _LUT_STEP).astype(np.float32).reshape(-1, 1)
+    my = ((psi + 90.0) / _LUT_STEP).astype(np.float32).reshape(-1, 1)
+    out = cv2.remap(_LUT["r"], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(phi.shape)
