@@ -26,8 +26,8 @@ from numpy.typing import NDArray
 from carapost.algorithms.camera import CameraIntrinsics, camera_centres, project
 from carapost.algorithms.triangulation import (
     WEIGHT_DECAY,
-    TriangulationParameters,
     Triangulation,
+    TriangulationParameters,
     effective_minimum_cameras,
     triangulate,
 )

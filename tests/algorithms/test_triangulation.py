@@ -26,7 +26,8 @@ def _bench():
     """The benchmark module: synthetic head rig and the per-point loop reference."""
     name = "_carapost_bench_triangulation"
     if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / "triangulation.py")
+        path = REPO / "benchmarks" / "triangulation.py"
+        spec = importlib.util.spec_from_file_location(name, path)
         mod = importlib.util.module_from_spec(spec)
         sys.modules[name] = mod
         spec.loader.exec_module(mod)
@@ -168,7 +169,7 @@ def test_subset_with_point_behind_a_camera_is_rejected():
     uv[0, 0, 2, 0] -= 560.0
     params = TriangulationParameters(use_outlier_rejection=True, minimum_cameras=2)
     res = triangulate(uv, R, t, intr, params)
-    assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-6
+    assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-4
     np.testing.assert_array_equal(res.contribution[0, 0], [True, True, False])
 
     # The rejected pair really fits its two rays exactly with the point behind the cameras.
@@ -189,7 +190,7 @@ def test_subset_with_near_parallel_rays_is_rejected():
     uv[0, 0, 0, 0] -= 12.0
     robust = TriangulationParameters(use_outlier_rejection=True, minimum_cameras=2)
     res = triangulate(uv, R, t, intr, robust)
-    assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-6
+    assert np.linalg.norm(res.points[0, 0] - truth[0, 0]) < 1e-4
     np.testing.assert_array_equal(res.contribution[0, 0], [False, True, True])
     # Without the angle test the exact-fitting near-parallel pair drags the mean far away.
     loose = TriangulationParameters(use_outlier_rejection=True, minimum_cameras=2,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -134,6 +135,8 @@ def test_export_reimport_keeps_cameras_and_unknown_content(
 ) -> None:
     for path in _fixture_files(fixtures_dir):
         calib = read_xcp(path)
+        # extras are plain JSON data, so a project file can carry them.
+        calib.extras = json.loads(json.dumps(calib.extras))
         out = tmp_path / path.name
         write_xcp(out, calib)
         again = read_xcp(out)
@@ -162,6 +165,29 @@ def test_export_reimport_keeps_cameras_and_unknown_content(
         # A second export of the re-import is byte-identical (stable writer).
         write_xcp(tmp_path / "second.xcp", again)
         assert (tmp_path / "second.xcp").read_bytes() == out.read_bytes()
+
+
+def test_camera_subset_keeps_each_cameras_own_content(
+    fixtures_dir: Path, tmp_path: Path
+) -> None:
+    path = fixtures_dir / "xcp" / "leyangwen_vicon-read_Cal.xcp"
+    calib = read_xcp(path)
+    pick = [5, 0, 2]
+    sub = XcpCalibration(
+        calib.intrinsics.subset(pick), [calib.keyframes[i] for i in pick],
+        [calib.R[i] for i in pick], [calib.t[i] for i in pick],
+        [calib.image_error[i] for i in pick], extras=calib.extras)
+    out = tmp_path / "subset.xcp"
+    write_xcp(out, sub)
+    src = {cam.get("DEVICEID"): cam for cam in ET.parse(path).getroot().findall("Camera")}
+    written = ET.parse(out).getroot().findall("Camera")
+    assert [cam.get("DEVICEID") for cam in written] == [calib.intrinsics.names[i] for i in pick]
+    for cam in written:
+        original = src[cam.get("DEVICEID")]
+        assert cam.attrib == original.attrib
+        assert cam.find("ThresholdGrid").get("DATA") == original.find("ThresholdGrid").get("DATA")
+    again = read_xcp(out)
+    np.testing.assert_allclose(again.t[0], calib.t[5], rtol=0, atol=1e-9)
 
 
 def test_edited_pose_is_written_not_the_original_digits(

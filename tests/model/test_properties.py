@@ -143,7 +143,7 @@ def test_labels_match_guide_names():
         "Allow Single Sensor Tracking Gap-Filling"
     )
     assert spec("minimum_cameras").maximum == 16
-    assert spec("minimum_cameras").minimum == 2
+    assert spec("minimum_cameras").minimum == 1
     # the guide reuses "Allow Single Sensor Tracking" in the Tracker pane: distinct keys
     same = [s for s in SPECS if s.label == "Allow Single Sensor Tracking"]
     assert {s.section for s in same} == {"Tracking Parameters", "Target Tracker"}

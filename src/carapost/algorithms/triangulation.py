@@ -45,7 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from carapost.algorithms.camera import CameraIntrinsics, camera_centres
+from carapost.algorithms.camera import CameraIntrinsics
 
 log = logging.getLogger("carapost.triangulation")
 
@@ -302,15 +302,16 @@ def _pixel_errors(X: NDArray[np.float64], o: _Obs) -> tuple[NDArray[np.float64],
     """
     R, t = o.R, o.t
     X0, X1, X2 = X[0][None], X[1][None], X[2][None]
-    z = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2 + t[2]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # Points at a camera centre or unsolved cameras give inf/NaN here; callers mask them.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        z = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2 + t[2]
         iz = 1.0 / z
-    rx = (R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2 + t[0]) * iz - o.xn
-    ry = (R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2 + t[1]) * iz - o.yn
-    m = o.m
-    ex = m[0] * rx + m[1] * ry
-    ey = m[2] * rx + m[3] * ry
-    return np.sqrt(ex * ex + ey * ey), z
+        rx = (R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2 + t[0]) * iz - o.xn
+        ry = (R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2 + t[1]) * iz - o.yn
+        m = o.m
+        ex = m[0] * rx + m[1] * ry
+        ey = m[2] * rx + m[3] * ry
+        return np.sqrt(ex * ex + ey * ey), z
 
 
 def _ray_distance_sq(X: NDArray[np.float64], o: _Obs) -> NDArray[np.float64]:

@@ -630,16 +630,16 @@ def _fsync_folder(folder: Path) -> None:
 
 
 def _camera_extras(calib: XcpCalibration) -> list[dict[str, Any] | None]:
-    """Per-camera extras records, matched by position, else by camera name."""
+    """Per-camera extras records, matched by camera name (so subsets and reordering keep
+    each camera's own content), else by position when the camera count is unchanged."""
     ex = calib.extras
     n = calib.n_cameras
     if not isinstance(ex, dict) or ex.get("format") != "xcp":
         return [None] * n
     cams = ex.get("cameras", [])
-    if len(cams) == n:
-        return list(cams)
     by_name = {c.get("name"): c for c in cams}
-    return [by_name.get(name) for name in calib.intrinsics.names]
+    return [by_name.get(name, cams[i] if len(cams) == n else None)
+            for i, name in enumerate(calib.intrinsics.names)]
 
 
 def _build_tree(calib: XcpCalibration, frame: int | None) -> etree._Element:

@@ -355,13 +355,13 @@ def marker_set(name: str) -> list[MarkerSpec]:
 
 
 _LUT: dict[str, NDArray[np.float32]] = {}
-_LUT_STEP = 0.25  # degrees
+_LUT_STEP = 0.4  # degrees
 
 
 def head_radius_lut(u: ArrayLike) -> NDArray[np.float32]:
     """`head_radius` from a tabulated (phi, psi) grid with bilinear interpolation.
 
-    About 20x faster than the analytic form and within a few micrometres of it; used to ray
+    Several times faster than the analytic form and within ~0.05 mm of it; used to ray
     cast the background images (the truth always uses the analytic surface).
     """
     if "r" not in _LUT:
@@ -374,7 +374,13 @@ def head_radius_lut(u: ArrayLike) -> NDArray[np.float32]:
     u = np.asarray(u)
     phi = np.degrees(np.arctan2(u[..., 0], u[..., 2]))
     psi = np.degrees(np.arctan2(u[..., 1], np.hypot(u[..., 0], u[..., 2])))
-    mx = ((phi + 180.0) / _LUT_STEP).astype(np.float32).reshape(-1, 1)
-    my = ((psi + 90.0) / _LUT_STEP).astype(np.float32).reshape(-1, 1)
-    out = cv2.remap(_LUT["r"], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(phi.shape)
+    n = phi.size
+    width = 1024  # remap wants maps of fewer than 32767 rows
+    rows = max(1, -(-n // width))
+    mx = np.zeros(rows * width, np.float32)
+    my = np.zeros(rows * width, np.float32)
+    mx[:n] = (phi.ravel() + 180.0) / _LUT_STEP
+    my[:n] = (psi.ravel() + 90.0) / _LUT_STEP
+    out = cv2.remap(_LUT["r"], mx.reshape(rows, width), my.reshape(rows, width),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.ravel()[:n].reshape(phi.shape)

@@ -31,17 +31,19 @@ _VOID = 9.0          # grey level where no surface is hit (dark background)
 _GAIN = 300.0        # grey level of a white, frontal surface 150 mm from its ring light
 _SKIN_INK = 0.16     # reflectance of a painted marker relative to skin
 _BRIM_INK = 0.08     # reflectance of a printed brim dot relative to the white strip
-_SUBSAMPLES = 4      # per pixel axis for disc coverage
+_SUBSAMPLES = 6      # per pixel axis, for pixels on a disc rim
 _LOCK = threading.Lock()
 
 
 # --------------------------------------------------------------------------- background
 
-def _ray_cast_head(o: NDArray, d: NDArray, step: float = 1.5
-                   ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
-    """First intersection of rays with the neutral head; ``(hit, t)`` per ray."""
+def _ray_cast_head(o: NDArray, d: NDArray) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """First intersection of rays with the neutral head; ``(hit, t)`` per ray.
+
+    Marches with steps proportional to the radial gap (the surface's slopes are bounded,
+    so 0.35 of the gap never jumps over it), then bisects the bracketing interval.
+    """
     n = len(o)
-    # entry/exit of the bounding sphere
     b = np.einsum("ij,ij->i", o, d)
     c = np.einsum("ij,ij->i", o, o) - face.HEAD_BOUND**2
     disc = b * b - c
@@ -54,20 +56,25 @@ def _ray_cast_head(o: NDArray, d: NDArray, step: float = 1.5
     prev = t.copy()
     while active.size:
         q = o[active] + t[:, None] * d[active]
-        inside = face.inside_head(q)
+        rq = np.linalg.norm(q, axis=1)
+        gap = rq - face.head_radius_lut(q / rq[:, None])
+        inside = gap < 0
         if inside.any():
             idx = np.nonzero(inside)[0]
             lo, hi = prev[idx].copy(), t[idx].copy()
             oi, di = o[active[idx]], d[active[idx]]
-            for _ in range(12):  # bisection to ~0.4 um
+            for _ in range(10):
                 mid = 0.5 * (lo + hi)
-                ins = face.inside_head(oi + mid[:, None] * di)
+                qm = oi + mid[:, None] * di
+                rm = np.linalg.norm(qm, axis=1)
+                ins = rm < face.head_radius_lut(qm / rm[:, None])
                 hi = np.where(ins, mid, hi)
                 lo = np.where(ins, lo, mid)
             hit[active[idx]] = True
             t_hit[active[idx]] = hi
+        step = np.maximum(0.35 * gap, 0.6)
         keep = ~inside & (t + step <= t_end)
-        active, prev, t, t_end = active[keep], t[keep], t[keep] + step, t_end[keep]
+        active, prev, t, t_end = active[keep], t[keep], (t + step)[keep], t_end[keep]
     return hit, t_hit
 
 
@@ -269,10 +276,17 @@ def prepare(scene: SynthScene) -> None:
         scene.cache["warps"] = (A_head, A_brim)
 
 
-def _background(scene: SynthScene, camera: int) -> tuple[NDArray, NDArray]:
+def _background(scene: SynthScene, camera: int) -> dict:
     key = f"bg{camera}"
     if key not in scene.cache:
-        layers = render_background(scene, camera)
+        head, brim = render_background(scene, camera)
+        # the void is a constant, so the skin needs one channel: value - coverage * void
+        layers = {
+            "head": np.ascontiguousarray(head[..., 0] - head[..., 1] * np.float32(_VOID)),
+            "head_roi": _bbox(head[..., 1] > 0),
+            "brim": brim,
+            "brim_roi": _bbox(brim[..., 1] > 0),
+        }
         with _LOCK:
             scene.cache.setdefault(key, layers)
     return scene.cache[key]
@@ -283,7 +297,9 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
     """Accumulate the coverage of discs into ``ink`` (H, W) in place.
 
     ``centres``/``normals`` are (S, J, 3): S time samples (motion blur) of J discs in the
-    helmet frame; the coverage is averaged over the samples.
+    helmet frame; the coverage is averaged over the samples. Pixels whose centre is far
+    inside or outside a disc (by more than the pixel's footprint on the disc's plane) are
+    classified from that one sample; only pixels near the rim are super-sampled.
     """
     S, J, _ = centres.shape
     if J == 0:
@@ -296,52 +312,72 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
     uv, _ = project(centres.reshape(-1, 3), R[None], t[None], intr.subset([c]))
     uv = uv[:, 0].reshape(S, J, 2)
     ok = np.isfinite(uv).all(-1).all(0) & (Pc[..., 2] > 1).all(0)
-    cx = np.nanmean(uv[..., 0], axis=0)
-    cy = np.nanmean(uv[..., 1], axis=0)
-    spread = np.nanmax(np.hypot(uv[..., 0] - cx, uv[..., 1] - cy), axis=0)
-    rad_px = intr.focal[c] * radii / np.min(Pc[..., 2], axis=0)
+    uv = np.where(ok[None, :, None], uv, 0.0)
+    cx, cy = uv[..., 0].mean(axis=0), uv[..., 1].mean(axis=0)
+    spread = np.max(np.hypot(uv[..., 0] - cx, uv[..., 1] - cy), axis=0)
+    zmin = np.where(ok, np.min(Pc[..., 2], axis=0), 1.0)
+    rad_px = intr.focal[c] * radii / zmin
     half = np.ceil(rad_px * 1.08 + spread + 1.5)
-    half = np.where(ok, half, 0)
     # bucket sizes so each bucket is one vectorised evaluation
-    half = np.minimum(4 * np.ceil(half / 4), 64).astype(int)
+    half = np.where(ok, np.minimum(4 * np.ceil(half / 4), 64), 0).astype(int)
     f, ppx, ppy = intr.focal[c], intr.principal_point[c, 0], intr.principal_point[c, 1]
     asp, skew = intr.aspect[c], intr.skew[c]
     dcx, dcy = intr.distortion_centre[c]
     k1, k2, k3 = intr.radial[c]
+
+    def rays(xs: NDArray, ys: NDArray) -> tuple[NDArray, NDArray]:
+        # raw -> corrected pixels (closed form) -> normalised image coordinates
+        dx = xs - dcx
+        dy = asp * (ys - dcy)
+        r2 = dx * dx + dy * dy
+        sc = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        yn = (dcy + sc * dy / asp - ppy) * (asp / f)
+        xn = (dcx + sc * dx - ppx - skew * yn) / f
+        return xn, yn
+
+    def dist2(xn: NDArray, yn: NDArray, P: NDArray, N: NDArray) -> NDArray:
+        # squared distance (mm^2) from the disc centre of the ray's hit on the disc plane
+        num = np.einsum("...i,...i->...", N, P)
+        den = N[..., 0] * xn + N[..., 1] * yn + N[..., 2]
+        lam = num / den
+        e = (lam * xn - P[..., 0]) ** 2 + (lam * yn - P[..., 1]) ** 2 + (lam - P[..., 2]) ** 2
+        return np.where(lam > 0, e, np.inf)
+
     ss = _SUBSAMPLES
-    sub = ((np.arange(ss) + 0.5) / ss - 0.5).astype(np.float32)
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
     for hb in np.unique(half[ok]):
         sel = np.nonzero(ok & (half == hb))[0]
         n = 2 * hb + 1
         x0 = np.round(cx[sel]).astype(int) - hb
         y0 = np.round(cy[sel]).astype(int) - hb
-        ax = np.arange(n, dtype=np.float32)
-        xs = (x0[:, None, None, None, None] + ax[None, None, :, None, None]
-              + sub[None, None, None, None, :]).astype(np.float32)
-        ys = (y0[:, None, None, None, None] + ax[None, :, None, None, None]
-              + sub[None, None, None, :, None]).astype(np.float32)
-        # raw -> corrected pixels (closed form) -> normalised ray directions
-        dx = xs - np.float32(dcx)
-        dy = np.float32(asp) * (ys - np.float32(dcy))
-        r2 = dx * dx + dy * dy
-        sc = 1 + r2 * (np.float32(k1) + r2 * (np.float32(k2) + r2 * np.float32(k3)))
-        yn = (np.float32(dcy) + sc * dy / np.float32(asp) - np.float32(ppy)) * np.float32(asp / f)
-        xn = (np.float32(dcx) + sc * dx - np.float32(ppx) - np.float32(skew) * yn) / np.float32(f)
-        cov = np.zeros((len(sel), n, n), dtype=np.float32)
+        ax = np.arange(n, dtype=np.float64)
+        xs = x0[:, None, None] + ax[None, None, :]
+        ys = y0[:, None, None] + ax[None, :, None]
+        xs, ys = np.broadcast_arrays(xs, ys)
+        xn, yn = rays(xs, ys)
+        r = radii[sel][:, None, None]
+        cov = np.zeros((len(sel), n, n))
         for s in range(S):
-            P = Pc[s, sel].astype(np.float32)
-            N = Nc[s, sel].astype(np.float32)
-            num = np.einsum("ji,ji->j", N, P)[:, None, None, None, None]
-            den = (N[:, 0, None, None, None, None] * xn + N[:, 1, None, None, None, None] * yn
-                   + N[:, 2, None, None, None, None])
-            lam = num / den
-            ex = lam * xn - P[:, 0, None, None, None, None]
-            ey = lam * yn - P[:, 1, None, None, None, None]
-            ez = lam - P[:, 2, None, None, None, None]
-            r2d = (radii[sel].astype(np.float32) ** 2)[:, None, None, None, None]
-            inside = ((ex * ex + ey * ey + ez * ez) < r2d) & (lam > 0)
-            cov += inside.mean(axis=(3, 4), dtype=np.float32)
-        cov *= np.float32(strength / S)
+            P = Pc[s, sel][:, None, None, :]
+            N = Nc[s, sel][:, None, None, :]
+            d = np.sqrt(dist2(xn, yn, P, N)) - r
+            # footprint of one pixel on the disc plane (mm), with foreshortening
+            cosv = np.abs(N[..., 2] + N[..., 0] * xn + N[..., 1] * yn) / np.sqrt(
+                1 + xn * xn + yn * yn)
+            foot = 0.75 * P[..., 2] / f / np.maximum(cosv, 0.05)
+            c_s = (d < 0).astype(np.float64)
+            rim = np.abs(d) < foot
+            j, yy, xx = np.nonzero(rim)
+            if j.size:
+                sxs = xs[j, yy, xx][:, None, None] + sub[None, None, :]
+                sys = ys[j, yy, xx][:, None, None] + sub[None, :, None]
+                sxn, syn = rays(*np.broadcast_arrays(sxs, sys))
+                inside = dist2(sxn, syn, P[j, 0, 0][:, None, None, :],
+                               N[j, 0, 0][:, None, None, :]) < (radii[sel][j] ** 2)[:, None, None]
+                c_s[j, yy, xx] = inside.mean(axis=(1, 2))
+            cov += c_s
+        cov *= strength / S
+        cov = cov.astype(np.float32)
         for k in range(len(sel)):
             xa, ya = x0[k], y0[k]
             xb, yb = max(xa, 0), max(ya, 0)
@@ -351,6 +387,33 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
             patch = cov[k, yb - ya:ye - ya, xb - xa:xe - xa]
             region = ink[yb:ye, xb:xe]
             region += patch * (1 - region)
+
+
+def _warp_roi(src: NDArray, A: NDArray, roi: tuple[int, int, int, int], size: tuple[int, int]
+              ) -> tuple[NDArray, tuple[int, int, int, int]]:
+    """Warp ``src`` by the affine ``A`` (reference -> frame pixels) into the part of the
+    output image that can receive content: ``roi`` (x0, y0, x1, y1) grown by the motion."""
+    w, h = size
+    x0, y0, x1, y1 = roi
+    corners = np.array([[x0, y0, 1], [x1, y0, 1], [x0, y1, 1], [x1, y1, 1]], float) @ A.T
+    ox0 = int(max(np.floor(corners[:, 0].min()) - 2, 0))
+    oy0 = int(max(np.floor(corners[:, 1].min()) - 2, 0))
+    ox1 = int(min(np.ceil(corners[:, 0].max()) + 3, w))
+    oy1 = int(min(np.ceil(corners[:, 1].max()) + 3, h))
+    if ox1 <= ox0 or oy1 <= oy0:
+        return np.zeros((0, 0) + src.shape[2:], src.dtype), (0, 0, 0, 0)
+    M = A.copy()
+    M[:, 2] -= (ox0, oy0)
+    out = cv2.warpAffine(src, M, (ox1 - ox0, oy1 - oy0), flags=cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out, (ox0, oy0, ox1, oy1)
+
+
+def _bbox(mask: NDArray) -> tuple[int, int, int, int]:
+    ys, xs = np.nonzero(mask)
+    if xs.size == 0:
+        return (0, 0, 0, 0)
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
 
 
 def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = True
@@ -382,16 +445,17 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
     if not 0 <= camera < scene.n_cameras:
         raise IndexError(f"camera {camera} out of range 0..{scene.n_cameras - 1}")
     prepare(scene)
-    head, brim = _background(scene, camera)
+    bg = _background(scene, camera)
     A_head, A_brim = scene.cache["warps"]
     w, h = scene.size
-    flags = cv2.INTER_LINEAR
-    hw = cv2.warpAffine(head, A_head[frame, camera], (w, h), flags=flags,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    bw = cv2.warpAffine(brim, A_brim[frame, camera], (w, h), flags=flags,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    img = hw[..., 0] + (1 - hw[..., 1]) * np.float32(_VOID)
-    img = bw[..., 0] + (1 - bw[..., 1]) * img
+    img = np.full((h, w), np.float32(_VOID))
+    hw, (x0, y0, x1, y1) = _warp_roi(bg["head"], A_head[frame, camera], bg["head_roi"], (w, h))
+    img[y0:y1, x0:x1] += hw
+    bw, (x0, y0, x1, y1) = _warp_roi(bg["brim"], A_brim[frame, camera], bg["brim_roi"], (w, h))
+    if bw.size:
+        sub = img[y0:y1, x0:x1]
+        sub *= 1 - bw[..., 1]
+        sub += bw[..., 0]
 
     R, t = scene.cam_R[frame, camera], scene.cam_t[frame, camera]
     ink = np.zeros((h, w), dtype=np.float32)
@@ -403,8 +467,6 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
         cen = scene.seen_points[frame, camera][None, vis]
         nor = scene.seen_normals[frame, camera][None, vis]
     _disc_ink(ink, scene, camera, R, t, cen, nor, scene.marker_radius_mm[vis], 1 - _SKIN_INK)
-    img *= 1 - ink
-    ink[:] = 0
     bvis = scene.brim_visible[frame, :, camera]
     _disc_ink(ink, scene, camera, R, t, scene.brim3d[None, bvis], scene.brim_normals[None, bvis],
               scene.brim_radius_mm[bvis], 1 - _BRIM_INK)
@@ -419,6 +481,11 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
             k, ox, oy = (int(v) for v in np.random.default_rng(ss).integers(0, 64, 3))
             tiles = scene.cache["noise"]
             nz = tiles[k % len(tiles)][oy:oy + h, ox:ox + w]
-            sigma = np.float32(cfg.noise) * (0.5 + 0.5 * np.sqrt(np.maximum(img, 0) / 128.0))
-            img = img + sigma * nz
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+            # shot noise grows with the signal: sigma = noise at grey 128, noise/2 at black
+            sigma = cv2.sqrt(np.maximum(img, 0))
+            sigma *= np.float32(0.5 * cfg.noise / np.sqrt(128.0))
+            sigma += np.float32(0.5 * cfg.noise)
+            img += sigma * nz
+    np.clip(img, 0, 255, out=img)
+    img += 0.5
+    return img.astype(np.uint8)

@@ -93,13 +93,13 @@ def rig_cameras(n_cameras: int, size: tuple[int, int]
         j = i if left else i - n_left
         sx = 1.0 if left else -1.0
         centre = np.array([sx * (64.0 - 4.0 * j), -42.0 - 45.0 * j, 232.0 - 8.0 * j])
-        target = np.array([-sx * 6.0, 6.0 + 4.0 * j, 70.0])
+        target = np.array([-sx * 8.0, 14.0 + 4.0 * j, 75.0])
         roll = (1.5 if left else -1.2) + 0.7 * j
         R, t = look_at(centre, target, roll)
         Rs.append(R)
         ts.append(t)
         # slightly different lenses per camera, face filling most of the frame
-        focal.append(h * (1.02 + 0.015 * ((i * 7) % 5 - 2)))
+        focal.append(h * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
         pp.append([(w - 1) / 2.0 + 3.1 * ((i % 3) - 1) + 1.3, (h - 1) / 2.0 - 2.2 * ((i % 2) - 0.5)])
         dc.append([pp[-1][0] - 1.7 + 0.9 * (i % 2), pp[-1][1] + 1.2 - 0.8 * (i % 3)])
         # about 4 px of barrel distortion at the image corners
