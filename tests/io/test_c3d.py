@@ -196,6 +196,14 @@ def test_more_than_255_points_and_7_cameras(tmp_path, rng):
     assert block.shape == (12, 300, 4)
 
 
+def test_non_ascii_labels(tmp_path, rng):
+    pos = rng.normal(size=(3, 2, 3))
+    path = tmp_path / "u.c3d"
+    write_c3d(path, pos, labels=["lèvre_g", "a"], rate=30, descriptions=["lip", "é"])
+    d = read_c3d(path)
+    assert d.labels == ["lèvre_g", "a"] and d.descriptions == ["lip", "é"]
+
+
 def test_long_take_frame_fields(tmp_path):
     n = 70_000  # beyond the 16-bit header frame fields
     pos = np.zeros((n, 1, 3))

@@ -214,7 +214,10 @@ def test_binary_layout(tmp_path, rng):
     assert names[-2:] == ["Connections", "Takes"]
     assert len(data) % 16 == 0 and data.endswith(bytes.fromhex("f85a8c6adef5d97eece90ce3758f290b"))
     assert data[pos_ : pos_ + 16] == bytes.fromhex("fabcab09d0c8d466b176fb831cf7267e")
-    assert b"KeyValueFloat" in data and KTIME_PER_SECOND // 100 > 0
+    # Key times of frame f are f * KTIME_PER_SECOND / rate ticks; the 100 fps curves hold
+    # frames 0..299 so the last key is 299 / 100 s.
+    stop = struct.pack("<q", 299 * KTIME_PER_SECOND // 100)
+    assert stop in data  # TimeSpanStop / LocalStop
 
 
 def test_bad_input(tmp_path, rng):

@@ -160,8 +160,8 @@ def test_specs_are_frozen():
     [
         ("black_threshold", 1.5, r"^Black Threshold must be between 0 and 1 \(got 1\.5\)$"),
         ("black_threshold", -0.1, r"Black Threshold .*between 0 and 1"),
-        ("minimum_cameras", 1, r"Minimum Cameras for Triangulation.*2 and 16"),
-        ("minimum_cameras", 17, r"Minimum Cameras for Triangulation.*2 and 16"),
+        ("minimum_cameras", 0, r"Minimum Cameras for Triangulation.*1 and 16"),
+        ("minimum_cameras", 17, r"Minimum Cameras for Triangulation.*1 and 16"),
         ("patch_match_size", 7.5, r"Patch Match Size must be a whole number between 3 and 101"),
         ("black_threshold", float("nan"), r"Black Threshold must be a finite number"),
         ("black_threshold", "0.5", r"Black Threshold must be a number"),
@@ -423,9 +423,9 @@ def test_markdown_lists_every_property():
 
 
 def test_generated_doc_is_up_to_date():
-    path = REPO / "docs" / "parts" / "properties.md"
+    path = REPO / "docs" / "properties.md"
     if not path.exists():
-        pytest.skip("docs/parts/properties.md not present in this checkout")
+        pytest.skip("docs/properties.md not present in this checkout")
     assert path.read_text(encoding="utf-8") == properties_markdown(), (
-        "docs/parts/properties.md is stale; regenerate it with properties_markdown()"
+        "docs/properties.md is stale; regenerate it with properties_markdown()"
     )

@@ -609,14 +609,22 @@ def _dec_to_ieee(raw: np.ndarray) -> np.ndarray:
     return (swapped.astype(np.uint32).view("<f4") / 4.0).astype(np.float32)
 
 
+def _text(raw: bytes) -> str:
+    """C3D text is ASCII in theory; accept UTF-8 (what we write) and fall back to Latin-1."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.rstrip(" \0")
+
+
 def _decode_value(ptype: int, dims: tuple[int, ...], raw: bytes, proc: int) -> Any:
     if ptype == _CHAR:
-        text = raw.decode("latin-1")
         if len(dims) <= 1:
-            return text.rstrip(" \0")
+            return _text(raw)
         width = dims[0]
         n = int(np.prod(dims[1:])) if width else 0
-        return [text[i * width : (i + 1) * width].rstrip(" \0") for i in range(n)]
+        return [_text(raw[i * width : (i + 1) * width]) for i in range(n)]
     big = proc == _MIPS
     if ptype == _BYTE:
         arr = np.frombuffer(raw, dtype=np.int8)

@@ -102,7 +102,9 @@ class XcpCalibration:
             if len(value) != n:
                 raise ValueError(f"XcpCalibration.{name} needs one entry per camera ({n}), "
                                  f"got {len(value)}")
+        # New lists, so the caller's lists are not modified in place.
         self.keyframes = [np.asarray(k, dtype=np.int64).reshape(-1) for k in self.keyframes]
+        self.R, self.t, self.image_error = list(self.R), list(self.t), list(self.image_error)
         for c in range(n):
             k = self.keyframes[c].shape[0]
             self.R[c] = np.asarray(self.R[c], dtype=np.float64).reshape(k, 3, 3)

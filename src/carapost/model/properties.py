@@ -817,7 +817,7 @@ def properties_markdown() -> str:
     Returns
     -------
     str
-        The text of ``docs/parts/properties.md``.
+        The text of ``docs/properties.md``.
     """
     lines = [
         "# Properties reference",
@@ -827,7 +827,7 @@ def properties_markdown() -> str:
         "",
         "```",
         'python -c "from carapost.model.properties import properties_markdown as m; '
-        "open('docs/parts/properties.md', 'w', encoding='utf-8').write(m())\"",
+        "open('docs/properties.md', 'w', encoding='utf-8').write(m())\"",
         "```",
         "",
         "Names and defaults follow the reference guide. Ranges are inclusive; where the",

@@ -1,0 +1,808 @@
+"""Bundle adjustment: refine cameras (and points, optionally intrinsics) on reprojection error.
+
+All solvers use :func:`scipy.optimize.least_squares` (trust-region reflective) with an
+analytic Jacobian assembled as a sparse matrix, so the normal equations are solved with
+LSMR and nothing dense of size observations x parameters is ever built.
+
+Camera model (ours)
+    ``x_cam = R X + t``; raw pixels through the Vicon radial model (see
+    :mod:`carapost.algorithms.camera`). The residual of an observation is measured in
+    raw pixels to first order: the ideal pinhole residual ``K pi(x_cam) - undistort(uv)``
+    mapped through the inverse Jacobian of the radial model at the observation. The
+    radial model maps raw to corrected pixels in closed form, so nothing needs iterating.
+    Rotations are updated as ``R = exp([w]x) R0`` with the increment ``w`` as the
+    parameter, which keeps the rotation vector small and away from its singularity.
+
+Gauge
+    Bundle adjustment can move, rotate and scale everything without changing the error.
+    When brim points are given they are known structure and stay fixed, which fixes the
+    gauge. Without them one camera is held fixed, and after the solve the result is scaled
+    about that camera so that the distance between the first two camera centres keeps its
+    starting value (a similarity transform leaves every reprojection error unchanged).
+
+BAL
+    :func:`bundle_adjust_bal` solves "Bundle Adjustment in the Large" problems (Snavely's
+    camera: rotation vector, translation, f, k1, k2, camera looking down -z) with the same
+    machinery; :func:`read_bal` reads their text files.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from carapost.algorithms.camera import CameraIntrinsics, camera_centres, rodrigues_to_matrix
+
+# --------------------------------------------------------------------------------------
+# Rotation helpers
+# --------------------------------------------------------------------------------------
+
+
+def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``[v]x`` for ``v [..., 3]`` -> ``[..., 3, 3]``."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([
+        np.stack([z, -v[..., 2], v[..., 1]], -1),
+        np.stack([v[..., 2], z, -v[..., 0]], -1),
+        np.stack([-v[..., 1], v[..., 0], z], -1),
+    ], -2)
+
+
+def left_jacobian(w: ArrayLike) -> NDArray[np.float64]:
+    """Left Jacobian of SO(3) at rotation vectors ``w [..., 3]`` -> ``[..., 3, 3]``.
+
+    ``R(w + dw) X = R(w) X - [R(w) X]x J_l(w) dw`` to first order.
+    """
+    w = np.asarray(w, dtype=np.float64)
+    th2 = (w * w).sum(-1)
+    th = np.sqrt(th2)
+    small = th2 < 1e-8
+    ths = np.where(small, 1.0, th)
+    # (1 - cos t) / t^2 and (t - sin t) / t^3 with their series near 0.
+    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    W = _skew(w)
+    return np.eye(3) + a[..., None, None] * W + b[..., None, None] * (W @ W)
+
+
+# --------------------------------------------------------------------------------------
+# Generic sparse problem: observation -> (camera block, point block)
+# --------------------------------------------------------------------------------------
+
+
+class _Structure(NamedTuple):
+    rows: NDArray[np.intp]
+    cols: NDArray[np.intp]
+    select: NDArray[np.bool_]  # which of the dense per-observation entries are free
+    shape: tuple[int, int]
+
+
+def _structure(ci: NDArray[np.intp], pi: NDArray[np.intp], n_cam_par: int,
+               cam_free: NDArray[np.bool_], pt_free: NDArray[np.bool_]) -> _Structure:
+    """Sparsity of a Jacobian whose residual pairs depend on one camera and one point block.
+
+    Per observation the dense entries are laid out ``[2, n_cam_par + 3]``; entries of fixed
+    cameras or points are dropped. Free cameras are numbered first, then free points.
+    """
+    No = ci.shape[0]
+    cam_col = np.cumsum(cam_free) - 1
+    pt_col = np.cumsum(pt_free) - 1
+    n_cam_cols = int(cam_free.sum()) * n_cam_par
+    k = n_cam_par + 3
+    cols = np.empty((No, 2, k), np.intp)
+    cols[:, :, :n_cam_par] = (cam_col[ci] * n_cam_par)[:, None, None] + np.arange(n_cam_par)
+    cols[:, :, n_cam_par:] = (n_cam_cols + pt_col[pi] * 3)[:, None, None] + np.arange(3)
+    rows = np.broadcast_to((2 * np.arange(No))[:, None, None] + np.arange(2)[:, None],
+                           (No, 2, k))
+    select = np.empty((No, 2, k), bool)
+    select[:, :, :n_cam_par] = cam_free[ci][:, None, None]
+    select[:, :, n_cam_par:] = pt_free[pi][:, None, None]
+    shape = (2 * No, n_cam_cols + int(pt_free.sum()) * 3)
+    return _Structure(rows[select], cols[select], select, shape)
+
+
+def _sparse(struct: _Structure, dense: NDArray[np.float64]) -> sp.csr_matrix:
+    """Sparse Jacobian from per-observation dense blocks ``[No, 2, k]``."""
+    return sp.csr_matrix((dense[struct.select], (struct.rows, struct.cols)), shape=struct.shape)
+
+
+# --------------------------------------------------------------------------------------
+# Our camera model
+# --------------------------------------------------------------------------------------
+
+
+class BundleResult(NamedTuple):
+    """Result of :func:`bundle_frame`.
+
+    Attributes
+    ----------
+    R : ndarray, shape (C, 3, 3)
+    t : ndarray, shape (C, 3)
+        Refined extrinsics (mm).
+    points : ndarray, shape (P, 3)
+        Refined points (mm); fixed and unobserved points unchanged.
+    rms_before, rms_after : float
+        RMS reprojection error over all used observations (px), before and after.
+    success : bool
+    message : str
+    intrinsics : CameraIntrinsics or None
+        Refined intrinsics when ``refine_intrinsics`` was set, else None.
+    nfev : int
+        Residual evaluations.
+    """
+
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+    points: NDArray[np.float64]
+    rms_before: float
+    rms_after: float
+    success: bool
+    message: str
+    intrinsics: CameraIntrinsics | None = None
+    nfev: int = 0
+
+
+@dataclass
+class _FrameProblem:
+    ci: NDArray[np.intp]  # [No] camera of each observation
+    pi: NDArray[np.intp]  # [No] point of each observation
+    uc: NDArray[np.float64]  # [No, 2] undistorted (corrected) pixel observations
+    jinv: NDArray[np.float64]  # [No, 2, 2] raw <- corrected pixel Jacobian at the observation
+    R0: NDArray[np.float64]  # [C, 3, 3]
+    t0: NDArray[np.float64]  # [C, 3]
+    X0: NDArray[np.float64]  # [P, 3]
+    K: NDArray[np.float64]  # [C, 3, 3]
+    cam_free: NDArray[np.bool_]  # [C]
+    pt_free: NDArray[np.bool_]  # [P]
+    intrinsics: bool
+
+    @property
+    def n_cam_par(self) -> int:
+        return 9 if self.intrinsics else 6
+
+    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        C, P = self.R0.shape[0], self.X0.shape[0]
+        k = self.n_cam_par
+        nc = int(self.cam_free.sum())
+        cam = np.zeros((C, k))
+        cam[self.cam_free] = x[: nc * k].reshape(nc, k)
+        X = self.X0.copy()
+        X[self.pt_free] = x[nc * k:].reshape(-1, 3)
+        R = rodrigues_to_matrix(cam[:, :3]) @ self.R0
+        t = self.t0 + cam[:, 3:6]
+        K = self.K.copy()
+        if self.intrinsics:
+            a = self.K[:, 0, 0] / self.K[:, 1, 1]
+            K[:, 0, 0] += cam[:, 6]
+            K[:, 1, 1] = K[:, 0, 0] / a
+            K[:, 0, 2] += cam[:, 7]
+            K[:, 1, 2] += cam[:, 8]
+        return cam, R, t, X, K
+
+    def x0(self) -> NDArray[np.float64]:
+        nc = int(self.cam_free.sum())
+        return np.concatenate([np.zeros(nc * self.n_cam_par), self.X0[self.pt_free].ravel()])
+
+    def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        _, R, t, X, K = self.unpack(x)
+        P = np.einsum("nij,nj->ni", R[self.ci], X[self.pi]) + t[self.ci]
+        return self._pixel_residual(P, K).ravel()
+
+    def _pixel_residual(self, P: NDArray[np.float64], K: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+        Kc = K[self.ci]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px = P[:, 0] / P[:, 2]
+            py = P[:, 1] / P[:, 2]
+        u = Kc[:, 0, 0] * px + Kc[:, 0, 1] * py + Kc[:, 0, 2] - self.uc[:, 0]
+        v = Kc[:, 1, 1] * py + Kc[:, 1, 2] - self.uc[:, 1]
+        return np.einsum("nij,nj->ni", self.jinv, np.stack([u, v], -1))
+
+    def jacobian(self, x: NDArray[np.float64], struct: _Structure) -> sp.csr_matrix:
+        cam, R, t, X, K = self.unpack(x)
+        Rc = R[self.ci]
+        RX = np.einsum("nij,nj->ni", Rc, X[self.pi])
+        P = RX + t[self.ci]
+        Kc = K[self.ci]
+        iz = 1.0 / P[:, 2]
+        px, py = P[:, 0] * iz, P[:, 1] * iz
+        No = P.shape[0]
+        dpi = np.zeros((No, 2, 3))
+        dpi[:, 0, 0] = iz
+        dpi[:, 1, 1] = iz
+        dpi[:, 0, 2] = -px * iz
+        dpi[:, 1, 2] = -py * iz
+        A = self.jinv @ Kc[:, :2, :2] @ dpi  # d r / d P, [No, 2, 3]
+        k = self.n_cam_par
+        dense = np.empty((No, 2, k + 3))
+        dense[:, :, 0:3] = -A @ _skew(RX) @ left_jacobian(cam[self.ci, :3])
+        dense[:, :, 3:6] = A
+        if self.intrinsics:
+            a = Kc[:, 0, 0] / Kc[:, 1, 1]
+            dense[:, :, 6] = np.einsum("nij,nj->ni", self.jinv, np.stack([px, py / a], -1))
+            dense[:, :, 7] = self.jinv[:, :, 0]
+            dense[:, :, 8] = self.jinv[:, :, 1]
+        dense[:, :, k:] = A @ Rc
+        return _sparse(struct, dense)
+
+
+def _undistort_with_jacobian(uv: NDArray[np.float64], cam: NDArray[np.intp],
+                             intr: CameraIntrinsics
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Corrected pixels ``[N, 2]`` of raw ``uv [N, 2]`` and the raw <- corrected Jacobian."""
+    cd = intr.distortion_centre[cam]
+    a2 = intr.aspect[cam] ** 2
+    k1, k2, k3 = intr.radial[cam].T
+    e = uv - cd
+    r2 = e[:, 0] ** 2 + a2 * e[:, 1] ** 2
+    s = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    ds = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    g = np.stack([e[:, 0], a2 * e[:, 1]], -1)
+    J = s[:, None, None] * np.eye(2) + 2 * ds[:, None, None] * e[:, :, None] * g[:, None, :]
+    return cd + s[:, None] * e, np.linalg.inv(J)
+
+
+def _rms(r: NDArray[np.float64]) -> float:
+    r = r.reshape(-1, 2)
+    return float(np.sqrt((r**2).sum(-1).mean())) if r.size else float("nan")
+
+
+def bundle_frame(
+    observations: ArrayLike,
+    points: ArrayLike,
+    R: ArrayLike,
+    t: ArrayLike,
+    intr: CameraIntrinsics,
+    *,
+    fixed_points_mask: ArrayLike | None = None,
+    fixed_cameras: ArrayLike | None = None,
+    refine_points: bool = True,
+    refine_intrinsics: bool = False,
+    loss: str = "huber",
+    f_scale: float = 1.0,
+    max_nfev: int | None = 50,
+    ftol: float = 1e-8,
+) -> BundleResult:
+    """Bundle Current Frame [Unconstrained]: refine one frame's cameras and points.
+
+    Parameters
+    ----------
+    observations : array_like, shape (P, C, 2)
+        Raw pixel observations, NaN where missing.
+    points : array_like, shape (P, 3)
+        Starting 3D points (mm); NaN points and their observations are ignored.
+    R : array_like, shape (C, 3, 3)
+    t : array_like, shape (C, 3)
+        Starting extrinsics (world->camera, mm).
+    intr : CameraIntrinsics
+    fixed_points_mask : array_like of bool, shape (P,), optional
+        Points of known structure (the brim): kept fixed, which fixes the gauge. Without
+        any, the first camera with observations is fixed and the scale is held by the
+        distance between the first two camera centres.
+    fixed_cameras : array_like of bool, shape (C,), optional
+        Cameras to keep fixed in addition.
+    refine_points : bool
+        Also refine the free points (False: cameras only, a resection).
+    refine_intrinsics : bool
+        Also refine focal length and principal point per camera (radial terms fixed).
+    loss : str
+        ``least_squares`` loss (``"linear"``, ``"huber"``, ``"soft_l1"``, ``"cauchy"``...).
+    f_scale : float
+        Inlier scale of the robust loss (px).
+    max_nfev : int or None
+        Limit on residual evaluations.
+    ftol : float
+        Relative cost tolerance.
+
+    Returns
+    -------
+    BundleResult
+
+    Raises
+    ------
+    ValueError
+        On inconsistent shapes (the message names the argument).
+    """
+    uv = np.asarray(observations, dtype=np.float64)
+    X0 = np.asarray(points, dtype=np.float64)
+    R0 = np.asarray(R, dtype=np.float64)
+    t0 = np.asarray(t, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[-1] != 2:
+        raise ValueError(f"observations must have shape (P, C, 2), got {uv.shape}")
+    P, C, _ = uv.shape
+    if X0.shape != (P, 3):
+        raise ValueError(f"points must have shape ({P}, 3), got {X0.shape}")
+    if R0.shape != (C, 3, 3) or t0.shape != (C, 3):
+        raise ValueError(f"R and t must have shapes ({C}, 3, 3) and ({C}, 3), got "
+                         f"{R0.shape} and {t0.shape}")
+    if intr.n_cameras != C:
+        raise ValueError(f"intr has {intr.n_cameras} cameras but observations have {C}")
+    fixed_pts = (np.zeros(P, bool) if fixed_points_mask is None
+                 else np.asarray(fixed_points_mask, bool).reshape(-1))
+    if fixed_pts.shape != (P,):
+        raise ValueError(f"fixed_points_mask must have shape ({P},), got {fixed_pts.shape}")
+    fixed_cam = (np.zeros(C, bool) if fixed_cameras is None
+                 else np.asarray(fixed_cameras, bool).reshape(-1))
+    if fixed_cam.shape != (C,):
+        raise ValueError(f"fixed_cameras must have shape ({C},), got {fixed_cam.shape}")
+
+    cam_ok = np.isfinite(R0).all((1, 2)) & np.isfinite(t0).all(1)
+    ok = np.isfinite(uv).all(-1) & np.isfinite(X0).all(-1)[:, None] & cam_ok[None, :]
+    pi, ci = np.nonzero(ok)
+    if pi.size == 0:
+        return BundleResult(R0.copy(), t0.copy(), X0.copy(), float("nan"), float("nan"),
+                            False, "no usable observations", None, 0)
+    uc, jinv = _undistort_with_jacobian(uv[pi, ci], ci, intr)
+    observed_cam = np.bincount(ci, minlength=C) > 0
+    observed_pt = np.bincount(pi, minlength=P) > 0
+    pt_free = observed_pt & ~fixed_pts & refine_points
+    cam_free = observed_cam & ~fixed_cam
+    gauge_by_camera = not (fixed_pts & observed_pt).any() and not fixed_cam.any()
+    anchor = -1
+    if gauge_by_camera:
+        anchor = int(np.flatnonzero(observed_cam)[0])
+        cam_free[anchor] = False
+
+    prob = _FrameProblem(ci, pi, uc, jinv, R0, t0, X0, intr.K(), cam_free, pt_free,
+                         refine_intrinsics)
+    struct = _structure(ci, pi, prob.n_cam_par, cam_free, pt_free)
+    x0 = prob.x0()
+    r0 = prob.residuals(x0)
+    rms_before = _rms(r0)
+    if x0.size == 0:
+        return BundleResult(R0.copy(), t0.copy(), X0.copy(), rms_before, rms_before, True,
+                            "nothing to refine", None, 1)
+    sol = least_squares(
+        prob.residuals, x0, jac=lambda x: prob.jacobian(x, struct), method="trf",
+        loss=loss, f_scale=f_scale, x_scale="jac", tr_solver="lsmr", max_nfev=max_nfev,
+        ftol=ftol, xtol=1e-10, gtol=1e-10,
+    )
+    _, Rn, tn, Xn, Kn = prob.unpack(sol.x)
+    if gauge_by_camera:
+        Rn, tn, Xn = _restore_scale(Rn, tn, Xn, R0, t0, anchor, observed_cam)
+    intr_out = None
+    if refine_intrinsics:
+        intr_out = intr.copy()
+        intr_out.focal = Kn[:, 0, 0].copy()
+        intr_out.principal_point = Kn[:, :2, 2].copy()
+    rms_after = _rms(prob.residuals(sol.x))
+    return BundleResult(Rn, tn, Xn, rms_before, rms_after, bool(sol.success),
+                        str(sol.message), intr_out, int(sol.nfev))
+
+
+def _restore_scale(R: NDArray[np.float64], t: NDArray[np.float64], X: NDArray[np.float64],
+                   R0: NDArray[np.float64], t0: NDArray[np.float64], anchor: int,
+                   observed: NDArray[np.bool_]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Scale about the fixed anchor camera so the anchor-to-next baseline keeps its length."""
+    others = np.flatnonzero(observed)
+    others = others[others != anchor]
+    if others.size == 0:
+        return R, t, X
+    c0 = camera_centres(R0, t0)
+    c = camera_centres(R, t)
+    j = int(others[0])
+    before = np.linalg.norm(c0[j] - c0[anchor])
+    after = np.linalg.norm(c[j] - c[anchor])
+    if not (after > 0 and np.isfinite(after)):
+        return R, t, X
+    s = before / after
+    origin = c[anchor]
+    c_new = origin + s * (c - origin)
+    X_new = origin + s * (X - origin)
+    t_new = -np.einsum("cij,cj->ci", R, c_new)
+    return R, t_new, X_new
+
+
+class SequenceBundleResult(NamedTuple):
+    """Result of :func:`bundle_sequence` (per-frame arrays, NaN where not solved).
+
+    Attributes
+    ----------
+    R : ndarray, shape (F, C, 3, 3)
+    t : ndarray, shape (F, C, 3)
+    points : ndarray, shape (F, P, 3)
+    rms_before, rms_after : ndarray, shape (F,)
+        Per-frame RMS reprojection error (px).
+    success : ndarray of bool, shape (F,)
+    frames_done : int
+        Frames processed (less than F only when cancelled).
+    """
+
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+    points: NDArray[np.float64]
+    rms_before: NDArray[np.float64]
+    rms_after: NDArray[np.float64]
+    success: NDArray[np.bool_]
+    frames_done: int
+
+
+def bundle_sequence(
+    observations: ArrayLike,
+    points: ArrayLike,
+    R: ArrayLike,
+    t: ArrayLike,
+    intr: CameraIntrinsics,
+    *,
+    brim_points_mask: ArrayLike | None = None,
+    brim_model: ArrayLike | None = None,
+    refine_points: bool = True,
+    loss: str = "huber",
+    f_scale: float = 1.0,
+    max_nfev: int | None = 50,
+    progress: Callable[[int, int], bool] | None = None,
+) -> SequenceBundleResult:
+    """Bundle Sequence [Unconstrained]: refine per-frame cameras and points over a take.
+
+    The head rig's cameras are solved per frame and the face points move, so with the
+    brim as known structure every frame is an independent problem: frames are solved one
+    by one (a sparse problem each, never a dense Jacobian), each frame starting from its
+    own cameras, or from the previous frame's refined cameras where its own are missing.
+
+    Parameters
+    ----------
+    observations : array_like, shape (F, P, C, 2)
+        Raw pixel observations, NaN where missing.
+    points : array_like, shape (F, P, 3)
+        Starting points (mm), NaN where unknown.
+    R : array_like, shape (F, C, 3, 3)
+    t : array_like, shape (F, C, 3)
+        Starting per-frame extrinsics (NaN for unsolved camera-frames).
+    intr : CameraIntrinsics
+    brim_points_mask : array_like of bool, shape (P,), optional
+        Which points are brim points.
+    brim_model : array_like, shape (B, 3), optional
+        Known brim positions (mm, brim frame) of the ``B = brim_points_mask.sum()`` brim
+        points, in point order. They replace the starting brim points and stay fixed.
+        Without a model, brim points are refined like the others and the gauge is fixed
+        per frame by one camera (see :func:`bundle_frame`).
+    refine_points, loss, f_scale, max_nfev
+        As for :func:`bundle_frame`.
+    progress : callable, optional
+        ``progress(frames_done, F)``; False cancels (later frames keep NaN results).
+
+    Returns
+    -------
+    SequenceBundleResult
+    """
+    uv = np.asarray(observations, dtype=np.float64)
+    X = np.asarray(points, dtype=np.float64)
+    Rs = np.asarray(R, dtype=np.float64)
+    ts = np.asarray(t, dtype=np.float64)
+    if uv.ndim != 4 or uv.shape[-1] != 2:
+        raise ValueError(f"observations must have shape (F, P, C, 2), got {uv.shape}")
+    F, P, C, _ = uv.shape
+    if X.shape != (F, P, 3):
+        raise ValueError(f"points must have shape ({F}, {P}, 3), got {X.shape}")
+    if Rs.shape != (F, C, 3, 3) or ts.shape != (F, C, 3):
+        raise ValueError(f"R and t must have shapes ({F}, {C}, 3, 3) and ({F}, {C}, 3)")
+    mask = np.zeros(P, bool) if brim_points_mask is None else np.asarray(brim_points_mask, bool)
+    if mask.shape != (P,):
+        raise ValueError(f"brim_points_mask must have shape ({P},), got {mask.shape}")
+    model = None
+    if brim_model is not None:
+        model = np.asarray(brim_model, dtype=np.float64)
+        if model.shape != (int(mask.sum()), 3):
+            raise ValueError(f"brim_model must have shape ({int(mask.sum())}, 3) to match "
+                             f"brim_points_mask, got {model.shape}")
+
+    R_out = np.full_like(Rs, np.nan)
+    t_out = np.full_like(ts, np.nan)
+    X_out = np.full_like(X, np.nan)
+    before = np.full(F, np.nan)
+    after = np.full(F, np.nan)
+    success = np.zeros(F, bool)
+    R_prev = t_prev = None
+    done = 0
+    for f in range(F):
+        Rf, tf = Rs[f].copy(), ts[f].copy()
+        missing = ~(np.isfinite(Rf).all((1, 2)) & np.isfinite(tf).all(1))
+        if missing.any() and R_prev is not None:
+            Rf[missing], tf[missing] = R_prev[missing], t_prev[missing]
+        Xf = X[f].copy()
+        if model is not None:
+            Xf[mask] = model
+        res = bundle_frame(uv[f], Xf, Rf, tf, intr,
+                           fixed_points_mask=mask if model is not None else None,
+                           refine_points=refine_points, loss=loss, f_scale=f_scale,
+                           max_nfev=max_nfev)
+        R_out[f], t_out[f], X_out[f] = res.R, res.t, res.points
+        before[f], after[f], success[f] = res.rms_before, res.rms_after, res.success
+        if res.success:
+            R_prev, t_prev = res.R, res.t
+        done = f + 1
+        if progress is not None and progress(done, F) is False:
+            break
+    return SequenceBundleResult(R_out, t_out, X_out, before, after, success, done)
+
+
+# --------------------------------------------------------------------------------------
+# Bundle Adjustment in the Large
+# --------------------------------------------------------------------------------------
+
+
+class BALProblem(NamedTuple):
+    """A BAL problem: ``cameras [Nc, 9]`` (rotation vector, t, f, k1, k2), ``points [Np, 3]``,
+    and per observation the camera index, point index and pixel position ``[No, 2]``."""
+
+    cameras: NDArray[np.float64]
+    points: NDArray[np.float64]
+    camera_index: NDArray[np.intp]
+    point_index: NDArray[np.intp]
+    observations: NDArray[np.float64]
+
+
+def read_bal(path: str | Path) -> BALProblem:
+    """Read a BAL text problem file.
+
+    Raises
+    ------
+    ValueError
+        When the file does not hold the number of values its header announces.
+    """
+    path = Path(path)
+    with open(path, encoding="ascii") as fh:
+        header = fh.readline().split()
+        if len(header) != 3:
+            raise ValueError(f"{path}: first line must be '<cameras> <points> <observations>'")
+        nc, npt, no = (int(v) for v in header)
+        data = np.array(fh.read().split(), dtype=np.float64)
+    expected = 4 * no + 9 * nc + 3 * npt
+    if data.size != expected:
+        raise ValueError(f"{path}: expected {expected} values after the header, found {data.size}")
+    obs = data[: 4 * no].reshape(no, 4)
+    cams = data[4 * no: 4 * no + 9 * nc].reshape(nc, 9)
+    pts = data[4 * no + 9 * nc:].reshape(npt, 3)
+    return BALProblem(cams, pts, obs[:, 0].astype(np.intp), obs[:, 1].astype(np.intp), obs[:, 2:])
+
+
+def bal_residuals(cameras: NDArray[np.float64], points: NDArray[np.float64],
+                  camera_index: NDArray[np.intp], point_index: NDArray[np.intp],
+                  observations: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Snavely-model reprojection residuals ``[No, 2]`` (px)."""
+    cam = cameras[camera_index]
+    P = np.einsum("nij,nj->ni", rodrigues_to_matrix(cam[:, :3]), points[point_index]) + cam[:, 3:6]
+    p = -P[:, :2] / P[:, 2:3]
+    s = (p * p).sum(-1)
+    rho = 1 + s * (cam[:, 7] + s * cam[:, 8])
+    return cam[:, 6:7] * rho[:, None] * p - observations
+
+
+def _bal_jacobian(cameras: NDArray[np.float64], points: NDArray[np.float64],
+                  ci: NDArray[np.intp], pi: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Dense per-observation Jacobian blocks ``[No, 2, 12]`` (camera 9, point 3)."""
+    cam = cameras[ci]
+    Rn = rodrigues_to_matrix(cam[:, :3])
+    RX = np.einsum("nij,nj->ni", Rn, points[pi])
+    P = RX + cam[:, 3:6]
+    iz = 1.0 / P[:, 2]
+    p = -P[:, :2] * iz[:, None]
+    s = (p * p).sum(-1)
+    f, k1, k2 = cam[:, 6], cam[:, 7], cam[:, 8]
+    rho = 1 + s * (k1 + s * k2)
+    drho = k1 + 2 * k2 * s
+    No = P.shape[0]
+    dp_dP = np.zeros((No, 2, 3))
+    dp_dP[:, 0, 0] = -iz
+    dp_dP[:, 1, 1] = -iz
+    dp_dP[:, 0, 2] = -p[:, 0] * iz
+    dp_dP[:, 1, 2] = -p[:, 1] * iz
+    dproj_dp = f[:, None, None] * (rho[:, None, None] * np.eye(2)
+                                   + 2 * drho[:, None, None] * p[:, :, None] * p[:, None, :])
+    A = dproj_dp @ dp_dP
+    J = np.empty((No, 2, 12))
+    J[:, :, 0:3] = -A @ _skew(RX) @ left_jacobian(cam[:, :3])
+    J[:, :, 3:6] = A
+    J[:, :, 6] = rho[:, None] * p
+    J[:, :, 7] = (f * s)[:, None] * p
+    J[:, :, 8] = (f * s * s)[:, None] * p
+    J[:, :, 9:12] = A @ Rn
+    return J
+
+
+class BALResult(NamedTuple):
+    """Result of :func:`bundle_adjust_bal`: refined arrays, costs (0.5 sum r^2), RMS (px)."""
+
+    cameras: NDArray[np.float64]
+    points: NDArray[np.float64]
+    cost_initial: float
+    cost_final: float
+    rms_initial: float
+    rms_final: float
+    nfev: int
+    njev: int
+    seconds: float
+    success: bool
+    message: str
+
+
+def bal_sparsity(problem: BALProblem) -> sp.csr_matrix:
+    """0/1 sparsity of the BAL Jacobian (for a finite-difference ``jac_sparsity``)."""
+    nc, npt = problem.cameras.shape[0], problem.points.shape[0]
+    struct = _structure(problem.camera_index, problem.point_index, 9, np.ones(nc, bool),
+                        np.ones(npt, bool))
+    return sp.csr_matrix((np.ones(struct.rows.size, np.int8), (struct.rows, struct.cols)),
+                         shape=struct.shape)
+
+
+def _block_sum(blocks: NDArray[np.float64], index: NDArray[np.intp], n: int
+               ) -> NDArray[np.float64]:
+    """Sum ``blocks [N, ...]`` into ``[n, ...]`` by ``index`` (bincount per entry)."""
+    shape = blocks.shape[1:]
+    m = int(np.prod(shape))
+    flat = (index[:, None] * m + np.arange(m)).ravel()
+    return np.bincount(flat, weights=blocks.reshape(-1), minlength=n * m).reshape((n,) + shape)
+
+
+def _lm_schur(
+    fun: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
+    blocks: Callable[[NDArray[np.float64], NDArray[np.float64]],
+                     tuple[NDArray[np.float64], NDArray[np.float64]]],
+    cams: NDArray[np.float64], pts: NDArray[np.float64], ci: NDArray[np.intp],
+    pi: NDArray[np.intp], *, ftol: float, max_iter: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int, int, bool, str]:
+    """Levenberg-Marquardt with the Schur complement on the camera parameters.
+
+    ``fun(cams, pts)`` gives residuals ``[No, 2]``; ``blocks(cams, pts)`` the camera and
+    point Jacobian blocks ``[No, 2, k]`` and ``[No, 2, 3]`` of each observation. The point
+    part of ``J^T J`` is block diagonal and inverted in batch; the reduced camera system
+    ``U - W V^-1 W^T`` (one sparse product) is small and dense and solved by Cholesky.
+    Stops when an accepted step lowers the cost by less than ``ftol`` times the cost
+    (scipy's ``ftol`` rule).
+    """
+    import scipy.linalg as sla
+
+    Nc, k = cams.shape
+    Np = pts.shape[0]
+    No = ci.shape[0]
+    # Sparsity of W (camera params x point params), fixed across iterations.
+    w_rows = ((ci * k)[:, None, None] + np.arange(k)[:, None]).repeat(3, 2).ravel()
+    w_cols = ((pi * 3)[:, None, None] + np.arange(3)[None, :]).repeat(k, 1).ravel()
+    eye_k, eye_3 = np.eye(k), np.eye(3)
+
+    r = fun(cams, pts)
+    cost = 0.5 * float((r * r).sum())
+    lam = 1e-4
+    nfev = njev = 1
+    message, success = "maximum number of iterations reached", False
+    for _ in range(max_iter):
+        Jc, Jp = blocks(cams, pts)
+        njev += 1
+        JcT = Jc.transpose(0, 2, 1)
+        JpT = Jp.transpose(0, 2, 1)
+        U = _block_sum(JcT @ Jc, ci, Nc)
+        V = _block_sum(JpT @ Jp, pi, Np)
+        W = JcT @ Jp  # [No, k, 3]
+        gc = _block_sum((JcT @ r[:, :, None])[:, :, 0], ci, Nc)
+        gp = _block_sum((JpT @ r[:, :, None])[:, :, 0], pi, Np)
+        Wt = sp.csr_matrix((W.transpose(0, 2, 1).ravel(),
+                            (w_cols.reshape(No, k, 3).transpose(0, 2, 1).ravel(),
+                             w_rows.reshape(No, k, 3).transpose(0, 2, 1).ravel())),
+                           shape=(Np * 3, Nc * k))
+        while True:
+            Ud = U + lam * (np.einsum("cii->ci", U)[:, :, None] * eye_k + 1e-9 * eye_k)
+            Vd = V + lam * (np.einsum("pii->pi", V)[:, :, None] * eye_3 + 1e-9 * eye_3)
+            Vinv = np.linalg.inv(Vd)
+            Y = W @ Vinv[pi]  # [No, k, 3]
+            Ys = sp.csr_matrix((Y.ravel(), (w_rows, w_cols)), shape=(Nc * k, Np * 3))
+            S = -(Ys @ Wt).toarray()
+            S.reshape(Nc, k, Nc, k)[np.arange(Nc), :, np.arange(Nc), :] += Ud
+            rhs = -gc.ravel() + Ys @ gp.ravel()
+            try:
+                dc = sla.cho_solve(sla.cho_factor(S, check_finite=False), rhs,
+                                   check_finite=False).reshape(Nc, k)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            WTdc = _block_sum((W.transpose(0, 2, 1) @ dc[ci][:, :, None])[:, :, 0], pi, Np)
+            dp = np.einsum("pij,pj->pi", Vinv, -gp - WTdc)
+            cams_n, pts_n = cams + dc, pts + dp
+            r_n = fun(cams_n, pts_n)
+            nfev += 1
+            cost_n = 0.5 * float((r_n * r_n).sum())
+            if np.isfinite(cost_n) and cost_n < cost:
+                lam = max(lam / 3.0, 1e-12)
+                break
+            lam *= 4.0
+            if lam > 1e12:
+                return cams, pts, nfev, njev, False, "damping grew without improvement"
+        dF = cost - cost_n
+        cams, pts, r, cost = cams_n, pts_n, r_n, cost_n
+        if dF < ftol * cost:
+            message, success = "`ftol` termination condition is satisfied.", True
+            break
+    return cams, pts, nfev, njev, success, message
+
+
+def bundle_adjust_bal(
+    problem: BALProblem,
+    *,
+    solver: str = "schur",
+    jacobian: str = "analytic",
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    max_nfev: int | None = None,
+    ftol: float = 1e-4,
+    x_scale: str = "jac",
+) -> BALResult:
+    """Bundle-adjust a BAL problem.
+
+    Parameters
+    ----------
+    problem : BALProblem
+    solver : {"schur", "least_squares"}
+        ``"schur"``: Levenberg-Marquardt on the analytic Jacobian with the points
+        eliminated (Schur complement; linear loss only). ``"least_squares"``:
+        :func:`scipy.optimize.least_squares` (TRF, LSMR).
+    jacobian : {"analytic", "fd"}
+        For ``least_squares``: the analytic sparse Jacobian, or scipy's finite differences
+        with ``jac_sparsity`` (the reference).
+    loss, f_scale, max_nfev, ftol, x_scale
+        As in :func:`scipy.optimize.least_squares` (``max_nfev`` bounds the number of
+        iterations of the Schur solver).
+
+    Returns
+    -------
+    BALResult
+    """
+    if jacobian not in ("analytic", "fd"):
+        raise ValueError(f"jacobian must be 'analytic' or 'fd', got {jacobian!r}")
+    if solver not in ("schur", "least_squares"):
+        raise ValueError(f"solver must be 'schur' or 'least_squares', got {solver!r}")
+    if solver == "schur" and (loss != "linear" or jacobian != "analytic"):
+        raise ValueError("solver 'schur' supports loss='linear' with the analytic Jacobian")
+    nc, npt = problem.cameras.shape[0], problem.points.shape[0]
+    ci, pi, obs = problem.camera_index, problem.point_index, problem.observations
+
+    def split(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return x[: 9 * nc].reshape(nc, 9), x[9 * nc:].reshape(npt, 3)
+
+    def fun(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        cams, pts = split(x)
+        return bal_residuals(cams, pts, ci, pi, obs).ravel()
+
+    struct = _structure(ci, pi, 9, np.ones(nc, bool), np.ones(npt, bool))
+
+    def jac(x: NDArray[np.float64]) -> sp.csr_matrix:
+        cams, pts = split(x)
+        return _sparse(struct, _bal_jacobian(cams, pts, ci, pi))
+
+    x0 = np.concatenate([problem.cameras.ravel(), problem.points.ravel()])
+    r0 = fun(x0)
+    t0 = time.perf_counter()
+    if solver == "schur":
+        def blocks(cams: NDArray[np.float64], pts: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            J = _bal_jacobian(cams, pts, ci, pi)
+            return J[:, :, :9], J[:, :, 9:]
+
+        cams, pts, nfev, njev, ok, msg = _lm_schur(
+            lambda c, p: bal_residuals(c, p, ci, pi, obs), blocks, problem.cameras.copy(),
+            problem.points.copy(), ci, pi, ftol=ftol,
+            max_iter=100 if max_nfev is None else max_nfev)
+        seconds = time.perf_counter() - t0
+        r1 = bal_residuals(cams, pts, ci, pi, obs).ravel()
+        return BALResult(cams, pts, 0.5 * float(r0 @ r0), 0.5 * float(r1 @ r1), _rms(r0),
+                         _rms(r1), nfev, njev, seconds, ok, msg)
+    if jacobian == "analytic":
+        sol = least_squares(fun, x0, jac=jac, method="trf", loss=loss, f_scale=f_scale,
+                            x_scale=x_scale, tr_solver="lsmr", ftol=ftol, max_nfev=max_nfev)
+    else:
+        sol = least_squares(fun, x0, jac_sparsity=bal_sparsity(problem), method="trf",
+                            loss=loss, f_scale=f_scale, x_scale=x_scale, tr_solver="lsmr",
+                            ftol=ftol, max_nfev=max_nfev)
+    seconds = time.perf_counter() - t0
+    cams, pts = split(sol.x)
+    r1 = fun(sol.x)
+    return BALResult(cams, pts, 0.5 * float(r0 @ r0), 0.5 * float(r1 @ r1), _rms(r0), _rms(r1),
+                     int(sol.nfev), int(sol.njev or 0), seconds, bool(sol.success),
+                     str(sol.message))

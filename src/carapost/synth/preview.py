@@ -1,0 +1,62 @@
+"""Contact sheets: the views of one frame side by side, with the truth overlaid."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from carapost.synth.render import render_frame
+from carapost.synth.scene import SynthScene
+
+__all__ = ["contact_sheet"]
+
+
+def contact_sheet(scene: SynthScene, frame: int = 0, *, scale: float = 0.5,
+                  overlay: bool = True, labels: bool = False, columns: int = 2
+                  ) -> NDArray[np.uint8]:
+    """A grid of every camera's image of one frame, as a BGR image.
+
+    Parameters
+    ----------
+    scene : SynthScene
+    frame : int
+    scale : float
+        Downscale factor of each view.
+    overlay : bool
+        Draw the truth: a red cross at each visible face marker, green at brim dots.
+    labels : bool
+        Also write the face marker labels.
+    columns : int
+        Views per row.
+
+    Returns
+    -------
+    ndarray, shape (rows * h, columns * w, 3), uint8
+    """
+    w, h = scene.size
+    tiles = []
+    for c in range(scene.n_cameras):
+        img = cv2.cvtColor(render_frame(scene, frame, c), cv2.COLOR_GRAY2BGR)
+        img = cv2.resize(img, (int(round(w * scale)), int(round(h * scale))),
+                         interpolation=cv2.INTER_AREA)
+        if overlay:
+            for uv, vis, col in ((scene.uv, scene.visible, (40, 40, 255)),
+                                 (scene.brim_uv, scene.brim_visible, (60, 220, 60))):
+                for m in np.nonzero(vis[frame, :, c])[0]:
+                    u, v = (uv[frame, m, c] + 0.5) * scale - 0.5
+                    cv2.drawMarker(img, (int(round(u)), int(round(v))), col,
+                                   cv2.MARKER_CROSS, 7, 1, cv2.LINE_AA)
+            if labels:
+                for m in np.nonzero(scene.visible[frame, :, c])[0]:
+                    u, v = (scene.uv[frame, m, c] + 0.5) * scale - 0.5
+                    cv2.putText(img, scene.labels[m], (int(u) + 4, int(v) - 3),
+                                cv2.FONT_HERSHEY_PLAIN, 0.6, (0, 200, 255), 1, cv2.LINE_AA)
+        cv2.putText(img, f"{scene.intrinsics.names[c]}  frame {frame}", (8, 20),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+        cv2.rectangle(img, (0, 0), (img.shape[1] - 1, img.shape[0] - 1), (90, 90, 90), 1)
+        tiles.append(img)
+    while len(tiles) % columns:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
+    return np.vstack(rows)

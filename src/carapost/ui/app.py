@@ -1,0 +1,83 @@
+"""Application entry point: ``carapost gui [PROJECT]``."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+from PySide6.QtGui import QColor, QPalette
+from PySide6.QtWidgets import QApplication
+
+log = logging.getLogger("carapost.ui")
+
+
+def dark_palette() -> QPalette:
+    """The dark Fusion palette the views' colours are designed for."""
+    pal = QPalette()
+    base, window, text = QColor(32, 32, 34), QColor(48, 48, 50), QColor(225, 225, 225)
+    roles = {
+        QPalette.ColorRole.Window: window, QPalette.ColorRole.WindowText: text,
+        QPalette.ColorRole.Base: base, QPalette.ColorRole.AlternateBase: window,
+        QPalette.ColorRole.ToolTipBase: QColor(60, 60, 60),
+        QPalette.ColorRole.ToolTipText: text, QPalette.ColorRole.Text: text,
+        QPalette.ColorRole.Button: window, QPalette.ColorRole.ButtonText: text,
+        QPalette.ColorRole.Highlight: QColor(60, 110, 170),
+        QPalette.ColorRole.HighlightedText: QColor(255, 255, 255),
+        QPalette.ColorRole.PlaceholderText: QColor(140, 140, 140),
+    }
+    for role, colour in roles.items():
+        pal.setColor(role, colour)
+    for role in (QPalette.ColorRole.Text, QPalette.ColorRole.ButtonText,
+                 QPalette.ColorRole.WindowText):
+        pal.setColor(QPalette.ColorGroup.Disabled, role, QColor(120, 120, 120))
+    return pal
+
+
+def application(argv: list[str] | None = None) -> QApplication:
+    """The QApplication (created once, styled)."""
+    app = QApplication.instance()
+    if app is None:
+        app = QApplication(argv if argv is not None else sys.argv[:1])
+        app.setOrganizationName("carapost")
+        app.setApplicationName("carapost")
+        app.setStyle("Fusion")
+        app.setPalette(dark_palette())
+    return app  # type: ignore[return-value]
+
+
+def open_path(window, path: str) -> bool:
+    """Open a ``.cara`` project, or import a take from any other file."""
+    if Path(path).suffix.lower() == ".cara":
+        return window.open_project(path)
+    try:
+        from carapost.io.take_import import import_take
+    except ImportError:
+        window.report_error("Open", f"{path}: only .cara projects can be opened (take import "
+                            "is not available yet)")
+        return False
+    window.runner.start("Import Camera Files", lambda progress: import_take(path),
+                        lambda project, cancelled: project is not None
+                        and window.set_project(project))
+    return True
+
+
+def run_gui(path: str | None = None) -> int:
+    """Open the main window (on ``path`` if given) and run until it closes.
+
+    Returns
+    -------
+    int
+        Exit status (0 on a normal close).
+    """
+    from carapost.ui.mainwindow import MainWindow
+
+    app = application()
+    window = MainWindow()
+    window.show()
+    if path:
+        if not Path(path).exists():
+            window.report_error("Open", f"{path}: no such file")
+        else:
+            open_path(window, path)
+    return int(app.exec())
