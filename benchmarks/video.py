@@ -8,7 +8,7 @@ through `carapost.io.video.VideoSource`:
 - ``decode_ffv1_fps`` / ``decode_mp4v_fps``: reading every frame in order (frames/s),
   median of 3 runs;
 - ``random_access_ms``: latency of one read at a random frame of the FFV1 video
-  (seeks; every read lands on a frame other than the next one), median of 3 runs of 40
+  (seeks; every read lands on a frame other than the next one), median of 3 runs of 25
   reads each.
 
 Run from the repository root: ``python benchmarks/video.py``.
@@ -65,7 +65,7 @@ def _sequential_fps(path: Path) -> float:
     return src.n_frames / elapsed
 
 
-def _random_ms(path: Path, rng: np.random.Generator, reads: int = 40) -> float:
+def _random_ms(path: Path, rng: np.random.Generator, reads: int = 25) -> float:
     src = VideoSource(path)
     src.read(0)
     src.read(N // 2)  # the one-off seek check happens here, not in the timed reads

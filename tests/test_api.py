@@ -323,3 +323,22 @@ def test_api_does_not_import_qt():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert res.stdout.strip() == "False"
+
+
+def test_evaluate_reads_the_synthetic_truth_format(tmp_path):
+    synth = pytest.importorskip("carapost.synth")
+    scene = synth.build_scene(synth.SynthConfig(frames=6, size=(160, 96), n_cameras=2,
+                                                markers="sparse35"))
+    tp = tmp_path / "truth.npz"
+    synth.write_truth(tp, scene)
+    p = new_project(scene.n_frames, scene.n_cameras, image_size=(160, 96))
+    n = scene.points3d.shape[1]
+    cols = p.points.append(n, labels=list(scene.labels))
+    p.points.positions[:, cols] = scene.points3d
+    p.points.recon[:, cols] = RECON_TRIANGULATED
+    p.points.obs[:, cols] = np.where(scene.visible[..., None], scene.uv, np.nan)
+    r = api.evaluate(p, tp)
+    assert r["n_matched"] == n and r["spurious_points"] == 0 and r["swaps"] == 0
+    assert r["rmse_mm"] == pytest.approx(0.0, abs=1e-3)
+    assert r["coverage"] == 1.0
+    assert r["reprojection_rms_px"] == pytest.approx(0.0, abs=1e-3)

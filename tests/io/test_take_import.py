@@ -228,5 +228,12 @@ def test_import_synthetic_take(tmp_path):
     assert project.n_cameras == 2 and project.n_frames == 4
     assert project.take.cameras[0].image_size == (160, 96)
     assert project.take.fps == pytest.approx(config.fps)
-    if find_take_files(out).xcp is not None:
-        assert project.calibration.intrinsics is not None and project.calibration.solved.all()
+    files = find_take_files(out)
+    assert files.xcp is not None and files.brim_csv is not None
+    assert project.calibration.intrinsics is not None and project.calibration.solved.all()
+    assert project.take.metadata["logger_name"] == "carapost-synth"
+    truth = np.load(tmp_path / "truth.npz")
+    assert project.labels == [str(s) for s in truth["labels"]]
+    # frame-0 calibration of the XCP = the truth cameras of frame 0
+    np.testing.assert_allclose(project.calibration.t[0], truth["cam_t"][0], atol=1e-6)
+    np.testing.assert_allclose(project.calibration.intrinsics.K(), truth["K"], atol=1e-9)

@@ -200,3 +200,19 @@ def test_missing_video_shows_blank_unless_strict(tmp_path):
         assert not tf.get(2, 0).any()
     with TakeFrames(take, strict=True) as tf, pytest.raises(CaraFileError, match="gone_cam0"):
         tf.get(2, 0)
+
+
+def test_truncated_video_frame_count_is_corrected(tmp_path, rng, caplog):
+    frames = make_frames(rng, 40)
+    path = write_video(tmp_path / "t_cam0.mkv", frames)
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.6)])  # a copy that stopped part-way
+    src = VideoSource(path)
+    assert src.n_frames == 40  # what the container header claims
+    n = src.verify_frame_count()
+    assert 0 < n < 40 and src.n_frames == n
+    assert "decode" in caplog.text
+    np.testing.assert_array_equal(src.read(n - 1), frames[n - 1])
+    good = VideoSource(write_video(tmp_path / "u_cam0.mkv", frames))
+    assert good.verify_frame_count() == 40
+    np.testing.assert_array_equal(good.read(39), frames[39])

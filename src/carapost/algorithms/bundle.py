@@ -168,14 +168,23 @@ class _FrameProblem:
     def n_cam_par(self) -> int:
         return 9 if self.intrinsics else 6
 
-    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        C, P = self.R0.shape[0], self.X0.shape[0]
+    def split(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Free-parameter vector -> camera increments ``[C, k]`` and points ``[P, 3]``."""
+        C = self.R0.shape[0]
         k = self.n_cam_par
         nc = int(self.cam_free.sum())
         cam = np.zeros((C, k))
         cam[self.cam_free] = x[: nc * k].reshape(nc, k)
         X = self.X0.copy()
         X[self.pt_free] = x[nc * k:].reshape(-1, 3)
+        return cam, X
+
+    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        return self.state(*self.split(x))
+
+    def state(self, cam: NDArray[np.float64], X: NDArray[np.float64]
+              ) -> tuple[NDArray[np.float64], ...]:
+        """Camera increments and points -> ``(cam, R, t, X, K)``."""
         R = rodrigues_to_matrix(cam[:, :3]) @ self.R0
         t = self.t0 + cam[:, 3:6]
         K = self.K.copy()
@@ -192,9 +201,13 @@ class _FrameProblem:
         return np.concatenate([np.zeros(nc * self.n_cam_par), self.X0[self.pt_free].ravel()])
 
     def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        _, R, t, X, K = self.unpack(x)
+        return self.block_residuals(*self.split(x)).ravel()
+
+    def block_residuals(self, cam: NDArray[np.float64], X: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+        _, R, t, X, K = self.state(cam, X)
         P = np.einsum("nij,nj->ni", R[self.ci], X[self.pi]) + t[self.ci]
-        return self._pixel_residual(P, K).ravel()
+        return self._pixel_residual(P, K)
 
     def _pixel_residual(self, P: NDArray[np.float64], K: NDArray[np.float64]
                         ) -> NDArray[np.float64]:
@@ -207,7 +220,18 @@ class _FrameProblem:
         return np.einsum("nij,nj->ni", self.jinv, np.stack([u, v], -1))
 
     def jacobian(self, x: NDArray[np.float64], struct: _Structure) -> sp.csr_matrix:
-        cam, R, t, X, K = self.unpack(x)
+        return _sparse(struct, self.dense_blocks(*self.split(x)))
+
+    def blocks(self, cam: NDArray[np.float64], X: NDArray[np.float64]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        dense = self.dense_blocks(cam, X)
+        k = self.n_cam_par
+        return dense[:, :, :k], dense[:, :, k:]
+
+    def dense_blocks(self, cam: NDArray[np.float64], X: NDArray[np.float64]
+                     ) -> NDArray[np.float64]:
+        """Per-observation Jacobian ``[No, 2, k + 3]`` (camera increments, then point)."""
+        cam, R, t, X, K = self.state(cam, X)
         Rc = R[self.ci]
         RX = np.einsum("nij,nj->ni", Rc, X[self.pi])
         P = RX + t[self.ci]
@@ -231,7 +255,7 @@ class _FrameProblem:
             dense[:, :, 7] = self.jinv[:, :, 0]
             dense[:, :, 8] = self.jinv[:, :, 1]
         dense[:, :, k:] = A @ Rc
-        return _sparse(struct, dense)
+        return dense
 
 
 def _undistort_with_jacobian(uv: NDArray[np.float64], cam: NDArray[np.intp],
@@ -270,6 +294,7 @@ def bundle_frame(
     f_scale: float = 1.0,
     max_nfev: int | None = 50,
     ftol: float = 1e-8,
+    solver: str = "schur",
 ) -> BundleResult:
     """Bundle Current Frame [Unconstrained]: refine one frame's cameras and points.
 
@@ -298,9 +323,14 @@ def bundle_frame(
     f_scale : float
         Inlier scale of the robust loss (px).
     max_nfev : int or None
-        Limit on residual evaluations.
+        Limit on iterations (Schur solver) or residual evaluations (least_squares).
     ftol : float
         Relative cost tolerance.
+    solver : {"schur", "least_squares"}
+        ``"schur"``: Levenberg-Marquardt on the analytic Jacobian with the points
+        eliminated, robust loss by re-weighting (fast; the default). ``"least_squares"``:
+        :func:`scipy.optimize.least_squares` (TRF) with the analytic sparse Jacobian and
+        LSMR; ``max_nfev`` then counts residual evaluations, not iterations.
 
     Returns
     -------
@@ -360,12 +390,23 @@ def bundle_frame(
     if x0.size == 0:
         return BundleResult(R0.copy(), t0.copy(), X0.copy(), rms_before, rms_before, True,
                             "nothing to refine", None, 1)
-    sol = least_squares(
-        prob.residuals, x0, jac=lambda x: prob.jacobian(x, struct), method="trf",
-        loss=loss, f_scale=f_scale, x_scale="jac", tr_solver="lsmr", max_nfev=max_nfev,
-        ftol=ftol, xtol=1e-10, gtol=1e-10,
-    )
-    _, Rn, tn, Xn, Kn = prob.unpack(sol.x)
+    if solver == "schur":
+        cam0 = np.zeros((C, prob.n_cam_par))
+        cam, Xs, nfev, _, ok_, msg = _lm_schur(
+            prob.block_residuals, prob.blocks, cam0, X0.copy(), ci, pi, ftol=ftol,
+            max_iter=50 if max_nfev is None else max_nfev, loss=loss, f_scale=f_scale,
+            cam_free=cam_free, pt_free=pt_free)
+        xs = np.concatenate([cam[cam_free].ravel(), Xs[pt_free].ravel()])
+    elif solver == "least_squares":
+        sol = least_squares(
+            prob.residuals, x0, jac=lambda x: prob.jacobian(x, struct), method="trf",
+            loss=loss, f_scale=f_scale, x_scale="jac", tr_solver="lsmr", max_nfev=max_nfev,
+            ftol=ftol, xtol=1e-10, gtol=1e-10,
+        )
+        xs, nfev, ok_, msg = sol.x, sol.nfev, sol.success, sol.message
+    else:
+        raise ValueError(f"solver must be 'schur' or 'least_squares', got {solver!r}")
+    _, Rn, tn, Xn, Kn = prob.unpack(xs)
     if gauge_by_camera:
         Rn, tn, Xn = _restore_scale(Rn, tn, Xn, R0, t0, anchor, observed_cam)
     intr_out = None
@@ -373,9 +414,9 @@ def bundle_frame(
         intr_out = intr.copy()
         intr_out.focal = Kn[:, 0, 0].copy()
         intr_out.principal_point = Kn[:, :2, 2].copy()
-    rms_after = _rms(prob.residuals(sol.x))
-    return BundleResult(Rn, tn, Xn, rms_before, rms_after, bool(sol.success),
-                        str(sol.message), intr_out, int(sol.nfev))
+    rms_after = _rms(prob.residuals(xs))
+    return BundleResult(Rn, tn, Xn, rms_before, rms_after, bool(ok_), str(msg), intr_out,
+                        int(nfev))
 
 
 def _restore_scale(R: NDArray[np.float64], t: NDArray[np.float64], X: NDArray[np.float64],
@@ -643,12 +684,33 @@ def _block_sum(blocks: NDArray[np.float64], index: NDArray[np.intp], n: int
     return np.bincount(flat, weights=blocks.reshape(-1), minlength=n * m).reshape((n,) + shape)
 
 
+def _robust(loss: str, s: NDArray[np.float64], delta: float
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Robust cost ``rho(s)`` and weight ``rho'(s)`` of squared observation errors ``s``."""
+    d2 = delta * delta
+    if loss == "linear":
+        return s, np.ones_like(s)
+    if loss == "huber":
+        root = np.sqrt(s)
+        inlier = root <= delta
+        return (np.where(inlier, s, 2 * delta * root - d2),
+                np.where(inlier, 1.0, delta / np.maximum(root, 1e-300)))
+    if loss == "soft_l1":
+        q = np.sqrt(1 + s / d2)
+        return 2 * d2 * (q - 1), 1 / q
+    if loss == "cauchy":
+        return d2 * np.log1p(s / d2), 1 / (1 + s / d2)
+    raise ValueError(f"loss must be 'linear', 'huber', 'soft_l1' or 'cauchy', got {loss!r}")
+
+
 def _lm_schur(
     fun: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
     blocks: Callable[[NDArray[np.float64], NDArray[np.float64]],
                      tuple[NDArray[np.float64], NDArray[np.float64]]],
     cams: NDArray[np.float64], pts: NDArray[np.float64], ci: NDArray[np.intp],
-    pi: NDArray[np.intp], *, ftol: float, max_iter: int,
+    pi: NDArray[np.intp], *, ftol: float, max_iter: int, loss: str = "linear",
+    f_scale: float = 1.0, cam_free: NDArray[np.bool_] | None = None,
+    pt_free: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, int, bool, str]:
     """Levenberg-Marquardt with the Schur complement on the camera parameters.
 
@@ -656,67 +718,114 @@ def _lm_schur(
     point Jacobian blocks ``[No, 2, k]`` and ``[No, 2, 3]`` of each observation. The point
     part of ``J^T J`` is block diagonal and inverted in batch; the reduced camera system
     ``U - W V^-1 W^T`` (one sparse product) is small and dense and solved by Cholesky.
-    Stops when an accepted step lowers the cost by less than ``ftol`` times the cost
-    (scipy's ``ftol`` rule).
+    A robust loss on each observation's squared error is handled by iteratively
+    re-weighted least squares. Stops when an accepted step lowers the cost by less than
+    ``ftol`` times the cost (scipy's ``ftol`` rule). Fixed cameras / points keep their
+    values (their blocks are replaced by identities with zero gradient).
     """
     import scipy.linalg as sla
 
     Nc, k = cams.shape
     Np = pts.shape[0]
     No = ci.shape[0]
+    cam_free = np.ones(Nc, bool) if cam_free is None else cam_free
+    pt_free = np.ones(Np, bool) if pt_free is None else pt_free
+    c_on = cam_free[ci][:, None, None]
+    p_on = pt_free[pi][:, None, None]
     # Sparsity of W (camera params x point params), fixed across iterations.
     w_rows = ((ci * k)[:, None, None] + np.arange(k)[:, None]).repeat(3, 2).ravel()
     w_cols = ((pi * 3)[:, None, None] + np.arange(3)[None, :]).repeat(k, 1).ravel()
+    wt_rows = w_cols.reshape(No, k, 3).transpose(0, 2, 1).ravel()
+    wt_cols = w_rows.reshape(No, k, 3).transpose(0, 2, 1).ravel()
     eye_k, eye_3 = np.eye(k), np.eye(3)
+    # CSR templates: the position of every dense entry in the CSR data arrays, so W and
+    # W V^-1 are built without a COO conversion each time (valid when every camera sees a
+    # point at most once; otherwise fall back to COO, which sums duplicates).
+    unique_pairs = np.unique(ci * Np + pi).size == No
+
+    def template(rows: NDArray[np.intp], cols: NDArray[np.intp], shape: tuple[int, int]
+                 ) -> tuple[sp.csr_matrix, NDArray[np.intp]] | None:
+        if not unique_pairs:
+            return None
+        m = sp.csr_matrix((np.arange(1, rows.size + 1, dtype=np.float64), (rows, cols)),
+                          shape=shape)
+        m.sort_indices()
+        return m, (m.data.astype(np.intp) - 1)
+
+    def build(tmpl: tuple[sp.csr_matrix, NDArray[np.intp]] | None, data: NDArray[np.float64],
+              rows: NDArray[np.intp], cols: NDArray[np.intp], shape: tuple[int, int]
+              ) -> sp.csr_matrix:
+        if tmpl is None:
+            return sp.csr_matrix((data, (rows, cols)), shape=shape)
+        m, src = tmpl
+        return sp.csr_matrix((data[src], m.indices, m.indptr), shape=shape)
+
+    y_shape, wt_shape = (Nc * k, Np * 3), (Np * 3, Nc * k)
+    y_tmpl = template(w_rows, w_cols, y_shape)
+    wt_tmpl = template(wt_rows, wt_cols, wt_shape)
+    # Observations sorted by camera: U is one small product per camera.
+    by_cam = np.argsort(ci, kind="stable")
+    cam_bounds = np.concatenate([[0], np.cumsum(np.bincount(ci, minlength=Nc))])
+
+    def robust_cost(r: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        rho, w = _robust(loss, (r * r).sum(-1), f_scale)
+        return 0.5 * float(rho.sum()), w
 
     r = fun(cams, pts)
-    cost = 0.5 * float((r * r).sum())
-    lam = 1e-4
+    cost, wts = robust_cost(r)
+    lam = 1e-5
     nfev = njev = 1
     message, success = "maximum number of iterations reached", False
     for _ in range(max_iter):
         Jc, Jp = blocks(cams, pts)
         njev += 1
+        sw = np.sqrt(wts)[:, None]
+        rw = r * sw
+        Jc = np.where(c_on, Jc * sw[:, :, None], 0.0)
+        Jp = np.where(p_on, Jp * sw[:, :, None], 0.0)
         JcT = Jc.transpose(0, 2, 1)
         JpT = Jp.transpose(0, 2, 1)
-        U = _block_sum(JcT @ Jc, ci, Nc)
+        Jc_sorted = Jc[by_cam].reshape(-1, k)
+        U = np.stack([Jc_sorted[2 * a:2 * b].T @ Jc_sorted[2 * a:2 * b]
+                      for a, b in zip(cam_bounds[:-1], cam_bounds[1:], strict=True)])
+        U[~cam_free] = eye_k
         V = _block_sum(JpT @ Jp, pi, Np)
+        V[~pt_free] = eye_3
         W = JcT @ Jp  # [No, k, 3]
-        gc = _block_sum((JcT @ r[:, :, None])[:, :, 0], ci, Nc)
-        gp = _block_sum((JpT @ r[:, :, None])[:, :, 0], pi, Np)
-        Wt = sp.csr_matrix((W.transpose(0, 2, 1).ravel(),
-                            (w_cols.reshape(No, k, 3).transpose(0, 2, 1).ravel(),
-                             w_rows.reshape(No, k, 3).transpose(0, 2, 1).ravel())),
-                           shape=(Np * 3, Nc * k))
+        gc = _block_sum((JcT @ rw[:, :, None])[:, :, 0], ci, Nc)
+        gp = _block_sum((JpT @ rw[:, :, None])[:, :, 0], pi, Np)
+        Wt = build(wt_tmpl, W.transpose(0, 2, 1).ravel(), wt_rows, wt_cols, wt_shape)
         while True:
             Ud = U + lam * (np.einsum("cii->ci", U)[:, :, None] * eye_k + 1e-9 * eye_k)
             Vd = V + lam * (np.einsum("pii->pi", V)[:, :, None] * eye_3 + 1e-9 * eye_3)
             Vinv = np.linalg.inv(Vd)
             Y = W @ Vinv[pi]  # [No, k, 3]
-            Ys = sp.csr_matrix((Y.ravel(), (w_rows, w_cols)), shape=(Nc * k, Np * 3))
+            Ys = build(y_tmpl, Y.ravel(), w_rows, w_cols, y_shape)
             S = -(Ys @ Wt).toarray()
             S.reshape(Nc, k, Nc, k)[np.arange(Nc), :, np.arange(Nc), :] += Ud
             rhs = -gc.ravel() + Ys @ gp.ravel()
             try:
                 dc = sla.cho_solve(sla.cho_factor(S, check_finite=False), rhs,
                                    check_finite=False).reshape(Nc, k)
-            except np.linalg.LinAlgError:
+            except (np.linalg.LinAlgError, ValueError):
                 lam *= 10.0
+                if lam > 1e12:
+                    return cams, pts, nfev, njev, False, "reduced camera system is singular"
                 continue
             WTdc = _block_sum((W.transpose(0, 2, 1) @ dc[ci][:, :, None])[:, :, 0], pi, Np)
             dp = np.einsum("pij,pj->pi", Vinv, -gp - WTdc)
             cams_n, pts_n = cams + dc, pts + dp
             r_n = fun(cams_n, pts_n)
             nfev += 1
-            cost_n = 0.5 * float((r_n * r_n).sum())
+            cost_n, wts_n = robust_cost(r_n)
             if np.isfinite(cost_n) and cost_n < cost:
-                lam = max(lam / 3.0, 1e-12)
+                lam = max(lam / 5.0, 1e-12)
                 break
-            lam *= 4.0
+            lam *= 5.0
             if lam > 1e12:
-                return cams, pts, nfev, njev, False, "damping grew without improvement"
+                return cams, pts, nfev, njev, True, "no further decrease of the cost"
         dF = cost - cost_n
-        cams, pts, r, cost = cams_n, pts_n, r_n, cost_n
+        cams, pts, r, cost, wts = cams_n, pts_n, r_n, cost_n, wts_n
         if dF < ftol * cost:
             message, success = "`ftol` termination condition is satisfied.", True
             break

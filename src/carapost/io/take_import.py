@@ -15,7 +15,8 @@ underscores but channel names may not. Channels are ordered naturally (``cam2`` 
 
 ``<take>.json`` is a JSON object; every key is optional and all are kept in
 ``take.metadata``. Keys carapost reads: ``fps`` (or ``frame_rate``), ``timecode_start``
-(``"HH:MM:SS:FF"``, or ``start_timecode``), ``logger_name``, ``logger_id``,
+(``"HH:MM:SS:FF"``, or ``start_timecode``), ``logger_name`` and ``logger_id`` (or
+``logger: {"name", "id"}``), ``frames`` (checked against the videos),
 ``blob_parameters`` (object: the detector settings of the capture, used by Read Blob
 Parameters From Pico Files) and ``cameras`` (object: channel -> ``{"frame_offset": int,
 "rotation": 0|90|180|270}``).
@@ -131,6 +132,8 @@ def _channel_candidates(folder: Path) -> dict[str, dict[str, list[Path]]]:
     except OSError as exc:
         raise CaraFileError(folder, f"cannot be listed ({exc.strerror or exc})") from None
     for entry in entries:
+        if entry.name.startswith("."):  # hidden and partial files of a writer at work
+            continue
         if entry.is_file() and entry.suffix.lower() in VIDEO_EXTENSIONS:
             stem = entry.stem
         elif entry.is_dir() and _is_sequence_dir(entry):
@@ -275,6 +278,10 @@ def read_take_metadata(path: str | Path) -> dict[str, Any]:
             meta["timecode_start"] = str(Timecode.parse(str(meta["timecode_start"])))
         except ValueError as exc:
             raise CaraFileError(path, f"timecode_start: {exc}") from None
+    logger = meta.get("logger")
+    if isinstance(logger, dict):  # {"logger": {"name": ..., "id": ...}}
+        meta.setdefault("logger_name", logger.get("name"))
+        meta.setdefault("logger_id", logger.get("id"))
     cams = meta.get("cameras", {})
     if not isinstance(cams, dict) or not all(isinstance(v, dict) for v in cams.values()):
         raise CaraFileError(path, "cameras must map channel names to objects")
@@ -421,12 +428,17 @@ def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -
     sources: list[VideoSource] = []
     try:
         for video in files.videos:
-            sources.append(VideoSource(video))
+            src = VideoSource(video)
+            sources.append(src)
+            src.verify_frame_count()
     finally:
         for src in sources:
             src.close()
     counts = [s.n_frames for s in sources]
     n_frames = min(counts)
+    if isinstance(meta.get("frames"), int) and meta["frames"] != max(counts):
+        log.warning("Take %s: %s.json says %d frames, the videos hold %s", files.name,
+                    files.name, meta["frames"], "/".join(str(n) for n in counts))
     if len(set(counts)) > 1:
         detail = ", ".join(f"{c} {n}" for c, n in zip(files.channels, counts, strict=True))
         log.warning("Take %s: the cameras have different frame counts (%s); using the "

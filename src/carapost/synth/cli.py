@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out-of-sync", type=int, default=None, metavar="CAMERA",
                    help="this camera's video lags by one frame")
     p.add_argument("--take", default="synth", help="take name (file stem)")
+    p.add_argument("--workers", type=int, default=2, help="processes rendering in parallel")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
 
@@ -82,7 +83,7 @@ def main_synth(argv: list[str]) -> int:
         return True
 
     try:
-        path = generate_take(args.outdir, config, progress=progress)
+        path = generate_take(args.outdir, config, progress=progress, workers=args.workers)
     except (CaraFileError, SynthCancelled) as exc:
         print(f"\ncarapost synth: error: {exc}", file=sys.stderr)
         return 1

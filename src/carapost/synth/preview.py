@@ -24,7 +24,7 @@ def contact_sheet(scene: SynthScene, frame: int = 0, *, scale: float = 0.5,
     scale : float
         Downscale factor of each view.
     overlay : bool
-        Draw the truth: a red cross at each visible face marker, green at brim dots.
+        Draw the truth: a red circle around each visible face marker, green around brim dots.
     labels : bool
         Also write the face marker labels.
     columns : int
@@ -41,12 +41,13 @@ def contact_sheet(scene: SynthScene, frame: int = 0, *, scale: float = 0.5,
         img = cv2.resize(img, (int(round(w * scale)), int(round(h * scale))),
                          interpolation=cv2.INTER_AREA)
         if overlay:
+            # circles, not crosses, so the rendered dots stay visible inside them
             for uv, vis, col in ((scene.uv, scene.visible, (40, 40, 255)),
                                  (scene.brim_uv, scene.brim_visible, (60, 220, 60))):
                 for m in np.nonzero(vis[frame, :, c])[0]:
                     u, v = (uv[frame, m, c] + 0.5) * scale - 0.5
-                    cv2.drawMarker(img, (int(round(u)), int(round(v))), col,
-                                   cv2.MARKER_CROSS, 7, 1, cv2.LINE_AA)
+                    cv2.circle(img, (int(round(u * 4)), int(round(v * 4))), 4 * 7, col, 1,
+                               cv2.LINE_AA, shift=2)
             if labels:
                 for m in np.nonzero(scene.visible[frame, :, c])[0]:
                     u, v = (scene.uv[frame, m, c] + 0.5) * scale - 0.5
@@ -60,3 +61,32 @@ def contact_sheet(scene: SynthScene, frame: int = 0, *, scale: float = 0.5,
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
     return np.vstack(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m carapost.synth.preview OUT.png [--frame N] [--preset P] [--seed S]``."""
+    import argparse
+
+    from carapost.synth.scene import SynthConfig, build_scene
+
+    p = argparse.ArgumentParser(description="Write a contact sheet of a synthetic frame.")
+    p.add_argument("out")
+    p.add_argument("--frame", type=int, default=0)
+    p.add_argument("--frames", type=int, default=60)
+    p.add_argument("--preset", default="speech")
+    p.add_argument("--markers", default="standard")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scale", type=float, default=0.5)
+    p.add_argument("--no-overlay", action="store_true")
+    a = p.parse_args(argv)
+    scene = build_scene(SynthConfig(frames=a.frames, preset=a.preset, markers=a.markers,
+                                    seed=a.seed))
+    sheet = contact_sheet(scene, a.frame, scale=a.scale, overlay=not a.no_overlay)
+    if not cv2.imwrite(a.out, sheet):
+        print(f"cannot write {a.out}")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

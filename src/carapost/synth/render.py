@@ -28,7 +28,7 @@ from carapost.synth.scene import SynthScene
 __all__ = ["render_frame", "render_background", "prepare"]
 
 _VOID = 9.0          # grey level where no surface is hit (dark background)
-_GAIN = 300.0        # grey level of a white, frontal surface 150 mm from its ring light
+_GAIN = 270.0        # grey level of a white, frontal surface 150 mm from its ring light
 _SKIN_INK = 0.16     # reflectance of a painted marker relative to skin
 _BRIM_INK = 0.08     # reflectance of a printed brim dot relative to the white strip
 _SUBSAMPLES = 6      # per pixel axis, for pixels on a disc rim

@@ -100,7 +100,8 @@ def rig_cameras(n_cameras: int, size: tuple[int, int]
         ts.append(t)
         # slightly different lenses per camera, face filling most of the frame
         focal.append(h * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
-        pp.append([(w - 1) / 2.0 + 3.1 * ((i % 3) - 1) + 1.3, (h - 1) / 2.0 - 2.2 * ((i % 2) - 0.5)])
+        pp.append([(w - 1) / 2.0 + 3.1 * ((i % 3) - 1) + 1.3,
+                   (h - 1) / 2.0 - 2.2 * ((i % 2) - 0.5)])
         dc.append([pp[-1][0] - 1.7 + 0.9 * (i % 2), pp[-1][1] + 1.2 - 0.8 * (i % 3)])
         # about 4 px of barrel distortion at the image corners
         k1 = (3.2 + 0.4 * (i % 3)) / diag**3

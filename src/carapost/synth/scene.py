@@ -14,7 +14,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms.camera import CameraIntrinsics, camera_centres, project, rodrigues_to_matrix
+from carapost.algorithms.camera import (
+    CameraIntrinsics,
+    camera_centres,
+    project,
+    rodrigues_to_matrix,
+)
 from carapost.synth import face, rig
 from carapost.synth.motion import PRESETS, ExpressionMotion, RigidJitter
 
@@ -292,7 +297,7 @@ def _visibility(points: NDArray, normals: NDArray, R: NDArray, t: NDArray,
 def _merge_partner(phi: NDArray, psi: NDArray, radii: NDArray, R0: NDArray, t0: NDArray
                    ) -> tuple[int, float, float]:
     """Pick a cheek marker seen obliquely by camera 0 and an angle offset that makes a
-    neighbour 2.4 radii away along the direction most foreshortened in that camera."""
+    neighbour 2.8 radii away along the direction most foreshortened in that camera."""
     cands = [i for i in range(len(phi)) if -40 < phi[i] < -20 and -15 < psi[i] < 5]
     if not cands:
         cands = list(range(len(phi)))
@@ -322,7 +327,7 @@ def _merge_partner(phi: NDArray, psi: NDArray, radii: NDArray, R0: NDArray, t0: 
             best_len = float(np.linalg.norm(perp))
             best_dir = (np.cos(ang) / np.linalg.norm(dp) * 0.1,
                         np.sin(ang) / np.linalg.norm(ds) * 0.1)
-    dist = 2.4 * radii[i]
+    dist = 2.8 * radii[i]
     return i, phi[i] + best_dir[0] * dist, psi[i] + best_dir[1] * dist
 
 

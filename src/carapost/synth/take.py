@@ -170,6 +170,8 @@ def _render_in_pool(scene: SynthScene, partials: list[Path], fourcc: str,
                 if progress(int(counter.value), total) is False:
                     cancel.set()
         results = [fut.result() for fut in futures]  # re-raises a worker's error
+    if progress is not None and not cancel.is_set():
+        progress(int(counter.value), total)
     return cancel.is_set() or not all(results)
 
 
@@ -277,6 +279,4 @@ def generate_take(outdir: str | os.PathLike[str], config: SynthConfig | None = N
     except BaseException:
         cleanup()
         raise
-    if progress is not None:
-        progress(F * C, F * C)
     return json_path

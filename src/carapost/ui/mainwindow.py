@@ -201,8 +201,8 @@ class MainWindow(QMainWindow):
         self.tabifyDockWidget(self.docks["Properties"], self.docks["Selection"])
         self.tabifyDockWidget(self.docks["Properties"], self.docks["Tracker"])
         self.docks["Properties"].raise_()
-        self.tabifyDockWidget(self.docks["Log"], self.docks["Selected Point"])
-        self.docks["Log"].raise_()
+        self.splitDockWidget(self.docks["Log"], self.docks["Selected Point"],
+                             Qt.Orientation.Horizontal)
         self.resizeDocks([self.docks["Properties"], self.docks["Labelling"]], [330, 260],
                          Qt.Orientation.Horizontal)
         self.resizeDocks([self.docks["Log"]], [170], Qt.Orientation.Vertical)
@@ -313,7 +313,7 @@ class MainWindow(QMainWindow):
         menu.clear()
         files = recent_files(self.settings)
         for path in files:
-            menu.addAction(path, lambda p=path: self.open_project(p))
+            menu.addAction(path, lambda p=path: [self.open_project(p)] and None)
         if not files:
             act = menu.addAction("(none)")
             act.setEnabled(False)
@@ -1133,11 +1133,11 @@ class MainWindow(QMainWindow):
         n = s.value("workspace/layout")
         if isinstance(specs, list) and specs:
             self.workspace.specs = [str(x) for x in specs]
-        if n is not None:
-            try:
-                self.workspace.set_layout(int(n))
-            except (TypeError, ValueError):
-                pass
+        try:
+            layout = int(n) if n is not None else self.workspace.n
+        except (TypeError, ValueError):
+            layout = self.workspace.n
+        self.workspace.set_layout(layout, keep_specs=True)
         opts = s.value("display/options")
         if isinstance(opts, dict):
             self.ctx.options.update(opts)

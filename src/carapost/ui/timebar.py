@@ -185,9 +185,8 @@ class Timebar(QWidget):
         self.label = QLabel()
         self.label.setMinimumWidth(210)
         layout.addWidget(self.label)
-        self.start_button.clicked.connect(lambda: self.frame_requested.emit(0))
-        self.end_button.clicked.connect(
-            lambda: self.frame_requested.emit(self.project.n_frames - 1 if self.project else 0))
+        self.start_button.clicked.connect(self._go_start)
+        self.end_button.clicked.connect(self._go_end)
         self.prev_button.clicked.connect(self._step(-1))
         self.next_button.clicked.connect(self._step(1))
         self.play_button.toggled.connect(self.play_toggled)
@@ -195,9 +194,17 @@ class Timebar(QWidget):
         self.ruler.frame_requested.connect(self.frame_requested)
         self.ruler.range_dragged.connect(self.range_dragged)
 
+    # slots return None: PySide6 mishandles Python slots that return a bool
+    def _go_start(self) -> None:
+        self.frame_requested.emit(0)
+
+    def _go_end(self) -> None:
+        self.frame_requested.emit(self.project.n_frames - 1 if self.project else 0)
+
     def _step(self, d: int):
-        return lambda: self.frame_requested.emit(
-            (self.project.current_frame if self.project else 0) + d)
+        def step() -> None:
+            self.frame_requested.emit((self.project.current_frame if self.project else 0) + d)
+        return step
 
     def set_project(self, project: Project) -> None:
         """Show this project."""

@@ -63,7 +63,10 @@ class ViewContainer(QFrame):
     def _install(self, view: BaseView) -> None:
         self._layout.addWidget(view)
         view.menu_requested.connect(self.show_menu)
-        view.activated.connect(lambda: self.activated.emit(self))
+        view.activated.connect(self._view_activated)
+
+    def _view_activated(self) -> None:
+        self.activated.emit(self)
 
     def set_spec(self, spec: str) -> None:
         """Change the view type (``sensor:1``, ``3d``...)."""
@@ -146,10 +149,15 @@ class Workspace(QWidget):
         ctx.changed.connect(self.refresh)
         ctx.options_changed.connect(lambda: self.refresh(None))
 
-    def set_layout(self, n: int, reset: bool = False) -> None:
-        """Show ``n`` views (1, 2 or 4); ``reset`` restores default zoom and rotation."""
+    def set_layout(self, n: int, reset: bool = False, *, keep_specs: bool = False) -> None:
+        """Show ``n`` views (1, 2 or 4); ``reset`` restores default zoom and rotation.
+
+        ``keep_specs`` builds the views from ``specs`` as set (restoring settings)
+        instead of first copying the current views' types into it.
+        """
         n = n if n in LAYOUTS else 4
-        self.specs_update()
+        if not keep_specs:
+            self.specs_update()
         while len(self.specs) < n:
             self.specs.append(f"sensor:{len(self.specs) % max(self.ctx.project.n_cameras, 1)}")
         for c in self.containers:

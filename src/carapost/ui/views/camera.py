@@ -111,6 +111,13 @@ def _curve(colour: tuple[int, int, int], width: float = 1.0, z: float = 0) -> pg
     return item
 
 
+class _Scatter(pg.ScatterPlotItem):
+    """A scatter that never takes clicks (picking is done by the view, vectorised)."""
+
+    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - pyqtgraph API
+        ev.ignore()
+
+
 class _ViewBox(pg.ViewBox):
     """ViewBox whose mouse handling follows the guide's camera-view bindings."""
 
@@ -175,22 +182,25 @@ class CameraView(BaseView):
         self.errors = _curve(YELLOW, 1.0, 4)
         self.sticks = _curve((255, 255, 0), 1.0, 1)
         self.measure_line = _curve((0, 255, 255), 2.0, 10)
-        self.points = pg.ScatterPlotItem(pxMode=True, symbol="o", size=14,
+        self.points = _Scatter(pxMode=True, symbol="o", size=14,
                                          pen=pg.mkPen(BLUE, width=2), brush=None)
         self.points.setZValue(5)
-        self.selected = pg.ScatterPlotItem(pxMode=True, symbol="o", size=18,
+        self.selected = _Scatter(pxMode=True, symbol="o", size=18,
                                            pen=pg.mkPen(SELECTED, width=2), brush=None)
         self.selected.setZValue(6)
-        self.proj_conn = pg.ScatterPlotItem(pxMode=True, symbol="+", size=9,
+        self.proj_conn = _Scatter(pxMode=True, symbol="+", size=9,
                                             pen=pg.mkPen(YELLOW, width=1.5), brush=None)
-        self.proj_unconn = pg.ScatterPlotItem(pxMode=True, symbol="+", size=9,
+        self.proj_unconn = _Scatter(pxMode=True, symbol="+", size=9,
                                               pen=pg.mkPen(ORANGE, width=1.5), brush=None)
-        self.rom = pg.ScatterPlotItem(pxMode=True, symbol="o", size=6,
+        self.rom = _Scatter(pxMode=True, symbol="o", size=6,
                                       pen=None, brush=pg.mkBrush(150, 200, 255, 160))
         for item in (self.det_ellipses, self.det_cross, self.det_selected, self.preview,
                      self.errors, self.sticks, self.measure_line, self.points, self.selected,
-                     self.proj_conn, self.proj_unconn, self.rom):
+                     self.proj_conn, self.proj_unconn, self.rom, self.image, self.border):
             item.setParentItem(self.group)
+            # overlays never take the mouse: clicks and drags belong to the view box
+            item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
+            item.setAcceptHoverEvents(False)
         self._labels: list[pg.TextItem] = []
         self.band = QGraphicsRectItem()
         self.band.setPen(pg.mkPen((255, 255, 255), style=Qt.PenStyle.DashLine))
@@ -278,11 +288,9 @@ class CameraView(BaseView):
 
     def refresh(self, change: Change | None) -> None:  # noqa: D102
         p = self.ctx.project
-        if self.camera >= max(p.n_cameras, 1):
-            self.camera = 0
         self.header.setText(self.title() + self._mode_text())
         self.header.adjustSize()
-        if p.n_cameras == 0 or p.n_frames == 0:
+        if p.n_cameras == 0 or p.n_frames == 0 or self.camera >= p.n_cameras:
             for item in self._overlay_items():
                 item.hide()
             self.image.clear()
@@ -549,11 +557,12 @@ class CameraView(BaseView):
         """Rubber band, lasso or measurement drag."""
         pos = self.vb.mapSceneToView(ev.scenePos())
         if ev.isStart():
-            self._drag_origin = pos
-            self._lasso_pts = [(pos.x(), pos.y())]
+            down = self.vb.mapSceneToView(ev.buttonDownScenePos())
+            self._drag_origin = down
+            self._lasso_pts = [(down.x(), down.y())]
         origin = self._drag_origin or pos
         if self.measuring:
-            a, b = self.to_image(self.vb.mapViewToScene(origin)), self.to_image(ev.scenePos())
+            a, b = self.to_image(ev.buttonDownScenePos()), self.to_image(ev.scenePos())
             self._measure = (a, b)
             self.measure_line.setData([a.x(), b.x()], [a.y(), b.y()])
             self.measure_line.show()

@@ -186,7 +186,8 @@ class ContinuityView(BaseView):
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.plot)
         self.vb.sigXRangeChanged.connect(lambda *_: self.render())
-        self.vb.sigResized.connect(lambda *_: self.render())
+        self.vb.sigResized.connect(self._resized)
+        self.vb.sigYRangeChanged.connect(lambda *_: self._update_ticks())
         self.redraw_count = 0
         self.refresh(None)
 
@@ -237,15 +238,26 @@ class ContinuityView(BaseView):
                 if int(ids[col]) in self.expanded:
                     rows.extend((col, c) for c in range(C))
         self._rows = rows
-        ticks = []
-        for i, (col, cam) in enumerate(rows):
-            name = p.point_label(col) if cam < 0 else f"  sensor {cam}"
-            ticks.append((i + 0.5, name))
-        axis = self.plot.getAxis("left")
-        axis.setTicks([ticks, []])
-        axis.setWidth(110 if not self.single else 90)
+        self._row_names = [p.point_label(col) if cam < 0 else f"sensor {cam}"
+                           for col, cam in rows]
+        self._update_ticks()
         self.vb.setYRange(0, max(len(rows), 1), padding=0)
         self.vb.setLimits(yMin=0, yMax=max(len(rows), 1))
+
+    def _resized(self, *_: object) -> None:
+        self._update_ticks()
+        self.render()
+
+    def _update_ticks(self) -> None:
+        """Row names on the left axis, thinned so they never overlap."""
+        names = getattr(self, "_row_names", [])
+        (y0, y1) = self.vb.viewRange()[1]
+        px_per_row = max(self.vb.height(), 1) / max(y1 - y0, 1e-6)
+        step = max(1, int(np.ceil(14 / max(px_per_row, 1e-6))))
+        ticks = [(i + 0.5, n) for i, n in enumerate(names) if i % step == 0]
+        axis = self.plot.getAxis("left")
+        axis.setTicks([ticks, []])
+        axis.setWidth(90)
 
     def row_codes(self, row: tuple[int, int]) -> NDArray[np.uint8]:
         """Codes of one row over every frame."""

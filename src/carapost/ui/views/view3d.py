@@ -69,11 +69,10 @@ class View3D(BaseView):
         return "3D"
 
     def refresh(self, change: Change | None) -> None:  # noqa: D102
-        if not self._fitted and self.ctx.project.n_points:
-            self.fit()
+        if (not self._fitted and self.ctx.project.n_points) or (
+                change is not None and change.parts & {"file", "point_list"}):
+            self.fit(selection=False)
             self._fitted = True
-        if change is not None and change.parts & {"file", "point_list"}:
-            self.fit()
         if self.ctx.lock_to_point:
             self.center_selection(False)
         self.update()
@@ -105,10 +104,10 @@ class View3D(BaseView):
         R, t = cal.R[f], cal.t[f]
         return -np.einsum("cji,cj->ci", R, t)
 
-    def fit(self) -> None:
+    def fit(self, selection: bool = True) -> None:
         """Fit to Points: the selected points, or every point when none is selected."""
         X, _, present = self._frame_points()
-        cols = self.ctx.project.selected_columns()
+        cols = self.ctx.project.selected_columns() if selection else []
         use = present.copy()
         if len(cols) and present[cols].any():
             use[:] = False
@@ -312,6 +311,10 @@ class View3D(BaseView):
                 points ^= {int(p.points.ids[k])}
         p.set_selection(points=points)
 
+    def _set_option(self, key: str, on: bool) -> None:
+        setattr(self.ctx.options, key, on)
+        self.ctx.notify_options()
+
     def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
         menu.addAction("Fit to Points", self.fit)
         menu.addAction("Center Selection", lambda: self.center_selection(False))
@@ -322,11 +325,11 @@ class View3D(BaseView):
             act = menu.addAction(title)
             act.setCheckable(True)
             act.setChecked(getattr(opts, key))
-            act.toggled.connect(lambda on, k=key: (setattr(opts, k, on),
-                                                   self.ctx.notify_options()))
+            act.toggled.connect(lambda on, k=key: self._set_option(k, on))
         act = menu.addAction("Point Labels :All")
         act.setCheckable(True)
         act.setChecked(bool(self.ctx.project.properties["point_labels_all"]))
         win = self.window()
         if hasattr(win, "set_properties"):
-            act.toggled.connect(lambda on: win.set_properties({"point_labels_all": on}))
+            act.toggled.connect(lambda on: [win.set_properties({"point_labels_all": on})]
+                                and None)

@@ -1,0 +1,1138 @@
+"""Automatic frame-to-frame tracking of 3D markers through a take.
+
+For every point that has a 3D position in the start frame, and for every following frame
+(forwards or backwards), :func:`track`:
+
+1. Predicts the point in the new frame: its last estimate plus a damped velocity, then
+   corrected elastically by how its matched neighbours moved (the neighbours are the
+   nearest points in 3D in the start frame, weighted by a Gaussian of that distance).
+2. Matches blob detections camera by camera. A first pass takes only unambiguous
+   matches (mutual nearest neighbours clearly closer than any alternative, within Face /
+   Brim Point Tracking Distance); those anchor the elastic prediction, and the following
+   passes match every point within Face Point Max Elastic Prediction Distance of its
+   elastic prediction (the full Face Point Tracking Distance where too few neighbours are
+   matched). Conflicts are resolved by an optimal assignment per camera
+   (:func:`scipy.optimize.linear_sum_assignment` with a "no match" option for each point
+   costing as much as a match at the search radius), so one detection never feeds two
+   points. A blob whose width or height changed by more than Blob Size Difference
+   Threshold is not a candidate. Where no blob matches and images are available, a grey
+   patch around the last observation is searched by normalised cross-correlation
+   (accepted at Patch Match Threshold and recorded as patch-tracked).
+3. Re-solves the cameras of the new frame from the brim points (known 3D structure) by a
+   few Gauss-Newton steps per camera, then triangulates the face points robustly
+   (:func:`carapost.algorithms.triangulation.triangulate`, outlier rejection on).
+4. Rejects bad matches: observations whose reprojection error exceeds Max Allowed 2D
+   Projection Error, and points further than Max Allowed 3D Point Error from where their
+   neighbours predict them. A point left with one camera is placed on that camera's ray
+   at the neighbour-predicted depth when the ray passes within Single Sensor Tracking
+   Threshold of the prediction (Allow Single Sensor Tracking).
+
+A point that loses every camera keeps a predicted position carried along by its
+neighbours, so it is picked up again as soon as its blob reappears near that prediction
+(markers coming back after a blink) - but only from two cameras agreeing in 3D.
+
+Everything is vectorised per frame over points x cameras; there is no Python loop per
+point-frame except for patch tracking of the few point-cameras that found no blob.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from carapost.algorithms.camera import (
+    CameraIntrinsics,
+    camera_centres,
+    pixel_rays,
+    pixels_to_normalised,
+    project,
+    rodrigues_to_matrix,
+)
+from carapost.algorithms.triangulation import TriangulationParameters, triangulate
+
+log = logging.getLogger("carapost.tracking")
+
+# Values of the model's SOURCE_* / RECON_* / KIND_* constants (algorithms do not import the
+# model; carapost.model.project defines the same numbers).
+SOURCE_NONE, SOURCE_BLOB, SOURCE_PATCH = 0, 1, 2
+RECON_NONE, RECON_TRIANGULATED, RECON_SINGLE_SENSOR = 0, 1, 2
+KIND_FACE, KIND_BRIM = 0, 1
+
+#: Infeasible assignment cost (anything far above the "no match" cost of 1).
+_BIG = 1e6
+
+#: Detections of one frame: one ``(centre [N, 2], axes [N, 2] or None)`` per camera.
+FrameDetections = Sequence[tuple[NDArray[Any], NDArray[Any] | None]]
+
+
+@dataclass(frozen=True)
+class TrackingParameters:
+    """The Tracking Parameters section, plus a few settings of our own.
+
+    The first twelve fields have the keys and defaults of the properties registry, so
+    ``TrackingParameters(**props.section("Tracking Parameters"))`` works.
+
+    Attributes
+    ----------
+    patch_match_threshold : float
+        Minimum normalised cross-correlation (0-1) for a patch-tracked observation.
+    face_point_tracking_distance : float
+        Search radius (px) for face points without elastic support.
+    face_point_max_elastic_prediction_distance : float
+        Search radius (px) around the elastic prediction once neighbours are matched.
+    brim_point_tracking_distance : float
+        Search radius (px) for brim points.
+    patch_match_size : int
+        Side (px) of the square grey-level patch.
+    remove_bad_2d_projections : bool
+    max_2d_projection_error : float
+        Observations further (px) than this from their point's projection are detached.
+    remove_bad_3d_points : bool
+    max_3d_point_error : float
+        Points further (mm) than this from their neighbour-based prediction are dropped.
+    allow_single_sensor_tracking : bool
+    single_sensor_tracking_threshold : float
+        Largest distance (mm) between a single-camera ray and the prediction.
+    blob_size_difference_threshold : float
+        Allowed relative change (0-1) of a blob's axes between frames (1 = any).
+    velocity_weight : float
+        Fraction of the last frame-to-frame motion added to the prediction (ours).
+    neighbours : int
+        Neighbours per point for the elastic prediction (ours).
+    min_elastic_support : float
+        Summed neighbour weight needed to use the elastic radius (ours; one full-weight
+        neighbour = 1).
+    bundle_frames : bool
+        Bundle adjust each tracked frame (cameras and points; slower; ours).
+    max_patch_frames : int
+        Longest run of consecutive patch-tracked frames in one camera (ours).
+    """
+
+    patch_match_threshold: float = 0.8
+    face_point_tracking_distance: float = 35.0
+    face_point_max_elastic_prediction_distance: float = 15.0
+    brim_point_tracking_distance: float = 15.0
+    patch_match_size: int = 15
+    remove_bad_2d_projections: bool = True
+    max_2d_projection_error: float = 5.0
+    remove_bad_3d_points: bool = True
+    max_3d_point_error: float = 5.0
+    allow_single_sensor_tracking: bool = True
+    single_sensor_tracking_threshold: float = 0.5
+    blob_size_difference_threshold: float = 0.75
+    velocity_weight: float = 0.0
+    neighbours: int = 8
+    min_elastic_support: float = 1.5
+    bundle_frames: bool = False
+    max_patch_frames: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("face_point_tracking_distance", "face_point_max_elastic_prediction_distance",
+                     "brim_point_tracking_distance", "max_2d_projection_error",
+                     "max_3d_point_error", "single_sensor_tracking_threshold"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"TrackingParameters.{name} must be a number >= 0, got {v!r}")
+        for name in ("patch_match_threshold", "blob_size_difference_threshold",
+                     "velocity_weight"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
+                raise ValueError(f"TrackingParameters.{name} must be in 0-1, got {v!r}")
+        if int(self.patch_match_size) < 3:
+            raise ValueError(f"TrackingParameters.patch_match_size must be >= 3 px, got "
+                             f"{self.patch_match_size!r}")
+        if int(self.neighbours) < 1:
+            raise ValueError(f"TrackingParameters.neighbours must be >= 1, got "
+                             f"{self.neighbours!r}")
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any], **overrides: Any) -> TrackingParameters:
+        """Build from a properties section (unknown keys are ignored)."""
+        names = {f.name for f in fields(cls)}
+        kw = {k: v for k, v in values.items() if k in names}
+        kw.update(overrides)
+        return cls(**kw)
+
+
+class TrackResult(NamedTuple):
+    """Output of :func:`track` for the frames it tracked (in increasing frame order).
+
+    Attributes
+    ----------
+    first, last : int
+        Inclusive frame range the arrays cover (the start frame is not included); when
+        nothing was tracked ``last < first``.
+    positions : ndarray, shape (n, P, 3) float32
+    recon : ndarray, shape (n, P) int8
+    residual : ndarray, shape (n, P) float32
+    obs : ndarray, shape (n, P, C, 2) float32
+    source : ndarray, shape (n, P, C) int8
+    detection : ndarray, shape (n, P, C) int32
+    quality : ndarray, shape (n, P, C) float16
+    R : ndarray, shape (n, C, 3, 3)
+    t : ndarray, shape (n, C, 3)
+        Cameras of each tracked frame (re-solved from the brim when it is tracked).
+    frames_done : int
+        Frames tracked (fewer than asked only when cancelled).
+    cancelled : bool
+    """
+
+    first: int
+    last: int
+    positions: NDArray[np.float32]
+    recon: NDArray[np.int8]
+    residual: NDArray[np.float32]
+    obs: NDArray[np.float32]
+    source: NDArray[np.int8]
+    detection: NDArray[np.int32]
+    quality: NDArray[np.float16]
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+    frames_done: int
+    cancelled: bool
+
+
+@dataclass
+class InitialState:
+    """The tracked points in the start frame.
+
+    Attributes
+    ----------
+    positions : ndarray, shape (P, 3)
+        3D positions (mm); points with NaN are carried but never tracked.
+    kind : ndarray, shape (P,)
+        ``KIND_FACE`` or ``KIND_BRIM``; brim points keep their start position (known
+        structure) and fix the cameras of every frame.
+    obs : ndarray, shape (P, C, 2), optional
+        2D observations in the start frame (templates for patch tracking).
+    axes : ndarray, shape (P, C, 2), optional
+        Blob semi-axes of those observations (for the blob size test).
+    """
+
+    positions: NDArray[np.float64]
+    kind: NDArray[np.int8]
+    obs: NDArray[np.float64] | None = None
+    axes: NDArray[np.float64] | None = None
+
+
+class RaggedDetections:
+    """Detections of a whole take as the model stores them, served frame by frame.
+
+    Parameters
+    ----------
+    offsets : array_like, shape (F * C + 1,)
+        Image ``(f, c)`` owns rows ``offsets[f * C + c]:offsets[f * C + c + 1]``.
+    centre : array_like, shape (N, 2)
+    axes : array_like, shape (N, 2), optional
+    n_cameras : int
+    """
+
+    def __init__(self, offsets: ArrayLike, centre: ArrayLike, axes: ArrayLike | None,
+                 n_cameras: int) -> None:
+        self.offsets = np.asarray(offsets, dtype=np.int64)
+        self.centre = np.asarray(centre)
+        self.axes = None if axes is None else np.asarray(axes)
+        self.n_cameras = int(n_cameras)
+
+    def __call__(self, frame: int) -> list[tuple[NDArray[Any], NDArray[Any] | None]]:
+        """Per camera ``(centre, axes)`` of one frame (float64 copies)."""
+        C = self.n_cameras
+        out = []
+        for c in range(C):
+            i = frame * C + c
+            s, e = int(self.offsets[i]), int(self.offsets[i + 1])
+            ax = None if self.axes is None else self.axes[s:e].astype(np.float64)
+            out.append((self.centre[s:e].astype(np.float64), ax))
+        return out
+
+
+# --------------------------------------------------------------------------------------
+# Small vectorised helpers
+# --------------------------------------------------------------------------------------
+
+def neighbour_graph(rest: ArrayLike, k: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """Nearest neighbours of each point in 3D and their elastic weights.
+
+    Parameters
+    ----------
+    rest : array_like, shape (P, 3)
+        Rest positions (mm); NaN rows get no neighbours and are nobody's neighbour.
+    k : int
+        Neighbours per point.
+
+    Returns
+    -------
+    index : ndarray, shape (P, k)
+        Neighbour columns (P where there is none).
+    weight : ndarray, shape (P, k)
+        ``exp(-(d / s)^2)`` with ``s`` 1.5 times the median nearest-neighbour distance;
+        0 where there is no neighbour.
+    """
+    X = np.asarray(rest, dtype=np.float64)
+    P = X.shape[0]
+    ok = np.isfinite(X).all(-1)
+    cols = np.flatnonzero(ok)
+    index = np.full((P, k), P, dtype=np.intp)
+    weight = np.zeros((P, k))
+    if cols.size < 2:
+        return index, weight
+    kk = min(k, cols.size - 1)
+    d, j = cKDTree(X[cols]).query(X[cols], k=kk + 1)
+    d, j = d[:, 1:], j[:, 1:]
+    s = 1.5 * float(np.median(d[:, 0]))
+    s = s if s > 0 else 1.0
+    index[cols, :kk] = cols[j]
+    weight[cols, :kk] = np.exp(-((d / s) ** 2))
+    return index, weight
+
+
+def _weighted_neighbour_mean(values: NDArray[np.float64], valid: NDArray[np.bool_],
+                             nb: NDArray[np.intp], w: NDArray[np.float64]
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean of the neighbours' ``values`` where ``valid``, and the summed weight.
+
+    ``values`` is (P, ..., D), ``valid`` (P, ...), ``nb``/``w`` (P, k); returns the mean
+    (P, ..., D) (0 where no support) and the support (P, ...).
+    """
+    P = values.shape[0]
+    pad_v = np.concatenate([np.nan_to_num(values), np.zeros((1,) + values.shape[1:])])
+    pad_m = np.concatenate([valid, np.zeros((1,) + valid.shape[1:], bool)])
+    wm = w.reshape(w.shape + (1,) * (valid.ndim - 1)) * pad_m[nb]  # (P, k, ...)
+    support = wm.sum(1)
+    total = (wm[..., None] * pad_v[nb]).sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(support[..., None] > 0, total / support[..., None], 0.0)
+    return mean.reshape((P,) + values.shape[1:]), support
+
+
+def resect_cameras(X: ArrayLike, uv: ArrayLike, R: ArrayLike, t: ArrayLike,
+                   intr: CameraIntrinsics, *, iterations: int = 4, min_points: int = 6
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Refine every camera's pose from known 3D points (the brim), Gauss-Newton per camera.
+
+    Parameters
+    ----------
+    X : array_like, shape (B, 3)
+        Known 3D points (mm).
+    uv : array_like, shape (B, C, 2)
+        Their raw pixel observations (NaN where missing).
+    R, t : array_like, shapes (C, 3, 3) and (C, 3)
+        Starting poses (world->camera).
+    intr : CameraIntrinsics
+    iterations : int
+    min_points : int
+        Cameras seeing fewer points keep their starting pose.
+
+    Returns
+    -------
+    R, t : ndarray
+        Refined poses.
+    solved : ndarray, shape (C,) bool
+        Cameras that were re-solved.
+    """
+    X = np.asarray(X, np.float64)
+    R = np.array(R, np.float64)
+    t = np.array(t, np.float64)
+    xn = pixels_to_normalised(np.asarray(uv, np.float64), intr)  # (B, C, 2)
+    m = np.isfinite(xn).all(-1) & np.isfinite(X).all(-1)[:, None]
+    solved = m.sum(0) >= min_points
+    if not solved.any():
+        return R, t, solved
+    xn = np.where(m[..., None], xn, 0.0)
+    X0 = np.nan_to_num(X)
+    f = intr.focal[None, :, None]
+    for _ in range(iterations):
+        xc = np.einsum("cij,bj->bci", R, X0) + t[None]  # (B, C, 3)
+        z = xc[..., 2]
+        z = np.where(np.abs(z) > 1e-9, z, 1e-9)
+        r = (xc[..., :2] / z[..., None] - xn) * f  # px-ish residual (B, C, 2)
+        r = np.where(m[..., None], r, 0.0)
+        # d(x/z, y/z)/d(xc) (B, C, 2, 3) times d(xc)/d(omega, tau) = [-[xc]x | I]
+        Jp = np.zeros(xc.shape[:2] + (2, 3))
+        Jp[..., 0, 0] = 1.0 / z
+        Jp[..., 1, 1] = 1.0 / z
+        Jp[..., 0, 2] = -xc[..., 0] / z**2
+        Jp[..., 1, 2] = -xc[..., 1] / z**2
+        Jp *= f[..., None]
+        sk = np.zeros(xc.shape[:2] + (3, 3))
+        sk[..., 0, 1], sk[..., 0, 2] = xc[..., 2], -xc[..., 1]
+        sk[..., 1, 0], sk[..., 1, 2] = -xc[..., 2], xc[..., 0]
+        sk[..., 2, 0], sk[..., 2, 1] = xc[..., 1], -xc[..., 0]
+        J = np.concatenate([Jp @ sk, Jp], axis=-1)  # -[xc]x == sk as built
+        J = np.where(m[..., None, None], J, 0.0)
+        H = np.einsum("bcki,bckj->cij", J, J) + 1e-9 * np.eye(6)
+        g = np.einsum("bcki,bck->ci", J, r)
+        delta = -np.linalg.solve(H[solved], g[solved][..., None])[..., 0]
+        dR = rodrigues_to_matrix(delta[:, :3])
+        R[solved] = dR @ R[solved]
+        t[solved] = np.einsum("cij,cj->ci", dR, t[solved]) + delta[:, 3:]
+        if np.abs(delta).max() < 1e-9:
+            break
+    return R, t, solved
+
+
+def _assign(cost: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Optimal one-to-one assignment with a unit "no match" cost per row.
+
+    ``cost`` is (P, N) with values >= _BIG meaning infeasible; returns the matched column
+    of each row or -1.
+    """
+    P, N = cost.shape
+    out = np.full(P, -1, dtype=np.intp)
+    if P == 0 or N == 0:
+        return out
+    feas = cost < _BIG
+    rows = np.flatnonzero(feas.any(1))
+    if rows.size == 0:
+        return out
+    colsel = np.flatnonzero(feas[rows].any(0))
+    sub = cost[np.ix_(rows, colsel)]
+    # fast path: rows with one candidate whose column nobody else wants
+    cnt_r = (sub < _BIG).sum(1)
+    cnt_c = (sub < _BIG).sum(0)
+    j = np.argmin(sub, axis=1)
+    simple = (cnt_r == 1) & (cnt_c[j] == 1) & (sub[np.arange(len(rows)), j] <= 1.0)
+    out[rows[simple]] = colsel[j[simple]]
+    rest = ~simple
+    if not rest.any():
+        return out
+    r2 = np.flatnonzero(rest)
+    c2 = np.flatnonzero((sub[r2] < _BIG).any(0))
+    if c2.size == 0:
+        return out
+    block = sub[np.ix_(r2, c2)]
+    n = len(r2)
+    dummy = np.full((n, n), _BIG)
+    np.fill_diagonal(dummy, 1.0)
+    full = np.concatenate([block, dummy], axis=1)
+    ri, ci = linear_sum_assignment(full)
+    ok = (ci < len(c2)) & (full[ri, ci] < 1.0 + 1e-12)
+    ok &= full[ri, ci] < _BIG
+    out[rows[r2[ri[ok]]]] = colsel[c2[ci[ok]]]
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# The tracker
+# --------------------------------------------------------------------------------------
+
+class _Frame(NamedTuple):
+    centres: NDArray[np.float64]  # (C, N, 2) NaN padded
+    axes: NDArray[np.float64]     # (C, N, 2) NaN where unknown
+    counts: NDArray[np.intp]      # (C,)
+
+
+def _pack(dets: FrameDetections, C: int) -> _Frame:
+    if len(dets) != C:
+        raise ValueError(f"detections must give {C} cameras per frame, got {len(dets)}")
+    counts = np.array([len(d[0]) for d in dets], dtype=np.intp)
+    N = max(int(counts.max(initial=0)), 1)
+    centres = np.full((C, N, 2), np.nan)
+    axes = np.full((C, N, 2), np.nan)
+    for c, (cen, ax) in enumerate(dets):
+        n = counts[c]
+        if n:
+            centres[c, :n] = np.asarray(cen, np.float64).reshape(n, 2)
+            if ax is not None:
+                axes[c, :n] = np.asarray(ax, np.float64).reshape(n, 2)
+    return _Frame(centres, axes, counts)
+
+
+class FrameMatcher:
+    """Matches a set of predicted points to one frame's detections (tracking, ROM).
+
+    Parameters
+    ----------
+    intr : CameraIntrinsics
+    kind : ndarray, shape (P,)
+    rest : ndarray, shape (P, 3)
+        Positions defining the neighbour graph of the face points.
+    params : TrackingParameters
+    """
+
+    def __init__(self, intr: CameraIntrinsics, kind: NDArray[np.int8], rest: NDArray,
+                 params: TrackingParameters) -> None:
+        self.intr = intr
+        self.params = params
+        self.kind = np.asarray(kind, dtype=np.int8)
+        self.C = intr.n_cameras
+        self.face = np.flatnonzero(self.kind != KIND_BRIM)
+        self.brim = np.flatnonzero(self.kind == KIND_BRIM)
+        rest = np.asarray(rest, np.float64)
+        nb, w = neighbour_graph(rest[self.face], params.neighbours)
+        self.nb, self.w = nb, w  # indices into self.face (len(face) = padding)
+        self.tri_params = TriangulationParameters(
+            minimum_cameras=min(2, self.C), use_outlier_rejection=self.C > 2,
+            maximum_cameras_to_drop=1,
+            target_reprojection_error=max(0.5, params.max_2d_projection_error / 5.0),
+            refine_iterations=1,
+        )
+
+    # -- 2D matching -----------------------------------------------------------------
+    def _size_ok(self, fr: _Frame, prev_axes: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(C, P, N) blob size test against each point's last blob axes."""
+        thr = self.params.blob_size_difference_threshold
+        a = prev_axes.transpose(1, 0, 2)[:, :, None, :]  # (C, P, 1, 2)
+        b = fr.axes[:, None, :, :]                        # (C, 1, N, 2)
+        if thr >= 1.0:
+            return np.ones(a.shape[:2] + (b.shape[2],), bool)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.abs(a - b) / np.maximum(a, b)
+        bad = (rel > thr).any(-1)
+        return ~bad  # NaN comparisons are False: unknown sizes pass
+
+    def match_2d(
+        self, fr: _Frame, pred: NDArray[np.float64], radius: NDArray[np.float64],
+        size_ok: NDArray[np.bool_], *, anchors_only: bool = False,
+        taken: NDArray[np.bool_] | None = None, nb_index: NDArray[np.intp] | None = None,
+    ) -> NDArray[np.intp]:
+        """Detection index per (point, camera) (-1 = none).
+
+        pred (P, C, 2) predicted pixels (NaN = not predicted); radius (P, C) px;
+        size_ok (C, P, N); taken (C, N) detections already used elsewhere; nb_index
+        (P,) rows of the points in the neighbour graph (for the anchor pass).
+        """
+        P, C = pred.shape[:2]
+        diff = pred.transpose(1, 0, 2)[:, :, None, :] - fr.centres[:, None, :, :]
+        D = np.sqrt((diff**2).sum(-1))  # (C, P, N)
+        rad = radius.T[:, :, None]
+        ok = (D <= rad) & size_ok
+        if taken is not None:
+            ok &= ~taken[:, None, :]
+        out = np.full((P, C), -1, dtype=np.intp)
+        if anchors_only:
+            return self._consensus(D, ok, pred, fr, nb_index)
+        cost = np.where(ok, (D / np.maximum(rad, 1e-9)) ** 2, _BIG)
+        for c in range(C):
+            if fr.counts[c]:
+                out[:, c] = _assign(cost[c, :, : fr.counts[c]])
+        return out
+
+    def _consensus(self, D: NDArray[np.float64], ok: NDArray[np.bool_],
+                   pred: NDArray[np.float64], fr: _Frame,
+                   nb_index: NDArray[np.intp] | None) -> NDArray[np.intp]:
+        """Anchor matches by neighbourhood consensus of candidate displacements.
+
+        Each point considers its ``K`` nearest candidates. A candidate displacement is
+        supported by a neighbour when that neighbour has a candidate with nearly the same
+        displacement (markers move together locally); the best-supported candidate of a
+        point is an anchor when its support is high and clearly above the runner-up,
+        which resolves motions larger than the marker spacing that plain nearest-
+        neighbour matching gets wrong.
+        """
+        C, P, N = D.shape
+        out = np.full((P, C), -1, dtype=np.intp)
+        if N == 0 or P == 0:
+            return out
+        K = min(5, N)
+        Dm = np.where(ok, D, np.inf)
+        cand = np.argpartition(Dm, K - 1, axis=2)[..., :K] if N > K else \
+            np.broadcast_to(np.arange(N), (C, P, N)).copy()
+        dcand = np.take_along_axis(Dm, cand, axis=2)  # (C, P, K)
+        valid = np.isfinite(dcand)
+        ci = np.arange(C)[:, None, None]
+        disp = fr.centres[ci, cand] - pred.transpose(1, 0, 2)[:, :, None, :]  # (C, P, K, 2)
+        disp = np.where(valid[..., None], disp, np.nan)
+        if nb_index is None:
+            nb_index = np.arange(P)
+        # neighbours of each point among the rows present here
+        row_of = np.full(len(self.face) + 1, P, dtype=np.intp)
+        row_of[nb_index] = np.arange(P)
+        nbr = row_of[self.nb[nb_index]]  # (P, k) rows (P = absent)
+        w = np.where(nbr < P, self.w[nb_index], 0.0)
+        disp_pad = np.concatenate([disp, np.full((C, 1, K, 2), np.nan)], axis=1)
+        nd = disp_pad[:, nbr]  # (C, P, k, K, 2)
+        diff = disp[:, :, None, :, None, :] - nd[:, :, :, None, :, :]  # (C,P,k,K,K,2)
+        dist2 = np.nan_to_num((diff**2).sum(-1), nan=np.inf).min(-1)  # (C, P, k, K)
+        sigma2 = 2.0 * 3.0**2
+        vote = (w[None, :, :, None] * np.exp(-dist2 / sigma2)).sum(2)  # (C, P, K)
+        vote = np.where(valid, vote, -1.0)
+        order = np.argsort(-vote, axis=2)
+        best = np.take_along_axis(vote, order[..., :1], 2)[..., 0]
+        second = (np.take_along_axis(vote, order[..., 1:2], 2)[..., 0] if K > 1
+                  else np.zeros((C, P)))
+        jbest = np.take_along_axis(cand, order[..., :1], 2)[..., 0]
+        good = (best >= 1.0) & (best >= 1.5 * np.maximum(second, 0.0))
+        # one detection per point: the best-supported claimant keeps it
+        for c in range(C):
+            rows = np.flatnonzero(good[c])
+            if rows.size:
+                o = rows[np.argsort(-best[c, rows])]
+                _, first = np.unique(jbest[c, o], return_index=True)
+                keep = o[first]
+                out[keep, c] = jbest[c, keep]
+        return out
+
+    def elastic_2d(self, base: NDArray[np.float64], matched_uv: NDArray[np.float64],
+                   matched: NDArray[np.bool_], face_cols: NDArray[np.intp]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Elastic correction of face predictions from matched neighbours, per camera.
+
+        Returns the corrected predictions (Pf, C, 2) and the support (Pf, C).
+        """
+        disp = matched_uv - base  # (Pf, C, 2)
+        corr, support = _weighted_neighbour_mean(disp, matched & np.isfinite(disp).all(-1),
+                                                 self.nb, self.w)
+        return base + corr, support
+
+    # -- one frame -----------------------------------------------------------------------
+    def match_frame(
+        self, fr: _Frame, X_pred: NDArray[np.float64], R: NDArray[np.float64],
+        t: NDArray[np.float64], prev_axes: NDArray[np.float64], *,
+        face_radius: float | None = None, brim_radius: float | None = None,
+        elastic_radius: float | None = None, max_3d: float | None = None,
+        passes: int = 2, reacquire: NDArray[np.bool_] | None = None,
+        patch: Callable[[NDArray[np.bool_], NDArray[np.float64]],
+                        tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None,
+        resolve_cameras: bool = True,
+        ref: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    ) -> dict[str, NDArray]:
+        """Match, solve cameras, triangulate and clean one frame.
+
+        Parameters
+        ----------
+        fr : packed detections of the frame.
+        X_pred : (P, 3) predicted positions (brim: their fixed structure).
+        R, t : predicted cameras.
+        prev_axes : (P, C, 2) blob axes of the last match (NaN = unknown).
+        face_radius, brim_radius, elastic_radius, max_3d : overrides of the parameters.
+        passes : elastic matching passes after the anchor pass.
+        reacquire : (P,) points that were lost: accepted only from >= 2 cameras.
+        patch : callable(missing (P, C) bool, pred (P, C, 2)) -> (uv (P, C, 2), score)
+            patch tracking fallback for point-cameras without a blob.
+        resolve_cameras : re-solve cameras from the brim points.
+        ref : (X_ref (P, 3), NB_ref (P_face, k, 3)), optional
+            Each face point's last multi-camera position and its neighbours' positions
+            at that time: the elastic 3D prediction is X_ref plus how the neighbours
+            moved since, which does not drift while a point is seen by one camera.
+
+        Returns
+        -------
+        dict with positions (P,3), recon (P,), residual (P,), obs (P,C,2), source, detection,
+        quality (P,C), R, t, X_elastic (P,3) (neighbour-based prediction).
+        """
+        p = self.params
+        face_radius = p.face_point_tracking_distance if face_radius is None else face_radius
+        brim_radius = p.brim_point_tracking_distance if brim_radius is None else brim_radius
+        elastic_radius = (p.face_point_max_elastic_prediction_distance
+                          if elastic_radius is None else elastic_radius)
+        max_3d = p.max_3d_point_error if max_3d is None else max_3d
+        C = self.C
+        P = X_pred.shape[0]
+        intr = self.intr
+        N = fr.centres.shape[1]
+        det = np.full((P, C), -1, dtype=np.intp)
+        source = np.zeros((P, C), np.int8)
+        quality = np.zeros((P, C), np.float64)
+        obs = np.full((P, C, 2), np.nan)
+        positions = np.full((P, 3), np.nan)
+        recon = np.zeros(P, np.int8)
+        residual = np.full(P, np.nan)
+        tracked = np.isfinite(X_pred).all(-1)
+        size_ok_all = self._size_ok(fr, prev_axes)
+        taken = np.zeros((C, N), bool)
+        R = np.array(R, np.float64)
+        t = np.array(t, np.float64)
+
+        def gather(d: NDArray[np.intp], c_idx: NDArray[np.intp] | None = None) -> NDArray:
+            cc = np.arange(C)[None, :]
+            uv = fr.centres[cc, np.maximum(d, 0)]
+            return np.where((d >= 0)[..., None], uv, np.nan)
+
+        # ---- brim: match the fixed structure, then re-solve the cameras -----------------
+        b = self.brim[tracked[self.brim]]
+        if b.size:
+            Xb = X_pred[b]
+            for it in range(2):
+                uvb, _ = project(Xb, R, t, intr)
+                rad = np.full((b.size, C), brim_radius if it == 0 else
+                              min(brim_radius, max(p.max_2d_projection_error, 3.0)))
+                db = self.match_2d(fr, uvb, rad, size_ok_all[:, b])
+                ob = gather(db)
+                if resolve_cameras:
+                    R, t, _ = resect_cameras(Xb, ob, R, t, intr)
+                    # detach brim observations that disagree with the solved cameras
+                    uvb, _ = project(Xb, R, t, intr)
+                    err = np.linalg.norm(ob - uvb, axis=-1)
+                    bad = (db >= 0) & ~(err <= p.max_2d_projection_error)
+                    if bad.any():
+                        db[bad] = -1
+                        ob = gather(db)
+                        R, t, _ = resect_cameras(Xb, ob, R, t, intr)
+            det[b] = db
+            obs[b] = ob
+            nb_obs = (db >= 0).sum(1)
+            positions[b[nb_obs > 0]] = Xb[nb_obs > 0]
+            recon[b] = np.where(nb_obs >= 2, RECON_TRIANGULATED,
+                                np.where(nb_obs == 1, RECON_SINGLE_SENSOR, RECON_NONE))
+            for c in range(C):
+                taken[c, db[:, c][db[:, c] >= 0]] = True
+
+        # ---- face: anchor pass, elastic passes ---------------------------------------
+        f = self.face[tracked[self.face]]
+        fi = np.flatnonzero(tracked[self.face])  # positions of f within self.face
+        Pf_all = len(self.face)
+        Xel = X_pred.copy()
+        if f.size:
+            base_all = np.full((Pf_all, C, 2), np.nan)
+            uvf, depth = project(X_pred[f], R, t, intr)
+            w_, h_ = intr.image_size[:, 0], intr.image_size[:, 1]
+            inside = ((depth > 0) & (uvf[..., 0] > -0.5) & (uvf[..., 0] < w_ - 0.5)
+                      & (uvf[..., 1] > -0.5) & (uvf[..., 1] < h_ - 0.5))
+            uvf = np.where(inside[..., None], uvf, np.nan)
+            base_all[fi] = uvf
+            size_ok = size_ok_all[:, f]
+            rad = np.full((f.size, C), float(face_radius))
+            df = self.match_2d(fr, uvf, rad, size_ok, anchors_only=True, taken=taken,
+                               nb_index=fi)
+            for _ in range(max(passes, 1)):
+                m_all = np.zeros((Pf_all, C), bool)
+                m_all[fi] = df >= 0
+                uvm_all = np.full((Pf_all, C, 2), np.nan)
+                uvm_all[fi] = gather(df)
+                pred_all, support = self.elastic_2d(base_all, uvm_all, m_all, self.face)
+                pred = pred_all[fi]
+                sup = support[fi]
+                rad = np.where(sup >= p.min_elastic_support, float(elastic_radius),
+                               float(face_radius))
+                df = self.match_2d(fr, pred, rad, size_ok, taken=taken)
+            det[f] = df
+            source[f] = np.where(df >= 0, SOURCE_BLOB, SOURCE_NONE)
+            quality[f] = np.where(df >= 0, 1.0, 0.0)
+            obs[f] = gather(df)
+            if patch is not None:
+                missing = np.zeros((P, C), bool)
+                missing[f] = (df < 0) & np.isfinite(pred).all(-1)
+                if missing.any():
+                    ppred = np.full((P, C, 2), np.nan)
+                    ppred[f] = pred
+                    puv, score = patch(missing, ppred)
+                    okp = missing & np.isfinite(puv).all(-1) & (score >= p.patch_match_threshold)
+                    obs[okp] = puv[okp]
+                    source[okp] = SOURCE_PATCH
+                    quality[okp] = score[okp]
+            self._solve_face(f, obs, det, source, quality, positions, recon, residual, X_pred,
+                             R, t, max_3d, reacquire, Xel, ref)
+        return {"positions": positions, "recon": recon, "residual": residual, "obs": obs,
+                "source": source, "detection": det, "quality": quality, "R": R, "t": t,
+                "X_elastic": Xel}
+
+    def _solve_face(self, f: NDArray[np.intp], obs: NDArray, det: NDArray, source: NDArray,
+                    quality: NDArray, positions: NDArray, recon: NDArray, residual: NDArray,
+                    X_pred: NDArray, R: NDArray, t: NDArray, max_3d: float,
+                    reacquire: NDArray[np.bool_] | None, Xel_out: NDArray,
+                    ref: tuple[NDArray, NDArray] | None) -> None:
+        p = self.params
+        intr = self.intr
+        C = self.C
+
+        def detach(rows: NDArray[np.intp], mask: NDArray[np.bool_]) -> None:
+            sub_o = obs[rows]
+            sub_o[mask] = np.nan
+            obs[rows] = sub_o
+            for arr, fill in ((det, -1), (source, SOURCE_NONE), (quality, 0.0)):
+                sub = arr[rows]
+                sub[mask] = fill
+                arr[rows] = sub
+
+        def tri(rows: NDArray[np.intp]) -> tuple[NDArray, NDArray, NDArray]:
+            res = triangulate(obs[rows][None], R, t, intr, self.tri_params)
+            return res.points[0], res.residual[0], res.contribution[0]
+
+        X, res, contrib = tri(f)
+        has = np.isfinite(obs[f]).all(-1)
+        if p.remove_bad_2d_projections or True:
+            # cameras left out by the robust triangulation are wrong matches
+            drop = has & ~contrib & np.isfinite(X).all(-1)[:, None]
+            if p.remove_bad_2d_projections:
+                uvp, _ = project(X, R, t, intr)
+                err = np.linalg.norm(uvp - obs[f], axis=-1)
+                drop |= has & (err > p.max_2d_projection_error)
+            if drop.any():
+                detach(f, drop)
+                rows = np.flatnonzero(drop.any(1))
+                X[rows], res[rows], _ = tri(f[rows])
+        # neighbour-based 3D prediction (leave-one-out) from the points just solved
+        Pf_all = len(self.face)
+        fi = np.searchsorted(self.face, f)
+        okX = np.zeros(Pf_all, bool)
+        okX[fi] = np.isfinite(X).all(-1)
+        disp = np.zeros((Pf_all, 3))
+        disp[fi] = np.where(okX[fi, None], X - X_pred[f], 0.0)
+        corr, support = _weighted_neighbour_mean(disp, okX, self.nb, self.w)
+        Xel = X_pred[f] + corr[fi]
+        sup = support[fi]
+        if ref is not None:
+            X_ref, NB_ref = ref
+            Xnow = np.full((Pf_all + 1, 3), np.nan)
+            Xnow[fi] = X
+            moved = Xnow[self.nb[fi]] - NB_ref[fi]  # (n, k, 3)
+            m = np.isfinite(moved).all(-1) & np.isfinite(X_ref[f]).all(-1)[:, None]
+            wm = self.w[fi] * m
+            sup_r = wm.sum(1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                Xr = X_ref[f] + (wm[..., None] * np.nan_to_num(moved)).sum(1) / sup_r[:, None]
+            use = sup_r >= self.params.min_elastic_support
+            Xel = np.where(use[:, None], Xr, Xel)
+            sup = np.where(use, sup_r, sup)
+        Xel_out[f] = Xel
+        n_obs = np.isfinite(obs[f]).all(-1).sum(1)
+        err3 = np.linalg.norm(X - Xel, axis=-1)
+        judged = np.isfinite(X).all(-1) & (sup >= self.params.min_elastic_support)
+        # how well neighbours predict points in this frame (mm); single-sensor depth is
+        # only as good as that
+        typical = float(np.median(err3[judged])) if judged.any() else np.inf
+        if p.remove_bad_3d_points:
+            # A point whose observation in one camera is much further from the elastic
+            # prediction than is usual in this frame probably matched a wrong blob along
+            # the epipolar line (invisible to the reprojection test with two cameras):
+            # drop that camera and solve again. Measured in pixels because the depth of a
+            # point seen by one caddy only is poorly determined.
+            uvp, _ = project(Xel, R, t, intr)
+            e2 = np.linalg.norm(uvp - obs[f], axis=-1)  # (n, C) NaN where no obs
+            fin = np.isfinite(e2) & judged[:, None]
+            if fin.sum() >= 8:
+                thr = max(8.0 * float(np.median(e2[fin])), 3.0)
+                srt = np.sort(np.where(fin, e2, -1.0), axis=1)
+                worst_e, second_e = srt[:, -1], srt[:, -2]
+                # a bad prediction shows in every camera; one wrong blob in one camera
+                suspect = np.flatnonzero(judged & (worst_e > thr)
+                                         & (worst_e > 3.0 * np.maximum(second_e, 0.0) + 1.0))
+                if suspect.size:
+                    worst = np.argmax(np.where(fin[suspect], e2[suspect], -1.0), axis=1)
+                    drop = np.zeros((suspect.size, C), bool)
+                    drop[np.arange(suspect.size), worst] = True
+                    detach(f[suspect], drop)
+                    X[suspect], res[suspect], _ = tri(f[suspect])
+                    e2s = np.where(np.isfinite(obs[f[suspect]]).all(-1), e2[suspect], np.nan)
+                    still = np.nanmax(np.where(np.isfinite(e2s), e2s, -1.0), axis=1) > thr
+                    if still.any():
+                        detach(f[suspect[still]], np.ones((int(still.sum()), C), bool))
+                        X[suspect[still]] = np.nan
+                    err3[suspect] = np.linalg.norm(X[suspect] - Xel[suspect], axis=-1)
+                    n_obs = np.isfinite(obs[f]).all(-1).sum(1)
+            bad = judged & np.isfinite(X).all(-1) & (err3 > max_3d)
+            if bad.any():
+                detach(f[bad], np.ones((int(bad.sum()), C), bool))
+                X[bad] = np.nan
+                n_obs[bad] = 0
+        # a lost point is picked up again only from >= 2 cameras and where its neighbours
+        # say it should be (a whole region lost at once waits for its edges to return)
+        if reacquire is not None:
+            lone = reacquire[f] & ((n_obs < 2) | (sup < self.params.min_elastic_support))
+            if lone.any():
+                detach(f[lone], np.ones((int(lone.sum()), C), bool))
+                X[lone] = np.nan
+                n_obs[lone] = 0
+        # duplicates: two points reconstructed at the same place, keep the better one
+        good = np.flatnonzero(np.isfinite(X).all(-1))
+        if good.size > 1:
+            pairs = cKDTree(X[good]).query_pairs(r=1.5, output_type="ndarray")
+            if len(pairs):
+                e = np.linalg.norm(X[good] - Xel[good], axis=-1)
+                a, b2 = good[pairs[:, 0]], good[pairs[:, 1]]
+                loser = np.where(e[pairs[:, 0]] > e[pairs[:, 1]], a, b2)
+                loser = np.unique(loser)
+                detach(f[loser], np.ones((loser.size, C), bool))
+                X[loser] = np.nan
+                n_obs[loser] = 0
+        tri_ok = np.isfinite(X).all(-1) & (n_obs >= 2)
+        positions[f[tri_ok]] = X[tri_ok]
+        recon[f[tri_ok]] = RECON_TRIANGULATED
+        residual[f[tri_ok]] = res[tri_ok]
+        single = n_obs == 1
+        if single.any():
+            rows = np.flatnonzero(single)
+            o = obs[f[rows]]
+            cam = np.argmax(np.isfinite(o).all(-1), axis=1)
+            uv1 = o[np.arange(rows.size), cam]
+            keep = np.zeros(rows.size, bool)
+            if p.allow_single_sensor_tracking:
+                target = Xel[rows]
+                # one "camera" per row: the rows' own cameras side by side
+                origin, d = pixel_rays(uv1[None], R[cam][None], t[cam][None],
+                                       intr.subset(cam))
+                origin, d = origin[0], d[0]
+                s = np.einsum("ni,ni->n", target - origin, d)
+                Xs = origin + s[:, None] * d
+                dist = np.linalg.norm(Xs - target, axis=-1)
+                keep = (sup[rows] >= self.params.min_elastic_support) & \
+                    (dist <= p.single_sensor_tracking_threshold) & (s > 0) & \
+                    (typical <= p.single_sensor_tracking_threshold)
+                positions[f[rows[keep]]] = Xs[keep]
+                recon[f[rows[keep]]] = RECON_SINGLE_SENSOR
+                residual[f[rows[keep]]] = dist[keep]
+            else:
+                # keep the observation when it agrees with the prediction, without 3D
+                uvp, _ = project(Xel[rows], R, t, intr)
+                e = np.linalg.norm(uvp[np.arange(rows.size), cam] - uv1, axis=-1)
+                keep = e <= p.max_2d_projection_error
+            if (~keep).any():
+                drop = np.zeros((rows.size, C), bool)
+                drop[~keep] = True
+                detach(f[rows], drop)
+
+
+# --------------------------------------------------------------------------------------
+# Patch tracking
+# --------------------------------------------------------------------------------------
+
+def patch_search(prev_image: NDArray[Any], image: NDArray[Any], prev_uv: ArrayLike,
+                 pred_uv: ArrayLike, size: int, radius: float
+                 ) -> tuple[NDArray[np.float64], float]:
+    """Find the patch around ``prev_uv`` of ``prev_image`` near ``pred_uv`` in ``image``.
+
+    Parameters
+    ----------
+    prev_image, image : ndarray (H, W)
+        Grey images of the previous and current frame.
+    prev_uv, pred_uv : array_like, shape (2,)
+        Patch centre in the previous image, predicted centre in the current one (px).
+    size : int
+        Patch side (px, made odd).
+    radius : float
+        Search radius (px).
+
+    Returns
+    -------
+    uv : ndarray, shape (2,)
+        Best match (sub-pixel; NaN when the patch does not fit the images).
+    score : float
+        Its normalised cross-correlation (-1..1; -1 when not found).
+    """
+    import cv2
+
+    half = int(size) // 2
+    r = int(math.ceil(radius))
+    H, W = image.shape[:2]
+    px, py = (int(round(v)) for v in prev_uv)
+    cx, cy = (int(round(v)) for v in pred_uv)
+    nan = np.array([np.nan, np.nan])
+    if not (half <= px < W - half and half <= py < prev_image.shape[0] - half):
+        return nan, -1.0
+    tpl = prev_image[py - half:py + half + 1, px - half:px + half + 1].astype(np.float32)
+    x0, x1 = max(cx - r - half, 0), min(cx + r + half + 1, W)
+    y0, y1 = max(cy - r - half, 0), min(cy + r + half + 1, H)
+    win = image[y0:y1, x0:x1].astype(np.float32)
+    if win.shape[0] < tpl.shape[0] or win.shape[1] < tpl.shape[1] or tpl.std() < 1e-3:
+        return nan, -1.0
+    res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
+    _, best, _, loc = cv2.minMaxLoc(res)
+    bx, by = loc
+    dx = dy = 0.0
+    if 0 < bx < res.shape[1] - 1:
+        a, b, c = res[by, bx - 1], res[by, bx], res[by, bx + 1]
+        den = a - 2 * b + c
+        dx = 0.5 * (a - c) / den if den < 0 else 0.0
+    if 0 < by < res.shape[0] - 1:
+        a, b, c = res[by - 1, bx], res[by, bx], res[by + 1, bx]
+        den = a - 2 * b + c
+        dy = 0.5 * (a - c) / den if den < 0 else 0.0
+    uv = np.array([x0 + bx + half + dx, y0 + by + half + dy], dtype=np.float64)
+    if np.hypot(uv[0] - pred_uv[0], uv[1] - pred_uv[1]) > radius:
+        return nan, -1.0
+    return uv, float(best)
+
+
+# --------------------------------------------------------------------------------------
+# Sequence tracking
+# --------------------------------------------------------------------------------------
+
+def track(
+    detections: Callable[[int], FrameDetections],
+    initial: InitialState,
+    R: ArrayLike,
+    t: ArrayLike,
+    intr: CameraIntrinsics,
+    params: TrackingParameters | None = None,
+    *,
+    start: int,
+    stop: int,
+    get_image: Callable[[int, int], NDArray[Any]] | None = None,
+    resolve_cameras: bool = True,
+    progress: Callable[[int, int], bool] | None = None,
+) -> TrackResult:
+    """Track points from frame ``start`` to frame ``stop`` (either direction).
+
+    Parameters
+    ----------
+    detections : callable
+        ``detections(frame)`` -> one ``(centre [N, 2], axes [N, 2] or None)`` per camera
+        (e.g. a :class:`RaggedDetections`). It may detect blobs on the fly.
+    initial : InitialState
+        Points in frame ``start``.
+    R, t : array_like, shapes (C, 3, 3)/(C, 3) or (F, C, 3, 3)/(F, C, 3)
+        Cameras: fixed, or per frame of the take (indexed by frame number). With brim
+        points and ``resolve_cameras``, only the start frame's are used and every new
+        frame is re-solved from the brim, starting from the previous frame's cameras.
+    intr : CameraIntrinsics
+    params : TrackingParameters, optional
+    start, stop : int
+        Start frame (holding ``initial``) and last frame to track (inclusive);
+        ``stop < start`` tracks backwards.
+    get_image : callable, optional
+        ``get_image(frame, camera)`` -> grey image; enables patch tracking.
+    resolve_cameras : bool
+        Re-solve the cameras of each frame from the tracked brim points.
+    progress : callable, optional
+        ``progress(done, total)`` after each frame; False cancels and keeps what was done.
+
+    Returns
+    -------
+    TrackResult
+        Arrays for frames ``min(start, stop)..max(start, stop)`` without ``start`` (only
+        those tracked when cancelled).
+
+    Raises
+    ------
+    ValueError
+        On inconsistent shapes.
+    """
+    params = TrackingParameters() if params is None else params
+    C = intr.n_cameras
+    X0 = np.asarray(initial.positions, np.float64)
+    P = X0.shape[0]
+    kind = np.asarray(initial.kind, np.int8).reshape(-1)
+    if X0.shape != (P, 3) or kind.shape != (P,):
+        raise ValueError(f"initial positions must be (P, 3) and kind (P,), got {X0.shape} "
+                         f"and {kind.shape}")
+    Ra = np.asarray(R, np.float64)
+    ta = np.asarray(t, np.float64)
+    per_frame = Ra.ndim == 4
+    if Ra.shape[-3:] != (C, 3, 3) or ta.shape[-2:] != (C, 3):
+        raise ValueError(f"R and t must be for {C} cameras, got {Ra.shape} and {ta.shape}")
+
+    def cams(frame: int) -> tuple[NDArray, NDArray]:
+        return (Ra[frame], ta[frame]) if per_frame else (Ra, ta)
+
+    step = 1 if stop >= start else -1
+    frames = list(range(start + step, stop + step, step))
+    n = len(frames)
+    has_brim = bool(np.any((kind == KIND_BRIM) & np.isfinite(X0).all(-1)))
+    resolve = resolve_cameras and has_brim
+    matcher = FrameMatcher(intr, kind, X0, params)
+
+    out_pos = np.full((n, P, 3), np.nan, np.float32)
+    out_recon = np.zeros((n, P), np.int8)
+    out_res = np.full((n, P), np.nan, np.float32)
+    out_obs = np.full((n, P, C, 2), np.nan, np.float32)
+    out_src = np.zeros((n, P, C), np.int8)
+    out_det = np.full((n, P, C), -1, np.int32)
+    out_q = np.zeros((n, P, C), np.float16)
+    out_R = np.zeros((n, C, 3, 3))
+    out_t = np.zeros((n, C, 3))
+
+    # State carried from frame to frame.
+    X_est = X0.copy()
+    alive = np.isfinite(X0).all(-1)
+    velocity = np.zeros((P, 3))
+    last_seen = alive.copy()
+    prev_obs = (np.full((P, C, 2), np.nan) if initial.obs is None
+                else np.asarray(initial.obs, np.float64).copy())
+    prev_axes = (np.full((P, C, 2), np.nan) if initial.axes is None
+                 else np.asarray(initial.axes, np.float64).copy())
+    patch_run = np.zeros((P, C), np.int32)
+    face = matcher.face
+    X_ref = X0.copy()
+    face_pad = np.concatenate([X0[face], np.full((1, 3), np.nan)])
+    NB_ref = face_pad[matcher.nb]  # (P_face, k, 3)
+    Rc, tc = cams(start)
+    Rc, tc = Rc.copy(), tc.copy()
+    prev_frame = start
+    images: dict[tuple[int, int], NDArray[Any]] = {}
+
+    def image(frame: int, cam: int) -> NDArray[Any]:
+        key = (frame, cam)
+        if key not in images:
+            images[key] = get_image(frame, cam)  # type: ignore[misc]
+        return images[key]
+
+    done = 0
+    cancelled = False
+    for i, frame in enumerate(frames):
+        fr = _pack(detections(frame), C)
+        if not resolve and (per_frame or i == 0):
+            Rc, tc = cams(frame)
+        X_pred = X_est.copy()
+        X_pred[alive & last_seen] += params.velocity_weight * velocity[alive & last_seen]
+        X_pred[~alive] = np.nan
+        brim = kind == KIND_BRIM
+        X_pred[brim] = X0[brim]
+
+        patch_fn = None
+        if get_image is not None:
+            pf = prev_frame
+
+            def patch_fn(missing: NDArray[np.bool_], pred: NDArray[np.float64],
+                         _pf: int = pf, _f: int = frame) -> tuple[NDArray, NDArray]:
+                uv = np.full(pred.shape, np.nan)
+                score = np.full(pred.shape[:2], -1.0)
+                cand = missing & np.isfinite(prev_obs).all(-1) & \
+                    (patch_run < params.max_patch_frames)
+                for pp, cc in zip(*np.nonzero(cand), strict=True):
+                    u, s = patch_search(image(_pf, cc), image(_f, cc), prev_obs[pp, cc],
+                                        pred[pp, cc], params.patch_match_size,
+                                        params.face_point_max_elastic_prediction_distance)
+                    uv[pp, cc], score[pp, cc] = u, s
+                return uv, score
+
+        res = matcher.match_frame(
+            fr, X_pred, Rc, tc, prev_axes, reacquire=alive & ~last_seen, patch=patch_fn,
+            resolve_cameras=resolve, ref=(X_ref, NB_ref),
+        )
+        Rc, tc = res["R"], res["t"]
+        k = frame - min(frames[0], frames[-1])
+        out_pos[k] = res["positions"]
+        out_recon[k] = res["recon"]
+        out_res[k] = res["residual"]
+        out_obs[k] = res["obs"]
+        out_src[k] = res["source"]
+        out_det[k] = res["detection"]
+        out_q[k] = res["quality"]
+        out_R[k], out_t[k] = Rc, tc
+
+        got = np.isfinite(res["positions"]).all(-1)
+        X_new = np.where(got[:, None], res["positions"], res["X_elastic"])
+        moved = got & last_seen
+        velocity = np.where(moved[:, None], X_new - X_est, 0.0)
+        X_est = np.where(alive[:, None], X_new, X_est)
+        last_seen = got
+        tri = res["recon"][face] == RECON_TRIANGULATED
+        if tri.any():
+            face_pad[:-1] = np.where((res["recon"][face] == RECON_TRIANGULATED)[:, None],
+                                     res["positions"][face], np.nan)
+            X_ref[face[tri]] = res["positions"][face[tri]]
+            NB_ref[tri] = face_pad[matcher.nb[tri]]
+        d = res["detection"]
+        cc = np.arange(C)[None, :]
+        new_axes = fr.axes[cc, np.maximum(d, 0)]
+        prev_axes = np.where((d >= 0)[..., None], new_axes, prev_axes)
+        has_obs = np.isfinite(res["obs"]).all(-1)
+        prev_obs = np.where(has_obs[..., None], res["obs"], np.nan)
+        patch_run = np.where(res["source"] == SOURCE_PATCH, patch_run + 1, 0)
+        if get_image is not None:
+            for key in [key for key in images if key[0] != frame]:
+                del images[key]
+        prev_frame = frame
+        done = i + 1
+        if progress is not None and progress(done, n) is False:
+            cancelled = done < n
+            break
+
+    if step > 0:
+        first, last = start + 1, start + done
+        sl = slice(0, done)
+    else:
+        first, last = start - done, start - 1
+        sl = slice(n - done, n)
+    return TrackResult(first, last, out_pos[sl], out_recon[sl], out_res[sl], out_obs[sl],
+                       out_src[sl], out_det[sl], out_q[sl], out_R[sl], out_t[sl], done,
+                       cancelled)

@@ -1,0 +1,145 @@
+"""The action table covers every menu item and keyboard shortcut of the reference guide."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from PySide6.QtGui import QKeySequence
+
+from carapost.ui import actions as table
+
+GUIDE = Path(__file__).resolve().parents[3] / "shared" / "seeds" / "carapost-reference-guide.txt"
+MENU_SECTIONS = ("File menu", "Edit menu", "View menu", "Process menu", "Help menu")
+
+
+@pytest.fixture(scope="module")
+def guide_lines() -> list[str]:
+    if not GUIDE.exists():
+        pytest.skip(f"reference guide not found at {GUIDE}")
+    return GUIDE.read_text(encoding="utf-8").splitlines()
+
+
+def _section(lines: list[str], start: str, end: str) -> list[str]:
+    # the second occurrence is the body (the first is the table of contents)
+    idx = [i for i, ln in enumerate(lines) if ln.strip() == start]
+    i = idx[-1] if len(idx) > 1 else idx[0]
+    j = next(k for k in range(i + 1, len(lines)) if lines[k].strip() == end)
+    return lines[i + 1:j]
+
+
+def guide_menu_items(lines: list[str]) -> list[tuple[str, str, str]]:
+    """(menu, title, shortcut) of every row of the five menu tables."""
+    items = []
+    bounds = list(MENU_SECTIONS) + ["Labelling pane"]
+    for menu, nxt in zip(bounds[:-1], bounds[1:], strict=True):
+        for ln in _section(lines, menu, nxt):
+            if "\t" not in ln or ln.startswith("Option\t"):
+                continue
+            cell = ln.split("\t")[0].strip()
+            m = re.match(r"^(.*?)\s*\(([^()]*)\)\s*$", cell)
+            title, key = (m.group(1), m.group(2)) if m else (cell, "")
+            if title.endswith("]") and "[" not in title:
+                title = title[:-1]  # a typo in the guide: "Prev Key Frame]"
+            items.append((menu.split()[0], title.strip(), key.strip()))
+    return items
+
+
+def normalise_key(text: str) -> str:
+    """'Ctrl + right arrow key' -> the portable QKeySequence text 'Ctrl+Right'."""
+    t = re.sub(r"\s*\+\s*", "+", text.strip())
+    t = re.sub(r"\b(arrow|key)\b", "", t, flags=re.I).strip()
+    t = t.replace("Spacebar", "Space")
+    parts = [p.strip() for p in t.split("+")]
+    parts = [p[:1].upper() + p[1:] if len(p) > 1 else p.upper() for p in parts]
+    return QKeySequence("+".join(parts)).toString()
+
+
+def guide_shortcuts(lines: list[str]) -> list[tuple[str, str]]:
+    """(action, key) of every keyboard-only row of the shortcut tables."""
+    rows = []
+    for ln in _section(lines, "File management shortcuts", "Supported file formats and standards"):
+        if "\t" not in ln:
+            continue
+        action, key = [c.strip() for c in ln.split("\t")[:2]]
+        if action in ("Action", "Viewing option", "Camera view option", "View option",
+                      "Navigation option", "Selection option", "Points option"):
+            continue
+        if re.search(r"click|drag|mouse|wheel|button", key, re.I) or not key:
+            continue
+        rows.append((action, key))
+    return rows
+
+
+def _norm_title(t: str) -> str:
+    return t.replace("...", "").strip().lower()
+
+
+def test_every_guide_menu_item_is_in_the_table(guide_lines):
+    items = guide_menu_items(guide_lines)
+    assert len(items) > 90  # the parser found the tables
+    ours = {(_norm_title(a.title), a.menu.split("/")[0]) for a in table.ACTIONS if a.title}
+    submenus = {a.menu for a in table.ACTIONS}
+    missing = []
+    for menu, title, _ in items:
+        alias = table.GUIDE_ALIASES.get(title, title)
+        if "/" in alias:
+            if alias not in submenus:
+                missing.append(title)
+        elif (_norm_title(alias), menu) not in ours:
+            missing.append(f"{menu}: {title}")
+    assert not missing, f"guide items without an action: {missing}"
+
+
+def test_every_guide_menu_shortcut_matches(guide_lines):
+    by_title = {_norm_title(a.title): a for a in table.ACTIONS if a.title}
+    checked = 0
+    for _menu, title, key in guide_menu_items(guide_lines):
+        if not key:
+            continue
+        spec = by_title[_norm_title(table.GUIDE_ALIASES.get(title, title))]
+        assert QKeySequence(spec.shortcut).toString() == normalise_key(key), title
+        checked += 1
+    assert checked >= 25
+
+
+def test_every_keyboard_shortcut_of_the_guide_exists(guide_lines):
+    ours = {QKeySequence(a.shortcut).toString() for a in table.ACTIONS if a.shortcut}
+    rows = guide_shortcuts(guide_lines)
+    assert len(rows) >= 20
+    missing = [(action, key) for action, key in rows if normalise_key(key) not in ours]
+    assert not missing, f"shortcuts without an action: {missing}"
+
+
+def test_shortcuts_are_unique_and_ids_unique():
+    keys = [QKeySequence(a.shortcut).toString() for a in table.ACTIONS if a.shortcut]
+    assert len(keys) == len(set(keys))
+    ids = [a.id for a in table.ACTIONS]
+    assert len(ids) == len(set(ids))
+
+
+def test_requirement_check():
+    assert table.requirement_met("")
+    assert table.requirement_met("carapost.model.queries:gaps")
+    assert not table.requirement_met("carapost.model.queries:no_such_function")
+    assert not table.requirement_met("carapost.no_such_module")
+
+
+def test_menus_built_from_the_table(make_window):
+    w = make_window()
+    for spec in table.menu_items():
+        act = w.action(spec.id)
+        assert act.text().startswith(spec.title.split("...")[0].strip()) or spec.id in (
+            "edit.undo", "edit.redo")
+        if spec.shortcut:
+            assert act.shortcut().toString() == QKeySequence(spec.shortcut).toString()
+        available = table.requirement_met(spec.requires)
+        assert act.isEnabled() == available or spec.id in ("edit.undo", "edit.redo")
+        if not available:
+            assert act.toolTip() == table.NOT_AVAILABLE
+    # the unavailable processing items are listed in the Process menu, disabled
+    titles = [a.text() for a in w.menus["Process"].actions() if a.text()]
+    assert "Interpolate Gaps" in titles and "Track Forwards [Sequence]" in titles
+    panels = [a.text() for a in w.menus["View/Panels"].actions()]
+    assert panels == list(table.PANELS)
