@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import tempfile
 import time
@@ -54,15 +55,20 @@ def main() -> None:
     emit("synth_render_image_ms", 1000 * statistics.median(times), "ms", size="1280x720",
          note="one process, background layers cached, no encoding")
 
-    totals = []
+    totals, cpus = [], []
     for _ in range(args.runs):
         with tempfile.TemporaryDirectory() as tmp:
+            c0 = os.times()
             t0 = time.perf_counter()
             generate_take(tmp, config)
             totals.append(time.perf_counter() - t0)
+            c1 = os.times()
+            # CPU seconds of this process and its workers: independent of other load
+            cpus.append(sum(c1[:4]) - sum(c0[:4]))
     emit("synth_300_frames_s" if args.frames == 300 else f"synth_{args.frames}_frames_s",
          statistics.median(totals), "s", runs=args.runs,
-         all=[round(t, 2) for t in totals], cameras=4, size="1280x720", codec="ffv1")
+         all=[round(t, 2) for t in totals], cpu_s=round(statistics.median(cpus), 2),
+         load_avg=round(os.getloadavg()[0], 2), cameras=4, size="1280x720", codec="ffv1")
 
 
 if __name__ == "__main__":

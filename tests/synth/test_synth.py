@@ -370,3 +370,42 @@ def test_cli_writes_a_take(tmp_path, capsys):
     assert main_synth([str(tmp_path / "u"), "--size", "8x8"]) == 2
     assert "size" in capsys.readouterr().err
     assert not (tmp_path / "u").exists()
+
+
+@pytest.mark.slow
+def test_worker_processes_render_the_same_images(tmp_path):
+    cfg = SynthConfig(frames=12, size=(640, 360), preset="fast", seed=9)
+    seen = []
+    path = generate_take(tmp_path, cfg, workers=2, progress=lambda d, t: seen.append(d) or True)
+    assert seen[-1] == 12 * 4
+    sc = build_scene(cfg)
+    for c in range(4):
+        cap = cv2.VideoCapture(str(path.parent / f"synth_cam{c}.mkv"))
+        for f in range(12):
+            ok, frame = cap.read()
+            assert ok
+            np.testing.assert_array_equal(frame[..., 0], render_frame(sc, f, c))
+        cap.release()
+
+
+@pytest.mark.slow
+def test_rendered_centroids_match_truth_over_a_take():
+    sc = build_scene(SynthConfig(frames=120, preset="rom", markers="dense156", seed=6))
+    errs = []
+    for f in range(0, 120, 17):
+        for c in range(sc.n_cameras):
+            vis = sc.visible[f, :, c]
+            depth = (np.einsum("ij,mj->mi", sc.cam_R[f, c], sc.points3d[f, vis])
+                     + sc.cam_t[f, c])[:, 2]
+            rad = sc.intrinsics.focal[c] * sc.marker_radius_mm[vis] / depth
+            uv = sc.uv[f, vis, c]
+            allu = np.concatenate([uv, sc.brim_uv[f, sc.brim_visible[f, :, c], c]])
+            d = np.linalg.norm(uv[:, None] - allu[None], axis=-1)
+            d[d == 0] = np.inf
+            iso = d.min(axis=1) > 3 * rad.max() + 8
+            img = render_frame(sc, f, c)
+            errs.append(np.linalg.norm(_centroids(img, uv[iso], rad[iso]) - uv[iso], axis=1))
+    errs = np.concatenate(errs)
+    errs = errs[np.isfinite(errs)]
+    assert errs.size > 500
+    assert np.median(errs) < 0.2

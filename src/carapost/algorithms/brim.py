@@ -760,6 +760,7 @@ def multiview_tracks(
     *,
     min_views: int = 3,
     excluded: Sequence[NDArray] | None = None,
+    max_range: float = 600.0,
 ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
     """Detections of the same marker in several cameras, under known camera geometry.
 
@@ -782,6 +783,10 @@ def multiview_tracks(
         Fewest cameras per track (3 makes chance matches very unlikely).
     excluded : sequence of bool arrays (N_c,), optional
         Detections that may not be used.
+    max_range : float
+        Points further than this (mm) from either camera of the pair are rejected: on a
+        head-mounted rig everything is within reach, while nearly parallel rays of
+        unrelated detections "meet" far away and can fit every view.
 
     Returns
     -------
@@ -808,7 +813,8 @@ def multiview_tracks(
             ca, da = _rays(dets_n[a][ia], R[a], t[a])
             cb, db = _rays(dets_n[b][ib], R[b], t[b])
             X = _midpoints(ca, da, cb, db)
-            ok = (((X - ca) * da).sum(1) > 0) & (((X - cb) * db).sum(1) > 0)
+            sa, sb = ((X - ca) * da).sum(1), ((X - cb) * db).sum(1)
+            ok = (sa > 0) & (sb > 0) & (sa < max_range) & (sb < max_range)
             idx = np.full((len(X), C), -1, dtype=np.intp)
             idx[:, a], idx[:, b] = ia, ib
             err = dist[ia, ib].copy()

@@ -92,6 +92,8 @@ class Init3DParameters:
     surface_tiebreak : bool
         When no unambiguous candidate is left, let candidates that lie on the surface of
         their accepted neighbours win over rivals far off it (our addition).
+    max_range : float
+        Candidates further than this from a camera (mm) are not markers of the face.
     """
 
     max_3d_distance_to_merge: float = 5.0
@@ -107,6 +109,7 @@ class Init3DParameters:
     epipolar_noise_factor: float = 4.0
     min_strict_epipolar_px: float = 0.3
     surface_tiebreak: bool = True
+    max_range: float = 600.0
 
     def __post_init__(self) -> None:
         for name in ("max_3d_distance_to_merge", "max_allowed_depth",
@@ -212,7 +215,8 @@ def _grow_pair(a: int, b: int, dets_n: Sequence[NDArray], usable: list[NDArray],
     ca, da = _rays(dets_n[a][ia], R[a], t[a])
     cb, db = _rays(dets_n[b][ib], R[b], t[b])
     X = _midpoints(ca, da, cb, db)
-    front = (((X - ca) * da).sum(1) > 0) & (((X - cb) * db).sum(1) > 0)
+    sa, sb = ((X - ca) * da).sum(1), ((X - cb) * db).sum(1)
+    front = (sa > 0) & (sb > 0) & (sa < params.max_range) & (sb < params.max_range)
     ia, ib, X = ia[front], ib[front], X[front]
     e = dist[ia, ib]
     alive = np.ones(len(X), dtype=bool)
@@ -529,7 +533,8 @@ def initialize_3d(
     elif params.auto_seeds:
         tracks, X = multiview_tracks(dets_n, R, t, focal,
                                      min(2.0, params.max_symmetric_epipolar_distance),
-                                     min_views=min(4, C), excluded=[~u for u in usable])
+                                     min_views=min(4, C), excluded=[~u for u in usable],
+                                     max_range=params.max_range)
         if len(tracks) < params.min_auto_seeds:
             return _fail(C, R, t, f"{what}: found {len(tracks)} automatic seed(s) (markers "
                                   f"matched in all {min(4, C)} cameras), at least "
@@ -562,7 +567,8 @@ def initialize_3d(
         # Allowed Depth from any point) start from 4-view matches, then growth resumes
         tracks, X = multiview_tracks(dets_n, R, t, focal, min(2.0 * strict, 2.0),
                                      min_views=min(4, C),
-                                     excluded=[~(usable[c] & ~state.used[c]) for c in range(C)])
+                                     excluded=[~(usable[c] & ~state.used[c]) for c in range(C)],
+                                     max_range=params.max_range)
         if len(tracks):
             X, _, _ = triangulate_tracks(tracks, dets_n, R, t, focal)
             state.add(tracks, X)

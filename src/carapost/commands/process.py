@@ -42,6 +42,7 @@ __all__ = [
     "ImportBrimSvg",
     "Initialize3D",
     "InitializeDefaultBrim",
+    "SetBrimModel",
     "SolveBrimAuto",
     "SolveBrimManual",
 ]
@@ -95,7 +96,7 @@ def _set_cameras(journal: Journal, project: Project, frame: int, R: NDArray, t: 
     def undo() -> None:
         cal.R[frame], cal.t[frame], cal.solved[frame] = old
 
-    journal.call(undo, "calibration", nbytes=old[0].nbytes + old[1].nbytes)
+    journal.call(undo, "cameras", nbytes=old[0].nbytes + old[1].nbytes)
     cal.R[frame] = R
     cal.t[frame] = t
     cal.solved[frame] = True
@@ -198,13 +199,19 @@ class DetectBlobs(ReplaceDetections):
 # ------------------------------------------------------------------------------------------
 # Brim models
 # ------------------------------------------------------------------------------------------
-class _CreateBrim(Command):
-    """Replace the brim points by a brim model (labels, xyz)."""
+class SetBrimModel(Command):
+    """Replace the brim points by a brim model: labels and positions (B, 3) in mm."""
 
-    def __init__(self, labels: Sequence[str], xyz: NDArray, description: str):
+    def __init__(self, labels: Sequence[str], xyz: NDArray,
+                 description: str = "Set Calibration Brim"):
         super().__init__()
         self.labels = list(labels)
         self.xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+        if len(self.labels) != len(self.xyz) or len(self.xyz) < 4:
+            raise _refuse(f"{description}: a brim needs at least 4 dots with one label each "
+                          f"(got {len(self.xyz)} dots, {len(self.labels)} labels)")
+        if not np.all(np.isfinite(self.xyz)):
+            raise _refuse(f"{description}: a brim dot position is not finite")
         self.description = description
 
     def apply(self, project: Project, journal: Journal) -> None:
@@ -215,7 +222,7 @@ class _CreateBrim(Command):
         project.points.positions[:, cols] = self.xyz.astype(np.float32)[None]
 
 
-class InitializeDefaultBrim(_CreateBrim):
+class InitializeDefaultBrim(SetBrimModel):
     """Initialize Default Calibration Brim [v1.0 / v1.1 / v2.0] (replaces any brim)."""
 
     def __init__(self, project: Project, version: str = "v2.0"):
@@ -230,7 +237,7 @@ class InitializeDefaultBrim(_CreateBrim):
         log.info("%s: %d brim dots", self.description, len(xyz))
 
 
-class ImportBrimSvg(_CreateBrim):
+class ImportBrimSvg(SetBrimModel):
     """Import Calibration Brim [SVG]: a planar custom brim (replaces any brim)."""
 
     def __init__(self, project: Project, path: str | Path):

@@ -41,13 +41,19 @@ def contact_sheet(scene: SynthScene, frame: int = 0, *, scale: float = 0.5,
         img = cv2.resize(img, (int(round(w * scale)), int(round(h * scale))),
                          interpolation=cv2.INTER_AREA)
         if overlay:
-            # circles, not crosses, so the rendered dots stay visible inside them
-            for uv, vis, col in ((scene.uv, scene.visible, (40, 40, 255)),
-                                 (scene.brim_uv, scene.brim_visible, (60, 220, 60))):
+            # rings just outside each disc, so the rendered dots stay visible inside them
+            R, t = scene.cam_R[frame, c], scene.cam_t[frame, c]
+            for uv, vis, pts, rad, col in (
+                    (scene.uv, scene.visible, scene.points3d[frame], scene.marker_radius_mm,
+                     (40, 40, 255)),
+                    (scene.brim_uv, scene.brim_visible, scene.brim3d, scene.brim_radius_mm,
+                     (60, 220, 60))):
+                depth = (pts @ R.T + t)[:, 2]
                 for m in np.nonzero(vis[frame, :, c])[0]:
                     u, v = (uv[frame, m, c] + 0.5) * scale - 0.5
-                    cv2.circle(img, (int(round(u * 4)), int(round(v * 4))), 4 * 7, col, 1,
-                               cv2.LINE_AA, shift=2)
+                    r = scene.intrinsics.focal[c] * rad[m] / depth[m] * scale + 2.0
+                    cv2.circle(img, (int(round(u * 4)), int(round(v * 4))), int(round(r * 4)),
+                               col, 1, cv2.LINE_AA, shift=2)
             if labels:
                 for m in np.nonzero(scene.visible[frame, :, c])[0]:
                     u, v = (scene.uv[frame, m, c] + 0.5) * scale - 0.5

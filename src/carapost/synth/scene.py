@@ -33,6 +33,8 @@ BLUR_OFFSETS = np.linspace(-0.25, 0.25, 5)
 MIN_FACING = 0.25
 #: Blink activation above which the upper-lid markers are folded away (invisible).
 BLINK_HIDE = 0.5
+#: Radius (mm) of a sphere about the head centre that holds the head in any expression.
+OCCLUSION_BOUND = 135.0
 
 
 @dataclass
@@ -250,8 +252,14 @@ def _occluded_by_head(p_head: NDArray, cam_head: NDArray, act: NDArray,
     for i in range(0, len(p_head), chunk):
         sl = slice(i, i + chunk)
         q = p_head[sl, None, :] + s[None, :, None] * d[sl, None, :]
-        inside = face.inside_deformed_head(q, act[sl])
-        out[sl] = inside.any(axis=1)
+        # only samples near the head can be inside it (the deformed head stays within
+        # OCCLUSION_BOUND mm of the centre)
+        near = np.einsum("nsi,nsi->ns", q, q) < OCCLUSION_BOUND**2
+        n_i, s_i = np.nonzero(near)
+        inside = face.inside_deformed_head(q[n_i, s_i][:, None, :], act[sl][n_i])[:, 0]
+        hit = np.zeros(near.shape, dtype=bool)
+        hit[n_i[inside], s_i[inside]] = True
+        out[sl] = hit.any(axis=1)
     return out
 
 

@@ -1,0 +1,170 @@
+"""Initialize from ROM: match a frame of an initialised ROM take to a frame of a new take.
+
+The ROM frame's brim points (known structure), face points and cameras are the
+"previous frame" of one tracking step (:class:`carapost.algorithms.tracking.FrameMatcher`)
+with the Initialize From ROM Parameters as search radii:
+
+1. Brim: the ROM brim is projected with the ROM cameras and matched within ROM Brim Point
+   Tracking Distance; the cameras of the new frame are re-solved from the matches, and
+   the brim is matched again within Brim Point Tracking Distance.
+2. Face (unless brim only): the ROM face points, projected with the new cameras, are
+   matched within ROM Face Point Tracking Distance by neighbourhood consensus, then
+   elastically; points further than ROM Max Allowed 3D Point Error from where their ROM
+   neighbours put them are dropped. A second round starts from the first round's result,
+   so points whose neighbours were found late are picked up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.tracking import (
+    KIND_BRIM,
+    FrameDetections,
+    FrameMatcher,
+    TrackingParameters,
+    _pack,
+)
+
+
+@dataclass(frozen=True)
+class RomParameters:
+    """The Initialize From ROM Parameters section (keys of the properties registry).
+
+    Attributes
+    ----------
+    rom_frame_index : int
+        Frame of the ROM take to initialise from.
+    rom_face_point_tracking_distance : float
+        Search radius (px) for face points.
+    rom_brim_point_tracking_distance : float
+        Search radius (px) for brim points.
+    rom_max_3d_point_error : float
+        Largest distance (mm) from the neighbour-based prediction.
+    """
+
+    rom_frame_index: int = 0
+    rom_face_point_tracking_distance: float = 50.0
+    rom_brim_point_tracking_distance: float = 30.0
+    rom_max_3d_point_error: float = 5.0
+
+    def __post_init__(self) -> None:
+        if int(self.rom_frame_index) < 0:
+            raise ValueError(f"RomParameters.rom_frame_index must be >= 0, got "
+                             f"{self.rom_frame_index!r}")
+        for name in ("rom_face_point_tracking_distance", "rom_brim_point_tracking_distance",
+                     "rom_max_3d_point_error"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"RomParameters.{name} must be a number >= 0, got {v!r}")
+
+
+class RomResult(NamedTuple):
+    """Per ROM point, its match in the new frame.
+
+    Attributes
+    ----------
+    positions : (P, 3) float32, NaN where not found
+    recon : (P,) int8
+    residual : (P,) float32
+    obs : (P, C, 2) float32
+    source, detection, quality : (P, C)
+    R, t : (C, 3, 3), (C, 3)
+        Cameras of the new frame.
+    structure : (P, 3)
+        The ROM positions (the brim model for brim points).
+    """
+
+    positions: NDArray[np.float32]
+    recon: NDArray[np.int8]
+    residual: NDArray[np.float32]
+    obs: NDArray[np.float32]
+    source: NDArray[np.int8]
+    detection: NDArray[np.int32]
+    quality: NDArray[np.float16]
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+    structure: NDArray[np.float64]
+
+
+def initialize_from_rom(
+    detections: FrameDetections,
+    rom_positions: ArrayLike,
+    rom_kind: ArrayLike,
+    rom_R: ArrayLike,
+    rom_t: ArrayLike,
+    intr: CameraIntrinsics,
+    rom_params: RomParameters | None = None,
+    params: TrackingParameters | None = None,
+    *,
+    brim_only: bool = False,
+) -> RomResult:
+    """Match ROM points to one frame's detections.
+
+    Parameters
+    ----------
+    detections : sequence
+        One ``(centre [N, 2], axes [N, 2] or None)`` per camera of the new frame.
+    rom_positions : array_like, shape (P, 3)
+        ROM points at the ROM frame (mm).
+    rom_kind : array_like, shape (P,)
+        ``KIND_FACE`` / ``KIND_BRIM``.
+    rom_R, rom_t : array_like
+        ROM cameras at the ROM frame, the starting guess for the new frame.
+    intr : CameraIntrinsics
+    rom_params : RomParameters, optional
+    params : TrackingParameters, optional
+        Tracking parameters (elastic radius, 2D error, single sensor...).
+    brim_only : bool
+        Match the brim only.
+
+    Returns
+    -------
+    RomResult
+    """
+    rp = RomParameters() if rom_params is None else rom_params
+    tp = TrackingParameters() if params is None else params
+    X = np.asarray(rom_positions, np.float64)
+    kind = np.asarray(rom_kind, np.int8).reshape(-1)
+    C = intr.n_cameras
+    P = X.shape[0]
+    R = np.asarray(rom_R, np.float64).copy()
+    t = np.asarray(rom_t, np.float64).copy()
+    fr = _pack(detections, C)
+    no_axes = np.full((P, C, 2), np.nan)
+    matcher = FrameMatcher(intr, kind, X, tp)
+    brim = kind == KIND_BRIM
+    has_brim = bool((brim & np.isfinite(X).all(-1)).any())
+
+    out = None
+    if has_brim:
+        Xb = np.where(brim[:, None], X, np.nan)
+        for radius in (rp.rom_brim_point_tracking_distance, tp.brim_point_tracking_distance):
+            out = matcher.match_frame(fr, Xb, R, t, no_axes, brim_radius=radius,
+                                      resolve_cameras=True)
+            R, t = out["R"], out["t"]
+    if not brim_only:
+        Xf = X.copy()
+        Xf[brim] = np.where(has_brim, X[brim], np.nan)
+        pred = Xf
+        for round_ in range(2):
+            out = matcher.match_frame(
+                fr, pred, R, t, no_axes,
+                face_radius=rp.rom_face_point_tracking_distance if round_ == 0
+                else tp.face_point_max_elastic_prediction_distance,
+                max_3d=rp.rom_max_3d_point_error, passes=3, resolve_cameras=False)
+            got = np.isfinite(out["positions"]).all(-1)
+            pred = np.where(got[:, None], out["positions"], out["X_elastic"])
+            pred[brim] = Xf[brim]
+    if out is None:
+        raise ValueError("nothing to match: no brim points and brim_only is set")
+    pos = out["positions"]
+    return RomResult(pos.astype(np.float32), out["recon"].astype(np.int8),
+                     out["residual"].astype(np.float32), out["obs"].astype(np.float32),
+                     out["source"].astype(np.int8), out["detection"].astype(np.int32),
+                     out["quality"].astype(np.float16), R, t, X.copy())

@@ -1,0 +1,120 @@
+"""Initialize 3D on synthetic frames with known identities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from carapost.algorithms.init3d import Init3DParameters, initialize_3d
+from tests.algorithms.test_brim import _scene, synthetic_detections
+
+#: The reference guide's recommended Max Allowed Depth per marker set (mm).
+DEPTH = {"standard": 35.0, "sparse35": 60.0, "dense156": 16.0}
+
+
+def _evaluate(res, scene, ident, frame=0):
+    """Coverage of markers seen by >= 2 cameras, mismatches, 3D RMSE (mm)."""
+    C = scene.n_cameras
+    ids, mismatched = [], 0
+    for i in range(len(res.points)):
+        ms = {int(ident[c][res.detections[i, c]]) for c in range(C) if res.detections[i, c] >= 0}
+        if len(ms) != 1 or min(ms) < 0:
+            mismatched += 1
+            ids.append(-1)
+        else:
+            ids.append(ms.pop())
+    ids = np.array(ids)
+    target = np.flatnonzero(scene.visible[frame].sum(1) >= 2)
+    coverage = np.isin(target, ids).mean()
+    ok = ids >= 0
+    err = np.linalg.norm(res.points[ok] - scene.points3d[frame, ids[ok]], axis=1)
+    duplicates = ok.sum() - len(set(ids[ok].tolist()))
+    return coverage, mismatched, float(np.sqrt(np.mean(err**2))), duplicates
+
+
+def _seeds(scene, ident, n=6, frame=0):
+    four = np.flatnonzero(scene.visible[frame].sum(1) == scene.n_cameras)
+    pick = four[np.linspace(0, len(four) - 1, n).astype(int)]
+    return [[int(np.flatnonzero(ident[c] == m)[0]) for c in range(scene.n_cameras)]
+            for m in pick]
+
+
+@pytest.mark.parametrize("markers", ["standard", "sparse35", "dense156"])
+@pytest.mark.parametrize("use_seeds", [True, False])
+def test_initialize_3d_acceptance(markers, use_seeds):
+    scene = _scene(markers=markers, seed=3)
+    dets, ident = synthetic_detections(scene, 0, np.random.default_rng(3))
+    res = initialize_3d(dets, scene.cam_R[0], scene.cam_t[0], scene.intrinsics,
+                        seeds=_seeds(scene, ident) if use_seeds else None,
+                        exclude_mask=[i < 0 for i in ident],
+                        params=Init3DParameters(max_allowed_depth=DEPTH[markers]))
+    assert res.success, res.message
+    coverage, mismatched, rmse, dup = _evaluate(res, scene, ident)
+    assert coverage >= 0.95, res.message
+    assert mismatched == 0
+    assert dup == 0
+    assert rmse <= 0.2
+    assert res.n_seeds == (6 if use_seeds else res.n_seeds) and res.n_seeds >= 3
+    # seeds come first, unchanged
+    if use_seeds:
+        np.testing.assert_array_equal(res.detections[:6], np.array(_seeds(scene, ident)))
+
+
+def test_initialize_3d_with_brim_bundle_keeps_cameras_close():
+    from tests.algorithms.test_brim import brim_index
+
+    scene = _scene(seed=1)
+    dets, ident = synthetic_detections(scene, 0, np.random.default_rng(1))
+    bidx = brim_index(ident, len(scene.brim3d))
+    # start from slightly wrong cameras: the bundle pulls them back
+    t0 = scene.cam_t[0] + np.array([0.15, -0.1, 0.1])
+    res = initialize_3d(dets, scene.cam_R[0], t0, scene.intrinsics,
+                        exclude_mask=[i < 0 for i in ident], brim_model=scene.brim3d,
+                        brim_detections=bidx)
+    assert res.success and "bundle adjusted" in res.message
+    from carapost.algorithms.camera import camera_centres
+
+    before = np.linalg.norm(camera_centres(scene.cam_R[0], t0)
+                            - camera_centres(scene.cam_R[0], scene.cam_t[0]), axis=1)
+    after = np.linalg.norm(camera_centres(res.R, res.t)
+                           - camera_centres(scene.cam_R[0], scene.cam_t[0]), axis=1)
+    assert after.max() < before.max()
+    coverage, mismatched, rmse, _ = _evaluate(res, scene, ident)
+    assert mismatched == 0 and coverage >= 0.95 and rmse <= 0.2
+
+
+def test_bad_seeds_and_inputs_give_messages():
+    scene = _scene(seed=2)
+    dets, ident = synthetic_detections(scene, 0, np.random.default_rng(2))
+    R, t, intr = scene.cam_R[0], scene.cam_t[0], scene.intrinsics
+    seeds = _seeds(scene, ident)
+    one_view = [list(s) for s in seeds]
+    one_view[2] = [one_view[2][0], -1, -1, -1]
+    res = initialize_3d(dets, R, t, intr, seeds=one_view)
+    assert not res.success and "seed 2 is attached in 1 camera" in res.message
+    # a seed whose detections belong to different markers does not triangulate
+    wrong = [list(s) for s in seeds]
+    wrong[1][3] = seeds[4][3]
+    wrong[4][3] = seeds[1][3]
+    res = initialize_3d(dets, R, t, intr, seeds=wrong)
+    assert not res.success and "do not match" in res.message
+    dup = [list(s) for s in seeds]
+    dup[0] = list(dup[1])
+    res = initialize_3d(dets, R, t, intr, seeds=dup)
+    assert not res.success and "same detection" in res.message
+    out = [list(s) for s in seeds]
+    out[0][1] = 99_999
+    res = initialize_3d(dets, R, t, intr, seeds=out)
+    assert not res.success and "detection 99999" in res.message
+    empty = [np.zeros((0, 2))] * 4
+    res = initialize_3d(empty, R, t, intr)
+    assert not res.success and "no face detections" in res.message
+    # no seeds and a bad calibration: no automatic seed can be found
+    t_bad = t + np.array([[30.0, 0, 0], [0, 30.0, 0], [-30.0, 0, 0], [0, 0, 30.0]])
+    res = initialize_3d(dets, R, t_bad, intr, exclude_mask=[i < 0 for i in ident])
+    assert not res.success and "automatic seed" in res.message
+    res = initialize_3d(dets, R, t, intr, seeds=None,
+                        params=Init3DParameters(auto_seeds=False))
+    assert not res.success and "no seed points" in res.message
+    with pytest.raises(ValueError, match="max_allowed_depth"):
+        Init3DParameters(max_allowed_depth=0.0)

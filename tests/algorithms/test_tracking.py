@@ -1,0 +1,374 @@
+"""Tracking: the pure tracker on synthetic detections derived from truth, and its commands.
+
+Detections are the truth projections of every visible marker and brim dot plus Gaussian
+noise, random clutter and random dropouts, so the tests run in seconds without images.
+The rendered-image acceptance runs are in ``benchmarks/tracking.py`` and the slow tests.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from carapost.algorithms.camera import project as project_points
+from carapost.algorithms.tracking import (
+    KIND_BRIM,
+    SOURCE_BLOB,
+    InitialState,
+    RaggedDetections,
+    TrackingParameters,
+    neighbour_graph,
+    patch_search,
+    resect_cameras,
+    track,
+)
+from carapost.commands.stack import CommandError, CommandStack
+from carapost.model.project import RECON_TRIANGULATED, new_project
+from carapost.synth import SynthConfig, build_scene
+
+
+@lru_cache(maxsize=8)
+def scene_of(preset: str, frames: int, seed: int = 1, markers: str = "standard"):
+    return build_scene(SynthConfig(preset=preset, markers=markers, frames=frames, seed=seed))
+
+
+def synth_detections(scene, seed: int = 0, noise: float = 0.15, clutter: int = 10,
+                     dropout: float = 0.01):
+    """Per frame, per camera (centre, axes, truth id): id m < M face, M + b brim, -1 clutter."""
+    rng = np.random.default_rng(seed)
+    F, M, C = scene.visible.shape
+    W, H = scene.size
+    out = []
+    for f in range(F):
+        per = []
+        for c in range(C):
+            v = np.flatnonzero(scene.visible[f, :, c] & (rng.random(M) > dropout))
+            b = np.flatnonzero(scene.brim_visible[f, :, c])
+            cen = np.concatenate([scene.uv[f, v, c], scene.brim_uv[f, b, c],
+                                  rng.random((clutter, 2)) * [W, H]])
+            ids = np.concatenate([v, M + b, -np.ones(clutter, int)])
+            cen = cen + rng.normal(0, noise, cen.shape)
+            perm = rng.permutation(len(cen))
+            per.append((cen[perm], np.full((len(cen), 2), 5.0), ids[perm]))
+        out.append(per)
+    return out
+
+
+def run_tracker(scene, dets, *, start: int, stop: int, params=None, progress=None):
+    M = len(scene.labels)
+    B = len(scene.brim3d)
+    X0 = np.concatenate([scene.points3d[start], scene.brim3d])
+    seen = np.r_[scene.visible[start].sum(-1) >= 2, np.ones(B, bool)]
+    X0[~seen] = np.nan
+    kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
+    axes = np.full((M + B, scene.n_cameras, 2), 5.0)  # the synthetic blobs' size
+    res = track(lambda f: [(d[0], d[1]) for d in dets[f]], InitialState(X0, kind, axes=axes),
+                scene.cam_R[start], scene.cam_t[start], scene.intrinsics,
+                params or TrackingParameters(), start=start, stop=stop, progress=progress)
+    return res, seen[:M]
+
+
+def quality(scene, res, initialised):
+    """Coverage of initialised markers seen by >= 2 cameras, swaps, RMSE (mm)."""
+    M = len(scene.labels)
+    sl = slice(res.first, res.last + 1)
+    truth = scene.points3d[sl]
+    pos = res.positions[:, :M].astype(np.float64)
+    d = np.linalg.norm(pos - truth, axis=-1)
+    seen = (scene.visible[sl].sum(-1) >= 2) & initialised[None]
+    coverage = float(((d <= 2.0) & seen).sum() / seen.sum())
+    # a swap: a point sitting on another marker
+    diff = pos[:, :, None, :] - truth[:, None, :, :]
+    dd = np.linalg.norm(diff, axis=-1)
+    dd[:, np.arange(M), np.arange(M)] = np.inf
+    swaps = int(np.sum(np.nanmin(dd, axis=2) <= 2.0))
+    ok = np.isfinite(d)
+    rmse = float(np.sqrt(np.mean(d[ok] ** 2)))
+    return coverage, swaps, rmse
+
+
+def test_speech_forwards_tracks_initialised_markers():
+    scene = scene_of("speech", 60)
+    dets = synth_detections(scene)
+    res, init = run_tracker(scene, dets, start=0, stop=59)
+    assert (res.first, res.last, res.frames_done, res.cancelled) == (1, 59, 59, False)
+    coverage, swaps, rmse = quality(scene, res, init)
+    assert coverage >= 0.97
+    assert swaps == 0
+    assert rmse <= 0.3
+    # every blob observation is the right marker's detection
+    M = len(scene.labels)
+    f, p, c = np.nonzero(res.source[:, :M] == SOURCE_BLOB)
+    truth_id = np.array([dets[res.first + fi][ci][2][res.detection[fi, pi, ci]]
+                         for fi, pi, ci in zip(f, p, c, strict=True)])
+    assert np.mean(truth_id == p) >= 0.999
+    # the cameras are re-solved from the brim every frame, close to the flexing truth
+    uv_est, _ = project_points(scene.brim3d, res.R, res.t, scene.intrinsics)
+    uv_true, _ = project_points(scene.brim3d, scene.cam_R[1:60], scene.cam_t[1:60],
+                                scene.intrinsics)
+    assert np.nanmedian(np.linalg.norm(uv_est - uv_true, axis=-1)) < 0.3
+
+
+def test_backwards_matches_forwards_quality():
+    scene = scene_of("speech", 60)
+    dets = synth_detections(scene)
+    fwd, init_f = run_tracker(scene, dets, start=0, stop=59)
+    bwd, init_b = run_tracker(scene, dets, start=59, stop=0)
+    assert (bwd.first, bwd.last) == (0, 58)
+    cf, sf, rf = quality(scene, fwd, init_f)
+    cb, sb, rb = quality(scene, bwd, init_b)
+    assert sb == sf == 0
+    assert cb >= 0.97 and abs(cb - cf) <= 0.02
+    assert rb <= 0.3
+
+
+def test_cancel_keeps_tracked_frames():
+    scene = scene_of("speech", 60)
+    dets = synth_detections(scene)
+    calls = []
+
+    def progress(done, total):
+        calls.append((done, total))
+        return done < 5
+
+    res, _ = run_tracker(scene, dets, start=30, stop=0, progress=progress)
+    assert res.cancelled and res.frames_done == 5
+    assert (res.first, res.last) == (25, 29)
+    assert res.positions.shape[0] == 5
+    assert np.isfinite(res.positions[:, 0]).all()
+    assert calls[-1] == (5, 30)
+
+
+def test_blink_eyelids_reacquired_and_never_wrong():
+    scene = scene_of("blink", 150)
+    dets = synth_detections(scene, dropout=0.0)
+    res, init = run_tracker(scene, dets, start=0, stop=149)
+    M = len(scene.labels)
+    lids = np.flatnonzero(scene.eyelid & init)
+    assert lids.size
+    pos = res.positions[:, :M].astype(np.float64)
+    d = np.linalg.norm(pos - scene.points3d[1:150], axis=-1)
+    # never attached to a wrong detection, never placed far from the truth
+    for p in lids:
+        det = res.detection[:, p]
+        fi, ci = np.nonzero(det >= 0)
+        ids = np.array([dets[1 + f][c][2][det[f, c]] for f, c in zip(fi, ci, strict=True)])
+        assert np.all(ids == p), scene.labels[p]
+        assert np.nanmax(d[:, p]) <= 2.0
+    # reacquired within 2 frames of reappearing in >= 2 cameras
+    seen = scene.visible[1:150][:, lids].sum(-1) >= 2
+    n_blinks = 0
+    for j, p in enumerate(lids):
+        back = np.flatnonzero(seen[1:, j] & ~seen[:-1, j]) + 1
+        for k in back:
+            if k + 2 < len(seen) and seen[k:k + 3, j].all():
+                n_blinks += 1
+                assert np.isfinite(d[k:k + 3, p]).any(), (scene.labels[p], k + 1)
+    assert n_blinks >= 1
+
+
+def test_resect_cameras_recovers_perturbed_pose(rng):
+    scene = scene_of("speech", 2)
+    X = scene.brim3d
+    uv = np.where(scene.brim_visible[0][..., None], scene.brim_uv[0], np.nan)
+    from carapost.algorithms.camera import rodrigues_to_matrix
+
+    dR = rodrigues_to_matrix(rng.normal(0, 0.01, (4, 3)))
+    R0 = dR @ scene.cam_R[0]
+    t0 = scene.cam_t[0] + rng.normal(0, 1.0, (4, 3))
+    R, t, solved = resect_cameras(X, uv, R0, t0, scene.intrinsics)
+    assert solved.all()
+    uv_fit, _ = project_points(X, R, t, scene.intrinsics)
+    err = np.linalg.norm(uv_fit - scene.brim_uv[0], axis=-1)[scene.brim_visible[0]]
+    assert err.max() < 0.01
+
+
+def test_neighbour_graph_excludes_self_and_missing():
+    X = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [np.nan, 0, 0], [5, 5, 5.0]])
+    idx, w = neighbour_graph(X, 2)
+    assert idx[0].tolist() == [1, 2]
+    assert np.all(idx[3] == 5) and np.all(w[3] == 0)
+    assert not np.any(idx == np.arange(5)[:, None])
+    assert np.all(np.diff(w[0]) <= 0)
+
+
+def test_patch_search_finds_shifted_patch(rng):
+    img = rng.integers(0, 255, (120, 160)).astype(np.uint8)
+    import cv2
+
+    img = cv2.GaussianBlur(img, (0, 0), 2.0)
+    moved = np.roll(img, (3, -5), axis=(0, 1))
+    uv, score = patch_search(img, moved, (80.0, 60.0), (78.0, 62.0), 15, 10.0)
+    assert score > 0.95
+    assert np.allclose(uv, (75.0, 63.0), atol=0.3)
+    uv, score = patch_search(img, moved, (2.0, 2.0), (2.0, 2.0), 15, 10.0)
+    assert score == -1.0 and np.isnan(uv).all()
+
+
+def test_parameters_validate_and_read_properties():
+    from carapost.model.properties import Properties
+
+    props = Properties()
+    params = TrackingParameters.from_mapping(props.section("Tracking Parameters"))
+    assert params.face_point_tracking_distance == 35.0
+    assert params.max_3d_point_error == 5.0
+    with pytest.raises(ValueError, match="face_point_tracking_distance"):
+        TrackingParameters(face_point_tracking_distance=-1.0)
+    with pytest.raises(ValueError, match="blob_size_difference_threshold"):
+        TrackingParameters(blob_size_difference_threshold=2.0)
+
+
+def test_blob_size_test_rejects_merged_blob():
+    """A candidate twice the size of the point's last blob is not matched at 0.1."""
+    scene = scene_of("speech", 3)
+    dets = synth_detections(scene, clutter=0, dropout=0.0)
+    M = len(scene.labels)
+    p = int(np.flatnonzero(scene.visible[1].sum(-1) == 4)[0])
+    for c in range(4):
+        cen, ax, ids = dets[1][c]
+        ax[ids == p] = 12.0
+    for thr, expect in ((0.1, False), (0.75, True)):
+        res, _ = run_tracker(scene, dets, start=0, stop=1,
+                             params=TrackingParameters(blob_size_difference_threshold=thr))
+        assert (res.detection[0, p] >= 0).any() == expect
+    assert res.positions.shape[1] == M + len(scene.brim3d)
+
+
+# ------------------------------------------------------------------------------------------
+# Commands
+# ------------------------------------------------------------------------------------------
+def synth_project(scene, dets, start: int = 0):
+    """A project with the synthetic detections, brim points, and face points at ``start``."""
+    F, M, C = scene.visible.shape
+    B = len(scene.brim3d)
+    prj = new_project(F, C, image_size=scene.size)
+    prj.calibration.intrinsics = scene.intrinsics.copy()
+    prj.calibration.R[start] = scene.cam_R[start]
+    prj.calibration.t[start] = scene.cam_t[start]
+    prj.calibration.solved[start] = True
+    images = [(f, c) for f in range(F) for c in range(C)]
+    tables = []
+    for f, c in images:
+        cen, ax, _ = dets[f][c]
+        n = len(cen)
+        tables.append({"centre": cen, "axes": ax, "angle": np.zeros(n), "colour":
+                       np.zeros(n, np.int8), "score": np.ones(n)})
+    prj.detections.replace_images(images, tables)
+    init = scene.visible[start].sum(-1) >= 2
+    face = np.flatnonzero(init)
+    cols = prj.points.append(len(face), labels=[scene.labels[m] for m in face])
+    bcols = prj.points.append(B, labels=list(scene.brim_labels), kind=KIND_BRIM)
+    pts = prj.points
+    pts.positions[:, bcols] = scene.brim3d.astype(np.float32)
+    pts.positions[start, cols] = scene.points3d[start, face]
+    pts.recon[start, cols] = RECON_TRIANGULATED
+    for c in range(C):
+        ids = dets[start][c][2]
+        for col, m in [(cols, face), (bcols, M + np.arange(B))]:
+            where = {int(v): k for k, v in enumerate(ids)}
+            for j, mm in zip(col, m, strict=True):
+                k = where.get(int(mm))
+                if k is not None:
+                    pts.detection[start, j, c] = k
+                    pts.obs[start, j, c] = dets[start][c][0][k]
+                    pts.source[start, j, c] = SOURCE_BLOB
+    prj.set_active_range((0, F - 1))
+    return prj
+
+
+def snapshot(prj) -> dict:
+    pts = prj.points
+    return {
+        "ids": pts.ids.tobytes(), "labels": list(pts.labels), "kind": pts.kind.tobytes(),
+        "arrays": {k: v.tobytes() for k, v in pts.arrays.items()},
+        "det": {k: v.tobytes() for k, v in prj.detections.arrays.items()},
+        "offsets": prj.detections.offsets.tobytes(),
+        "R": prj.calibration.R.tobytes(), "t": prj.calibration.t.tobytes(),
+        "solved": prj.calibration.solved.tobytes(), "sticks": copy.deepcopy(prj.sticks),
+        "label_list": list(prj.labels),
+    }
+
+
+def test_track_command_undo_redo_bit_identical():
+    from carapost.commands.tracking import TrackCommand
+
+    scene = scene_of("speech", 40)
+    dets = synth_detections(scene)
+    prj = synth_project(scene, dets)
+    stack = CommandStack(prj)
+    before = snapshot(prj)
+    cmd = stack.push(TrackCommand(prj, 1))
+    assert cmd.description.startswith("Track Forwards [Sequence]")
+    after = snapshot(prj)
+    assert prj.calibration.solved.all()
+    assert np.isfinite(prj.points.positions[1:, 0]).all()
+    assert stack.undo()
+    assert snapshot(prj) == before
+    assert stack.redo()
+    assert snapshot(prj) == after
+    assert cmd.memory() > 0
+
+
+def test_track_single_frame_backwards_and_selection():
+    from carapost.commands.tracking import TrackCommand
+
+    scene = scene_of("speech", 40)
+    dets = synth_detections(scene)
+    prj = synth_project(scene, dets, start=20)
+    prj.set_current_frame(20)
+    first = int(prj.points.ids[0])
+    prj.set_selection(points=[first])
+    CommandStack(prj).push(TrackCommand(prj, -1, single_frame=True))
+    pos = prj.points.positions
+    assert np.isfinite(pos[19, 0]).all()
+    assert np.isnan(pos[19, 1]).all()  # not selected: untouched
+    assert np.isnan(pos[18, 0]).all()  # one frame only
+    assert prj.calibration.solved[19] and not prj.calibration.solved[18]
+
+
+def test_track_command_refuses_bad_input(caplog):
+    from carapost.commands.tracking import TrackCommand
+
+    scene = scene_of("speech", 40)
+    dets = synth_detections(scene)
+    prj = synth_project(scene, dets)
+    with caplog.at_level(logging.ERROR, logger="carapost.process"):
+        with pytest.raises(CommandError, match="nothing to track"):
+            TrackCommand(prj, -1)
+    assert "nothing to track" in caplog.text
+    prj.set_current_frame(5)
+    with pytest.raises(CommandError, match="no point has a 3D position"):
+        TrackCommand(prj, 1)
+    prj.calibration.intrinsics = None
+    with pytest.raises(CommandError, match="no camera calibration"):
+        TrackCommand(prj, 1)
+
+
+def test_track_command_cancel_keeps_frames():
+    from carapost.commands.tracking import TrackCommand
+
+    scene = scene_of("speech", 40)
+    dets = synth_detections(scene)
+    prj = synth_project(scene, dets)
+    cmd = TrackCommand(prj, 1, progress=lambda d, n: d < 7)
+    assert cmd.computation.cancelled
+    CommandStack(prj).push(cmd)
+    pos = prj.points.positions[:, 0, 0]
+    assert np.isfinite(pos[:8]).all() and np.isnan(pos[8:]).all()
+    assert prj.calibration.solved[:8].all() and not prj.calibration.solved[8:].any()
+
+
+def test_ragged_detections_serves_model_layout():
+    prj = new_project(2, 2)
+    prj.detections.replace_images([(1, 1)], [{
+        "centre": np.array([[1.0, 2.0], [3.0, 4.0]]), "axes": np.ones((2, 2)),
+        "angle": np.zeros(2), "colour": np.zeros(2, np.int8), "score": np.ones(2)}])
+    src = RaggedDetections(prj.detections.offsets, prj.detections.arrays["centre"],
+                           prj.detections.arrays["axes"], 2)
+    frame = src(1)
+    assert len(frame) == 2 and len(frame[0][0]) == 0
+    assert frame[1][0].tolist() == [[1.0, 2.0], [3.0, 4.0]]
