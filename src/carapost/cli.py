@@ -169,6 +169,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``carapost`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["synth"]:
+        # the generator owns its options (and its --help)
+        from carapost.synth.cli import main_synth
+
+        return main_synth(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
