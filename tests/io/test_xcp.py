@@ -445,7 +445,7 @@ def test_failed_write_leaves_existing_file_untouched(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="non-finite"):
         write_xcp(path, calib)
     assert path.read_bytes() == before
-    with pytest.raises(CaraFileError, match="cannot be written"):
+    with pytest.raises(CaraFileError, match="could not be written|cannot create"):
         write_xcp(tmp_path / "no_such_folder" / "cal.xcp", read_xcp(path))
     if os.name == "posix" and os.geteuid() != 0:
         os.chmod(tmp_path, 0o500)

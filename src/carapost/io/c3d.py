@@ -27,16 +27,15 @@ from __future__ import annotations
 import os
 import re
 import struct
-import tempfile
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager, suppress
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
 from carapost import __version__
+from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
 
 __all__ = ["C3DData", "read_c3d", "write_c3d", "choose_residual_scale"]
@@ -55,37 +54,6 @@ _UNIT_TO_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3}
 # --------------------------------------------------------------------------------------
 # Atomic output (shared with the FBX writer)
 # --------------------------------------------------------------------------------------
-
-
-@contextmanager
-def atomic_output(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
-    """Open a temporary file beside ``path``; on success fsync it and rename it over ``path``.
-
-    On any exception the temporary file is removed and ``path`` is left untouched, so a
-    failed export never leaves a half-written file. ``OSError`` becomes ``CaraFileError``.
-    """
-    target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    if target.is_dir():
-        raise CaraFileError(target, "is a folder, not a file name")
-    if not folder.is_dir():
-        raise CaraFileError(target, f"folder {folder} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
-    except OSError as exc:
-        raise CaraFileError(target, f"cannot create a file in {folder}: {exc}") from exc
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException as exc:
-        with suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise CaraFileError(target, f"could not be written: {exc}") from exc
-        raise
 
 
 # --------------------------------------------------------------------------------------

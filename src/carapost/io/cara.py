@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import time
 import zipfile
 from collections.abc import Callable
@@ -32,6 +31,7 @@ import numpy as np
 
 from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
 from carapost.model.project import (
     POINT_ARRAYS,
@@ -149,53 +149,6 @@ def _write_npy(zf: zipfile.ZipFile, name: str, arr: np.ndarray) -> None:
             fh.write(memoryview(arr.reshape(-1).view(np.uint8)))
 
 
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def write_atomic(path: Path, writer: Callable[[Any], None], *, mode: str = "wb") -> None:
-    """Write a file atomically: temp file beside it, fsync, rename.
-
-    Parameters
-    ----------
-    path : Path
-        Destination.
-    writer : callable
-        Called with the open temporary file object.
-    mode : str
-        Open mode of the temporary file.
-    """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise CaraFileError(path, f"the folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, mode) as fh:
-            writer(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        _fsync_dir(folder)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(exc, OSError):
-            raise CaraFileError(path, f"could not be written: {exc.strerror or exc}") from exc
-        raise
-
-
 def save_project(project: Project, path: str | Path, *, autosave: bool = False) -> Path:
     """Save a project to a ``.cara`` file atomically.
 
@@ -222,13 +175,14 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         name: {"dtype": str(a.dtype), "shape": list(a.shape)} for name, a in arrays.items()
     }
 
-    def writer(fh: Any) -> None:
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
-            zf.writestr("manifest.json", json.dumps(manifest, indent=1))
-            for name, arr in arrays.items():
-                _write_npy(zf, name, arr)
-
-    write_atomic(path, writer)
+    if not path.parent.is_dir():
+        raise CaraFileError(path, f"the folder {path.parent} does not exist")
+    with atomic_output(path) as fh, zipfile.ZipFile(
+        fh, "w", zipfile.ZIP_STORED, allowZip64=True
+    ) as zf:
+        zf.writestr("manifest.json", json.dumps(manifest, indent=1))
+        for name, arr in arrays.items():
+            _write_npy(zf, name, arr)
     if not autosave:
         project.path = str(path)
         project.modified = False

@@ -13,8 +13,8 @@ import zipfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from carapost.io.atomic import atomic_write_bytes
 from carapost.io.errors import CaraFileError
-from carapost.io.xcp import atomic_write_bytes
 
 __all__ = ["COPY_SUFFIX", "merge_labels", "read_label_file", "read_labels_from_cara",
            "write_label_file"]

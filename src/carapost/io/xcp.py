@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import math
 import os
-import secrets
-import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +39,7 @@ from carapost.algorithms.camera import (
     matrix_to_quaternion,
     quaternion_to_matrix,
 )
+from carapost.io.atomic import atomic_write_bytes
 from carapost.io.errors import CaraFileError
 
 __all__ = ["XcpCalibration", "read_xcp", "write_xcp"]
@@ -578,57 +577,6 @@ def write_xcp(path: str | os.PathLike[str], calib: XcpCalibration, *,
     body = etree.tostring(root, encoding="UTF-8", pretty_print=True)
     data = b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n' + body
     atomic_write_bytes(path, data)
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same folder (fsync, rename).
-
-    Raises
-    ------
-    CaraFileError
-        If the folder is not writable or the disk is full; ``path`` is left untouched.
-    """
-    path = Path(path)
-    folder = path.parent
-    tmp = folder / f".{path.name}.{secrets.token_hex(6)}.tmp"
-    created = False
-    try:
-        # os.open with 0o666 honours the umask (mkstemp would make the file 0600).
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        created = True
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        try:
-            os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))  # keep a replaced file's mode
-        except FileNotFoundError:
-            pass
-        os.replace(tmp, path)
-        created = False
-        _fsync_folder(folder)
-    except OSError as exc:
-        raise CaraFileError(path, f"cannot be written ({exc.strerror or exc})") from exc
-    finally:
-        if created:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Make the rename itself durable (POSIX only; a no-op where folders cannot be opened)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _camera_extras(calib: XcpCalibration) -> list[dict[str, Any] | None]:
