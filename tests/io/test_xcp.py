@@ -445,12 +445,12 @@ def test_failed_write_leaves_existing_file_untouched(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="non-finite"):
         write_xcp(path, calib)
     assert path.read_bytes() == before
-    with pytest.raises(CaraFileError, match="could not be written|cannot create"):
+    with pytest.raises(CaraFileError, match="does not exist"):
         write_xcp(tmp_path / "no_such_folder" / "cal.xcp", read_xcp(path))
     if os.name == "posix" and os.geteuid() != 0:
         os.chmod(tmp_path, 0o500)
         try:
-            with pytest.raises(CaraFileError, match="cannot be written"):
+            with pytest.raises(CaraFileError, match="could not be written|cannot create"):
                 write_xcp(path, read_xcp(path))
         finally:
             os.chmod(tmp_path, 0o700)
