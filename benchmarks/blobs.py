@@ -1,12 +1,12 @@
-"""Blob detection benchmark: speed, accuracy on synthetic faces, real dot-grid photos.
+"""Blob detection benchmark: speed, accuracy on carapost.synth takes, real dot-grid photos.
 
-Run from the repository root: ``python benchmarks/blobs.py`` (about 1-2 minutes on 2
+Run from the repository root: ``python benchmarks/blobs.py`` (about 2 minutes on 2
 cores). Prints one JSON object per line: {"metric": ..., "value": ..., "unit": ...}.
 
-Synthetic images come from the detector's own renderer
-(``carapost.algorithms._blob_synth``: 1280x720 shaded face, ~100-160 painted markers,
-brim strip with dots, exact anti-aliased truth); ``carapost.synth`` has no image renderer
-with per-marker truth yet.
+Face images come from ``carapost.synth`` (1280x720, 4 cameras, standard set: 89 face
+markers plus ~20 brim dots per view; dense156: 156). Truth blobs are the visible face
+markers and brim dots; their projected semi-major axes are computed from the scene
+geometry (see ``carapost.algorithms._blob_eval.projected_ellipses``).
 """
 
 from __future__ import annotations
@@ -22,9 +22,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from carapost.algorithms._blob_eval import FaceScore, circlegrid_files, circlegrid_photo
-from carapost.algorithms._blob_synth import match_to_truth, render_face
+from carapost.algorithms._blob_eval import (
+    SynthScore,
+    circlegrid_files,
+    circlegrid_photo,
+    synth_scene,
+    synth_view,
+)
 from carapost.algorithms.blobs import (
+    BlobDetections,
     BlobParameters,
     detect_blobs,
     detect_blobs_batch,
@@ -32,7 +38,6 @@ from carapost.algorithms.blobs import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-PRESETS = ("standard", "dense156", "speech", "fast")
 
 
 def emit(metric: str, value: float, unit: str, **extra) -> None:
@@ -61,90 +66,129 @@ def simple_blob_detector() -> cv2.SimpleBlobDetector:
     return cv2.SimpleBlobDetector_create(p)
 
 
-def throughput(images: list[np.ndarray], params: BlobParameters, n_frames: int) -> float:
+def throughput(images: list[np.ndarray], params: BlobParameters, n_frames: int
+               ) -> tuple[float, float]:
+    """(images/s wall-clock, CPU ms per image) of the batch detector with 2 workers."""
+    cpu = time.process_time()
     t = time.perf_counter()
     out = detect_blobs_batch(lambda k: images[k % len(images)], range(n_frames), params,
                              workers=2)
     dt = time.perf_counter() - t
     assert len(out) == n_frames
-    return n_frames / dt
+    return n_frames / dt, (time.process_time() - cpu) / n_frames * 1e3
 
 
-def simpleblob_throughput(images: list[np.ndarray], n_frames: int) -> float:
+def simpleblob_throughput(images: list[np.ndarray], n_frames: int) -> tuple[float, float]:
     det = [simple_blob_detector(), simple_blob_detector()]
 
     def run(i):
         return det[i % 2].detect(images[i % len(images)])
 
+    cpu = time.process_time()
     t = time.perf_counter()
     with ThreadPoolExecutor(2) as pool:
         list(pool.map(run, range(n_frames)))
-    return n_frames / (time.perf_counter() - t)
+    return n_frames / (time.perf_counter() - t), (time.process_time() - cpu) / n_frames * 1e3
+
+
+def load_average() -> float:
+    try:
+        return float(Path("/proc/loadavg").read_text().split()[0])
+    except OSError:
+        return float("nan")
+
+
+#: Accuracy runs: (name, carapost.synth options); every run covers the marker sets
+#: standard and dense156 with the motion presets speech and fast.
+OPTIONS = (
+    ("noise2", {}),
+    ("noise5", {"noise": 5.0}),
+    ("motion_blur", {"motion_blur": True}),
+    ("merged", {"merge_pair": True}),
+    ("highlights", {"highlights": True}),
+)
+SETS = (("standard", "speech"), ("standard", "fast"), ("dense156", "speech"),
+        ("dense156", "fast"))
+FRAMES = (20, 80)
+
+
+def accuracy(options: dict, params: BlobParameters, seed: int,
+             sb: cv2.SimpleBlobDetector | None = None) -> tuple[SynthScore, float]:
+    """Score over SETS x FRAMES x 4 cameras; also SimpleBlobDetector's recall if given."""
+    score, sb_score = SynthScore(), SynthScore()
+    for i, (markers, preset) in enumerate(SETS):
+        scene = synth_scene(markers, preset, seed=seed + i, frames=max(FRAMES) + 1, **options)
+        for f in FRAMES:
+            for cam in range(scene.n_cameras):
+                v = synth_view(scene, f, cam)
+                score.add(v, detect_blobs(v.image, params), params)
+                if sb is not None:
+                    kp = sb.detect(v.image)
+                    pts = np.array([k.pt for k in kp], np.float32).reshape(-1, 2)
+                    n = len(pts)
+                    det = BlobDetections(pts, np.full((n, 2), 5, np.float32),
+                                         np.zeros(n, np.float32), np.zeros(n, np.int8),
+                                         np.ones(n, np.float32))
+                    sb_score.add(v, det, params)
+    return score, sb_score.recall
 
 
 def main() -> None:
     params = BlobParameters()
-    rng = np.random.default_rng(20261122)
+    emit("load_average_1min", load_average(), "")
 
     # ---- speed ---------------------------------------------------------------
-    speed_imgs = [render_face(rng, preset="standard").image for _ in range(6)]
+    scene = synth_scene("standard", "speech", seed=11, frames=61)
+    speed_imgs = [synth_view(scene, f, c, regions=False).image for f in (0, 30, 60)
+                  for c in range(scene.n_cameras)]
+    n_blobs = int(scene.visible[[0, 30, 60]].sum() + scene.brim_visible[[0, 30, 60]].sum())
     cv2.setNumThreads(1)  # parallelism comes from the two workers, as in the app
+    detect_blobs(speed_imgs[0], params)
     runs = [throughput(speed_imgs, params, 400) for _ in range(3)]
-    emit("blobs_images_per_s", statistics.median(runs), "images/s", workers=2,
-         runs=[round(r, 1) for r in runs])
+    emit("blobs_images_per_s", statistics.median(r[0] for r in runs), "images/s", workers=2,
+         runs=[round(r[0], 1) for r in runs],
+         cpu_ms_per_image=round(statistics.median(r[1] for r in runs), 2),
+         blobs_per_image=round(n_blobs / len(speed_imgs), 1), load=load_average())
     runs = [simpleblob_throughput(speed_imgs, 120) for _ in range(3)]
-    emit("simpleblob_images_per_s", statistics.median(runs), "images/s", workers=2,
-         runs=[round(r, 1) for r in runs])
+    emit("simpleblob_images_per_s", statistics.median(r[0] for r in runs), "images/s",
+         workers=2, runs=[round(r[0], 1) for r in runs],
+         cpu_ms_per_image=round(statistics.median(r[1] for r in runs), 2))
     cv2.setNumThreads(-1)
     times = []
-    for _ in range(5):
+    for _ in range(4):
         for img in speed_imgs:
             t = time.perf_counter()
             preview_blobs(img, params)
             times.append((time.perf_counter() - t) * 1e3)
-    cpu = time.process_time()
-    for img in speed_imgs * 5:
-        detect_blobs(img, params)
-    cpu_ms = (time.process_time() - cpu) / (5 * len(speed_imgs)) * 1e3
-    emit("blob_preview_ms", statistics.median(times), "ms", p95=round(
-        float(np.percentile(times, 95)), 2), cpu_ms_per_image=round(cpu_ms, 2))
+    emit("blob_preview_ms", statistics.median(times), "ms",
+         p95=round(float(np.percentile(times, 95)), 2))
 
-    # ---- accuracy on synthetic takes ----------------------------------------
-    main_score = FaceScore()
-    sb_found = sb_need = 0
-    sbd = simple_blob_detector()
-    for preset in PRESETS:
-        for noise in (2.0, 2.0, 5.0):
-            s = render_face(rng, preset=preset, noise=noise)
-            main_score.add(s, detect_blobs(s.image, params), params)
-            kp = sbd.detect(s.image)
-            pts = np.array([k.pt for k in kp], np.float64).reshape(-1, 2)
-            ts = np.flatnonzero(s.colour == 0)
-            _, t2d = match_to_truth(pts, s.centre[ts], s.axes[ts, 1])
-            need = (s.axes[ts, 0] >= 4) & ~s.merged[ts]
-            sb_need += int(need.sum())
-            sb_found += int(np.sum(t2d[need] >= 0))
+    # ---- accuracy on carapost.synth takes --------------------------------------
+    main_score = SynthScore()
+    for k, (name, options) in enumerate(OPTIONS):
+        score, sb_recall = accuracy(options, params, 100 * k,
+                                    simple_blob_detector() if k == 0 else None)
+        if name in ("noise2", "noise5", "motion_blur"):
+            main_score.merge(score)
+        r = score.summary()
+        for key in ("recall", "precision", "centre_median_px", "centre_p95_px"):
+            if math.isfinite(r[key]):
+                unit = "px" if key.endswith("px") else "fraction"
+                emit(f"blob_{key}_{name}", r[key], unit, images=r["images"],
+                     blobs=r["expected"])
+        for reg in ("face", "brim", "background"):
+            emit(f"blob_false_per_image_{reg}_{name}", r[f"false_per_image_{reg}"],
+                 "detections/image")
+        if k == 0:
+            emit("simpleblob_recall", sb_recall, "fraction")
     r = main_score.summary()
-    emit("blob_recall", r["recall"], "fraction", presets=list(PRESETS), images=12)
+    extra = {"runs": ["noise2", "noise5", "motion_blur"], "images": r["images"]}
+    emit("blob_recall", r["recall"], "fraction", **extra)
     emit("blob_precision", r["precision"], "fraction")
     emit("blob_centre_median_px", r["centre_median_px"], "px")
     emit("blob_centre_p95_px", r["centre_p95_px"], "px")
     for reg in ("face", "brim", "background"):
         emit(f"blob_false_per_image_{reg}", r[f"false_per_image_{reg}"], "detections/image")
-    emit("simpleblob_recall", sb_found / max(sb_need, 1), "fraction")
-
-    for option in ("merged", "highlights", "motion_blur", "dark", "white"):
-        score = FaceScore()
-        p = BlobParameters(find_black_blobs=option != "white",
-                           find_white_blobs=option == "white")
-        for preset in PRESETS:
-            s = render_face(rng, preset=preset, noise=2.0, **{option: True})
-            score.add(s, detect_blobs(s.image, p), p)
-        r = score.summary()
-        for key in ("recall", "precision", "centre_median_px", "centre_p95_px"):
-            if math.isfinite(r[key]):  # all markers are blurred with motion_blur
-                unit = "px" if key.endswith("px") else "fraction"
-                emit(f"blob_{key}_{option}", r[key], unit)
 
     # ---- real dot-grid photos ------------------------------------------------
     folder = ROOT.parent / "shared" / "fixtures" / "circlegrid"

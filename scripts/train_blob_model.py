@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from carapost.algorithms._blob_eval import _match, synth_scene, synth_view
 from carapost.algorithms._blob_synth import match_to_truth, render_face
 from carapost.algorithms.blobs import (
     BLACK,
@@ -36,26 +37,55 @@ MODEL_PATH = ROOT / "src" / "carapost" / "resources" / "blob_model.json"
 PLOT_PATH = ROOT / "docs" / "blob-reliability.png"
 
 
-def _scenario(i: int, rng: np.random.Generator) -> dict:
-    presets = ["standard", "dense156", "speech", "fast"]
-    kw: dict = {"preset": presets[i % 4]}
-    kw["noise"] = float(rng.choice([1.0, 2.0, 3.5, 6.0, 9.0]))
-    kw["motion_blur"] = bool(rng.random() < 0.3) or kw["preset"] == "fast"
-    kw["merged"] = bool(rng.random() < 0.3)
-    kw["highlights"] = bool(rng.random() < 0.4)
-    kw["dark"] = bool(rng.random() < 0.15)
-    kw["white"] = bool(rng.random() < 0.15)
-    return kw
+def _synth_config(i: int, rng: np.random.Generator) -> dict:
+    """Options of the i-th carapost.synth training scene (all marker sets and presets)."""
+    return {
+        "markers": ("standard", "dense156", "sparse35")[i % 3],
+        "preset": ("speech", "fast", "rom", "blink")[(i // 3) % 4],
+        "noise": float(rng.choice([1.0, 2.0, 2.0, 3.5, 6.0])),
+        "blur": float(rng.choice([0.4, 0.6, 0.6, 0.9])),
+        "motion_blur": bool(rng.random() < 0.35),
+        "highlights": bool(rng.random() < 0.35),
+        "merge_pair": bool(rng.random() < 0.3),
+    }
 
 
-def collect(n_images: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Features [N, F] and true/false labels [N] of all candidates of ``n_images``."""
+def _own_scenario(i: int, rng: np.random.Generator) -> dict:
+    """Options of the i-th image of the detector's own renderer (white / dark cases)."""
+    return {"preset": ("standard", "dense156")[i % 2], "noise": float(rng.choice([1.0, 3.0])),
+            "white": i % 4 < 2, "dark": i % 4 >= 2, "highlights": bool(rng.random() < 0.3)}
+
+
+def _label(c, centre: np.ndarray, minor: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """True for candidates on a truth blob centre (one candidate per blob)."""
+    tol = np.clip(0.5 * minor, 1.0, 3.0) + spread
+    d2t, _ = _match(c.centre, centre, tol)
+    return d2t >= 0
+
+
+def collect(n_scenes: int, seed: int, views: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Features [N, F] and true/false labels [N] of all candidates.
+
+    ``n_scenes`` carapost.synth scenes, ``views`` random (frame, camera) images of each,
+    plus one image of the detector's own renderer per two scenes for white markers and
+    dark exposure (carapost.synth draws only dark markers at normal exposure).
+    """
     rng = np.random.default_rng(seed)
     feats, labels = [], []
-    for i in range(n_images):
-        kw = _scenario(i, rng)
-        s = render_face(rng, **kw)
-        # Both polarities on every image: the other one supplies realistic negatives.
+    for i in range(n_scenes):
+        scene = synth_scene(seed=seed * 1000 + i, frames=180, **_synth_config(i, rng))
+        for _ in range(views):
+            v = synth_view(scene, int(rng.integers(0, 180)), int(rng.integers(0, 4)),
+                           regions=False)
+            for pol in (BLACK, WHITE):  # white candidates of a dark-marker image: negatives
+                c = blob_candidates(v.image, pol, 2.0, 50.0)
+                feats.append(c.features)
+                if pol == BLACK:
+                    labels.append(_label(c, v.centre, v.axes[:, 1], v.spread))
+                else:
+                    labels.append(np.zeros(len(c.centre), bool))
+    for i in range(n_scenes // 2):
+        s = render_face(rng, **_own_scenario(i, rng))
         for pol in (BLACK, WHITE):
             c = blob_candidates(s.image, pol, 2.0, 50.0)
             truth = s.colour == pol
@@ -131,13 +161,13 @@ def draw_plot(rows, path: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--train-images", type=int, default=80)
-    ap.add_argument("--test-images", type=int, default=40)
+    ap.add_argument("--train-scenes", type=int, default=24)
+    ap.add_argument("--test-scenes", type=int, default=12)
     ap.add_argument("--no-write", action="store_true", help="report only, keep the model")
     args = ap.parse_args()
 
-    x_tr, y_tr = collect(args.train_images, seed=1)
-    x_te, y_te = collect(args.test_images, seed=2)
+    x_tr, y_tr = collect(args.train_scenes, seed=1)
+    x_te, y_te = collect(args.test_scenes, seed=2)
     print(f"train: {len(y_tr)} candidates ({y_tr.mean():.1%} true); "
           f"test: {len(y_te)} ({y_te.mean():.1%} true)")
     e_tr = expand_features(x_tr)
@@ -166,7 +196,9 @@ def main() -> None:
             "bias": round(b, 6),
             "mean": [round(float(v), 6) for v in mean],
             "scale": [round(float(v), 6) for v in scale],
-            "trained_on": f"{args.train_images} synthetic images (scripts/train_blob_model.py)",
+            "trained_on": f"{args.train_scenes} carapost.synth scenes x 6 views + "
+                          f"{args.train_scenes // 2} own-renderer images "
+                          "(scripts/train_blob_model.py)",
         }
         MODEL_PATH.write_text(json.dumps(model, indent=1) + "\n")
         draw_plot(rows, PLOT_PATH)

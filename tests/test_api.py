@@ -190,6 +190,16 @@ def test_export_fbx_and_xcp(tmp_path, truth):
     nodes = list(scene.nodes)
     names = {n.name for n in nodes}
     assert {f"M{i}" for i in range(M)} <= names
+    assert not any("-" in n for n in names)  # no sticks unless asked
+    del nodes, scene
+    from carapost.model.project import Stick
+
+    ids = p.points.ids
+    p.sticks = [Stick(int(ids[0]), int(ids[1])), Stick(int(ids[1]), 10**6)]  # 2nd: no such point
+    out = api.export_fbx(p, tmp_path / "s.fbx", include_sticks=True)
+    scene = ufbx.load_file(str(out), strict=True)
+    nodes = list(scene.nodes)
+    assert [n.name for n in nodes if n.name == "M0-M1"] == ["M0-M1"]
     del nodes, scene
     p.set_current_frame(7)
     x = read_xcp(api.export_xcp(p, tmp_path / "a.xcp"))

@@ -347,6 +347,7 @@ def export_fbx(
     include_brim: bool = False,
     up_axis: str = "y",
     include_cameras: bool = False,
+    include_sticks: bool = False,
 ) -> Path:
     """Export points (and optionally the solved cameras) as binary FBX (File > Export FBX).
 
@@ -363,6 +364,9 @@ def export_fbx(
         Up axis of the FBX scene.
     include_cameras : bool
         Write the cameras with their per-frame motion (needs a calibration).
+    include_sticks : bool
+        Write the project's sticks whose two points are both exported, as moving
+        two-vertex line meshes.
 
     Returns
     -------
@@ -402,9 +406,17 @@ def export_fbx(
         take_name=project.take.name or "take",
         up_axis=up,
         cameras=cameras,
+        sticks=_export_sticks(project, cols) if include_sticks else None,
     )
     log.info("Exported %d points x %d frames to %s", len(cols), b - a + 1, path)
     return path
+
+
+def _export_sticks(project: Project, cols: np.ndarray) -> list[tuple[int, int]] | None:
+    """Sticks as pairs of indices into the exported columns (both ends exported)."""
+    index = {int(project.points.ids[c]): k for k, c in enumerate(cols)}
+    sticks = [(index[s.a], index[s.b]) for s in project.sticks if s.a in index and s.b in index]
+    return sticks or None
 
 
 def export_xcp(project: Project, path: str | Path, *, frame: int | None = None) -> Path:

@@ -62,7 +62,7 @@ def _cmd_export_fbx(args: argparse.Namespace) -> int:
 
     project = open_project(args.project)
     export_fbx(project, args.output, frame_range=args.range, include_brim=args.brim,
-               up_axis=args.up, include_cameras=args.cameras)
+               up_axis=args.up, include_cameras=args.cameras, include_sticks=args.sticks)
     print(f"wrote {args.output}")
     return 0
 
@@ -159,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
         else:
             sp.add_argument("--up", choices=("y", "z"), default="y", help="up axis")
             sp.add_argument("--cameras", action="store_true", help="include animated cameras")
+            sp.add_argument("--sticks", action="store_true", help="include the stick mesh")
 
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
     sp.add_argument("project")

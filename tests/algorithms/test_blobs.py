@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from carapost.algorithms._blob_eval import FaceScore, circlegrid_files, circlegrid_photo
+from carapost.algorithms._blob_eval import (
+    FaceScore,
+    SynthScore,
+    circlegrid_files,
+    circlegrid_photo,
+    projected_ellipses,
+    synth_scene,
+    synth_view,
+)
 from carapost.algorithms._blob_synth import _ellipse_coverage, _paint, render_face
 from carapost.algorithms.blobs import (
     BlobDetections,
@@ -193,6 +201,63 @@ def test_synthetic_face_recall_precision_and_centres(preset):
     if preset == "standard":
         e = np.asarray(score.centre_err)
         assert np.median(e) <= 0.08 and np.percentile(e, 95) <= 0.25
+
+
+# ------------------------------------------------------------------ carapost.synth takes
+
+
+def test_projected_ellipse_of_a_frontal_disc():
+    # A disc facing a distortion-free pinhole camera projects to a circle of radius f r / z.
+    from carapost.algorithms.camera import CameraIntrinsics
+
+    intr = CameraIntrinsics(focal=np.array([600.0]), principal_point=np.array([[320.0, 240.0]]),
+                            aspect=np.ones(1), skew=np.zeros(1), radial=np.zeros((1, 3)),
+                            distortion_centre=np.array([[320.0, 240.0]]),
+                            image_size=np.array([[640.0, 480.0]]),
+                            radial_model=["VICON_RADIAL2"], names=["c"])
+    axes, centroid, ok = projected_ellipses(
+        np.array([[0.0, 0.0, 150.0], [20.0, 0, 150.0]]),
+        np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]]), np.array([2.0, 2.0]),
+        np.eye(3), np.zeros(3), intr)
+    assert ok.all()
+    np.testing.assert_allclose(axes, 600 * 2.0 / 150.0, rtol=2e-3)
+    np.testing.assert_allclose(centroid[1], (320 + 600 * 20 / 150.0, 240.0), atol=1e-6)
+
+
+def _synth_score(markers, preset, frames, **options):
+    params = BlobParameters()
+    score = SynthScore()
+    scene = synth_scene(markers, preset, seed=5, frames=max(frames) + 1, **options)
+    for f in frames:
+        for cam in range(scene.n_cameras):
+            v = synth_view(scene, f, cam)
+            score.add(v, detect_blobs(v.image, params), params)
+    return score
+
+
+def test_carapost_synth_take_meets_the_targets():
+    # One frame, four cameras of a standard-set speech take: face markers and brim dots.
+    score = _synth_score("standard", "speech", [30])
+    s = score.summary()
+    assert score.expected > 300
+    assert s["recall"] >= RECALL_TARGET
+    assert s["precision"] >= PRECISION_TARGET
+    assert s["centre_median_px"] <= MEDIAN_TARGET and s["centre_p95_px"] <= P95_TARGET
+    assert s["false_per_image_background"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("markers", ["standard", "dense156"])
+@pytest.mark.parametrize("preset", ["speech", "fast"])
+@pytest.mark.parametrize("option", ["none", "noise", "motion_blur", "merge_pair", "highlights"])
+def test_carapost_synth_takes_all_options(markers, preset, option):
+    kw = {"none": {}, "noise": {"noise": 5.0}, "motion_blur": {"motion_blur": True},
+          "merge_pair": {"merge_pair": True}, "highlights": {"highlights": True}}[option]
+    s = _synth_score(markers, preset, [10, 70], **kw).summary()
+    assert s["recall"] >= RECALL_TARGET
+    assert s["precision"] >= PRECISION_TARGET
+    if option != "motion_blur":
+        assert s["centre_median_px"] <= MEDIAN_TARGET and s["centre_p95_px"] <= P95_TARGET
 
 
 def test_preview_matches_detection(rng):

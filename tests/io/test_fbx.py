@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import gc
+import importlib.util
 import shutil
 import struct
 import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,11 +23,20 @@ Y_UP = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # our Z-up -> file Y-
 class Loaded:
     """A ufbx scene plus every wrapper we touch (the binding segfaults on freed wrappers)."""
 
+    opened = []  # closed after each test, so a failed test's traceback holds no wrappers
+
     def __init__(self, path):
+        Loaded.opened.append(self)
         self.scene = ufbx.load_file(str(path), strict=True)
         self.nodes = list(self.scene.nodes)
         self.by_name = {n.name: n for n in self.nodes}
+        self.meshes = list(self.scene.meshes)
         self.keep = []
+
+    def close(self):
+        """Drop the wrappers first, then the scene (a fixed, safe order)."""
+        for attr in ("keep", "meshes", "by_name", "nodes", "scene"):
+            self.__dict__.pop(attr, None)
 
     def position(self, name, frame, rate):
         tr = ufbx.evaluate_transform(self.scene.anim, self.by_name[name], frame / rate)
@@ -50,10 +63,37 @@ class Loaded:
         self.keep += [evaluated, nodes]
         return next(n for n in nodes if n.name == name).visible
 
+    def mesh_counts(self):
+        """{mesh name: (vertices, faces, line faces, edges)} as plain Python data."""
+        return {
+            m.name: (m.num_vertices, m.num_faces, m.num_line_faces, m.num_edges)
+            for m in self.meshes
+        }
+
+    def stick_ends(self, name, frame, rate):
+        """World positions of a stick mesh's two vertices (its parents are static)."""
+        mesh = next(m for m in self.meshes if m.name == name)
+        verts = list(mesh.vertices)
+        self.keep += [mesh, verts]
+        v = np.array([[p.x, p.y, p.z] for p in verts])
+        tr = ufbx.evaluate_transform(self.scene.anim, self.by_name[name], frame / rate)
+        self.keep.append(tr)
+        sc = np.array([tr.scale.x, tr.scale.y, tr.scale.z])
+        rot = self.rotation(name, frame, rate)
+        return self.position(name, frame, rate) + (v * sc) @ rot.T
+
     def parent_name(self, name):
         parent = self.by_name[name].parent
         self.keep.append(parent)
         return parent.name
+
+
+@pytest.fixture(autouse=True)
+def _close_scenes():
+    yield
+    while Loaded.opened:
+        Loaded.opened.pop().close()
+    gc.collect()
 
 
 def make_points(rng, n_frames=130, n_points=5):
@@ -235,8 +275,10 @@ def test_bad_input(tmp_path, rng):
         write_fbx(path, pos, labels=["a", "b"], rate=30, kinds=np.array([0, 2]))
     with pytest.raises(ValueError, match="cameras"):
         write_fbx(path, pos, labels=["a", "b"], rate=30, cameras={"R": np.eye(3)})
-    with pytest.raises(NotImplementedError):
-        write_fbx(path, pos, labels=["a", "b"], rate=30, sticks=[(0, 1)])
+    for sticks, msg in (([(0, 2)], "outside"), ([(1, 1)], "different"),
+                        ([(0, 1), (1, 0)], "twice"), ([(0, 1, 2)], "pairs")):  # fmt: skip
+        with pytest.raises(ValueError, match=msg):
+            write_fbx(path, pos, labels=["a", "b"], rate=30, sticks=sticks)
     assert not list(tmp_path.iterdir())
     with pytest.raises(CaraFileError, match="does not exist"):
         write_fbx(tmp_path / "missing" / "x.fbx", pos, labels=["a", "b"], rate=30)
@@ -274,3 +316,115 @@ def test_blender_imports(tmp_path, rng):
     got = np.array([float(v) for v in line.split()[1:]])
     # Blender frame 8 = FBX time 7 / rate (its time 0 is frame 1); metres.
     np.testing.assert_allclose(got, pos[7, 1] / 1000.0, atol=1e-6)
+
+
+STICKS = [(0, 1), (1, 2), (3, 0), (2, 4)]
+
+
+def stick_take(rng):
+    pos = make_points(rng, n_frames=60, n_points=5)
+    pos[20:26, 2] = np.nan  # gap in one end of two sticks
+    pos[40, 2] = pos[40, 1]  # zero-length stick 1-2 at frame 40: held like a gap
+    return pos
+
+
+@pytest.mark.parametrize("up_axis", ["y", "z"])
+def test_sticks_follow_markers(tmp_path, rng, up_axis):
+    pos = stick_take(rng)
+    labels = ["a", "b", "c", "d", "e"]
+    path = tmp_path / "sticks.fbx"
+    write_fbx(path, pos, labels=labels, rate=50, sticks=STICKS, up_axis=up_axis, take_name="T")
+    s = Loaded(path)
+    axis = Y_UP if up_axis == "y" else np.eye(3)
+    names = [f"{labels[i]}-{labels[j]}" for i, j in STICKS]
+    assert s.parent_name("sticks") == "T" and all(s.parent_name(n) == "sticks" for n in names)
+    # One loose edge each: (vertices, faces, line faces, edges).
+    assert s.mesh_counts() == {n: (2, 1, 1, 1) for n in names}
+    for (i, j), name in zip(STICKS, names, strict=True):
+        ok = np.isfinite(pos[:, [i, j]]).all(axis=(1, 2))
+        ok &= np.linalg.norm(pos[:, i] - pos[:, j], axis=1) > 0
+        for f in (0, 13, 19, 22, 25, 26, 40, 41, 59):
+            ends = s.stick_ends(name, f, 50)
+            src = f if ok[f] else np.flatnonzero(ok[:f])[-1]  # held through gaps
+            np.testing.assert_allclose(ends[0], axis @ pos[src, i], atol=2e-4)
+            np.testing.assert_allclose(ends[1], axis @ pos[src, j], atol=2e-4)
+            assert s.visible(name, f, 50) == ok[f]
+
+
+def test_stick_never_valid(tmp_path, rng):
+    pos = make_points(rng, n_frames=8, n_points=3)
+    pos[:, 2] = np.nan
+    path = tmp_path / "s.fbx"
+    write_fbx(path, pos, labels=["a", "b", "c"], rate=30, sticks=[(0, 2), (0, 1)])
+    s = Loaded(path)
+    assert not s.visible("a-c", 3, 30) and s.visible("a-b", 3, 30)
+    np.testing.assert_allclose(s.stick_ends("a-b", 5, 30), pos[5, :2] @ Y_UP.T, atol=2e-4)
+
+
+def assimp_dump(path):
+    out = path.with_suffix(".assxml")
+    run = subprocess.run(["assimp", "dump", str(path), str(out)], capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    return ET.parse(out).getroot()
+
+
+def assimp_floats(el):
+    return np.array(el.text.split(), dtype=np.float64)
+
+
+def quat_xyzw_matrix(q):
+    x, y, z, w = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+
+
+@pytest.mark.skipif(shutil.which("assimp") is None, reason="assimp CLI not installed")
+def test_assimp_reads_sticks(tmp_path, rng):
+    pos = make_points(rng, n_frames=30, n_points=5)
+    labels = ["a", "b", "c", "d", "e"]
+    path = tmp_path / "sticks.fbx"
+    write_fbx(path, pos, labels=labels, rate=30, sticks=STICKS, up_axis="z")
+    root = assimp_dump(path)
+    meshes = root.findall(".//MeshList/Mesh")
+    assert len(meshes) == len(STICKS) and all("lines" in m.get("types") for m in meshes)
+    nodes = {n.get("name"): n for n in root.iter("Node")}
+    anims = {a.get("node"): a for a in root.iter("NodeAnim")}
+    for i, j in STICKS:
+        name = f"{labels[i]}-{labels[j]}"
+        mesh = meshes[int(nodes[name].find("MeshRefs").text.split()[0])]
+        verts = assimp_floats(mesh.find("Positions")).reshape(2, 3)
+        anim = anims[name]
+        for f in (0, 11, 29):  # one key per frame, ticks = frames
+            t = assimp_floats(anim.findall(".//PositionKey")[f])
+            q = assimp_floats(anim.findall(".//RotationKey")[f])
+            sc = assimp_floats(anim.findall(".//ScalingKey")[f])
+            ends = t + (verts * sc) @ quat_xyzw_matrix(q).T  # the dump writes x, y, z, w
+            np.testing.assert_allclose(ends, pos[f, [i, j]], atol=1e-3)
+
+
+def load_render_script():
+    path = Path(__file__).resolve().parents[2] / "scripts" / "render_fbx_in_blender.py"
+    spec = importlib.util.spec_from_file_location("render_fbx_in_blender", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.skipif(shutil.which("blender") is None, reason="blender not installed")
+def test_blender_imports_synthetic_take(tmp_path):
+    """The docs screenshot's checks: every node, marker and stick end as the model says."""
+    script = load_render_script()
+    take = script.make_take()
+    path = tmp_path / "ROM.fbx"
+    script.write_take(path, take)
+    result = script.run_blender(path)
+    assert script.compare(result, take) == []
+    n_labels = len(take["labels"])
+    assert len(result["markers"]) == n_labels * len(script.CHECK_FRAMES)
+    assert len(result["sticks"]) == len(take["sticks"]) * len(script.CHECK_FRAMES)
+    assert result["fps"] == pytest.approx(take["rate"])
+    assert sorted(result["cameras"]) == take["cameras"]["names"]

@@ -255,10 +255,16 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
 
 def _noise_sigma(img: np.ndarray) -> float:
     """Robust noise level (grey levels) from horizontal neighbour differences."""
-    sub = img[::8, :].astype(np.int16)
-    d = np.abs(np.diff(sub, axis=1))
+    sub = img[::8, :]
+    m = sub.shape[1] // 2  # the pairs (0, 1), (2, 3), ...
+    d = cv2.absdiff(sub[:, 1:2 * m:2], sub[:, 0:2 * m:2])
+    # Median from a histogram (exactly np.median of the uint8 differences, 10x faster).
+    cum = np.cumsum(np.bincount(d.ravel(), minlength=256))
+    n = int(cum[-1])
+    lo = int(np.searchsorted(cum, (n - 1) // 2, side="right"))
+    hi = int(np.searchsorted(cum, n // 2, side="right"))
     # Median absolute difference of a Gaussian pair is 0.954 sigma.
-    med = float(np.median(d[:, ::2]))
+    med = 0.5 * (lo + hi)
     return max(0.7, 1.4826 * med / math.sqrt(2.0) if med > 0 else 0.7)
 
 
@@ -266,6 +272,8 @@ def _noise_sigma(img: np.ndarray) -> float:
 
 #: Minimum contrast of a candidate pixel as a fraction of the surround's headroom.
 REL_FLOOR = 0.2
+#: Tolerance (px) below Min Radius on the measured semi-major axis.
+MIN_RADIUS_TOLERANCE = 0.5
 #: Grey level from which a pixel counts as saturated.
 SATURATED = 250
 
@@ -274,16 +282,25 @@ _KERNEL_RING = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
 
 
 def _background(d: np.ndarray, max_radius: float) -> np.ndarray:
-    """Surround level: grey opening of ``d`` by a square larger than the largest blob."""
+    """Surround level: median of ``d`` over a square about 3x the largest blob radius.
+
+    A median (unlike a grey opening, which takes the extreme of the window) follows
+    shading gradients: on a linear ramp it equals the centre value, so skin on the dark
+    side of a shadow edge keeps a small contrast. The window is wide enough that a blob
+    of ``max_radius`` covers well under half of it, so it never becomes its own surround.
+    It is computed on an image reduced 2-8x (cheap even for a 150 px window).
+    """
     h, w = d.shape
-    f = 4 if max_radius >= 12 else (2 if max_radius >= 5 else 1)
+    win = 3.0 * max_radius + 6
+    f = 8 if win >= 96 else (4 if win >= 40 else (2 if win >= 16 else 1))
+    f = min(f, max(1, min(h, w) // 16))
     if f > 1:
         small = cv2.resize(d, (w // f, h // f), interpolation=cv2.INTER_AREA)
     else:
         small = d
-    k = 2 * int(math.ceil(max_radius / f)) + 3
-    ker = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, ker, borderType=cv2.BORDER_REPLICATE)
+    k = 2 * int(math.ceil(win / f / 2)) + 1
+    k = min(k, 2 * (min(small.shape) // 2) - 1)
+    bg = cv2.medianBlur(small, max(k, 3))
     bg = cv2.blur(bg, (3, 3))
     if f > 1:
         bg = cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -425,7 +442,10 @@ def blob_candidates(
         np.hypot(hx - mx, hy - my) / np.maximum(b, 0.5),
         b / a,
     ])
-    ok = (a >= min_radius) & (a <= max_radius) & np.isfinite(feats).all(axis=1)
+    # The measured axis scatters by a few tenths of a pixel (noise, blur, thin slivers), so
+    # the lower bound has a 0.5 px tolerance: a marker at the edge of the range is kept.
+    ok = (a >= min_radius - MIN_RADIUS_TOLERANCE) & (a <= max_radius)
+    ok &= np.isfinite(feats).all(axis=1)
     if mask is not None:
         mc = np.asarray(mask)[np.clip(np.rint(cy).astype(np.int64), 0, h - 1),
                               np.clip(np.rint(cx).astype(np.int64), 0, w - 1)]

@@ -13,7 +13,11 @@ the FBX SDK / Blender exporter, see docs/file-formats.md). What a reader sees:
   key times are exact per frame, ``round(frame * 46186158000 / rate)`` ticks;
 * units: millimetres (``UnitScaleFactor`` 0.1, FBX counts in centimetres);
 * axes: ``"y"`` converts our Z-up brim frame to Y-up, ``(x, y, z) -> (x, z, -y)``; ``"z"``
-  keeps Z-up and declares it in ``GlobalSettings``.
+  keeps Z-up and declares it in ``GlobalSettings``;
+* optional sticks: one two-vertex line mesh per stick under ``<take>/sticks``, moved by
+  animated translation / rotation / uniform scale so its ends sit on the two points (plain
+  TRS animation reads the same in ufbx, assimp and Blender; a skin would turn the marker
+  nulls into armature bones in Blender).
 """
 
 from __future__ import annotations
@@ -245,7 +249,7 @@ class _Curves:
     ) -> None:
         """Animate ``prop`` of ``model_id``: ``values`` [K, n_channels] at (fractional) frames."""
         sc = self.scene
-        short = {"Lcl Translation": "T", "Lcl Rotation": "R"}.get(prop, prop)
+        short = {"Lcl Translation": "T", "Lcl Rotation": "R", "Lcl Scaling": "S"}.get(prop, prop)
         nid, cnode = sc.obj("AnimationCurveNode", short, "AnimCurveNode", "")
         props = _props70(cnode)
         for k, ch in enumerate(channels):
@@ -348,7 +352,10 @@ def write_fbx(
         NaN = unknown frame), ``focal_px`` [C], ``image_size`` [C, 2] (width, height px) and
         optional ``names`` [C]: written as animated FBX cameras under the take node.
     sticks : sequence of (int, int), optional
-        Not written yet; must be None or empty (raises ``NotImplementedError`` otherwise).
+        Point index pairs: each becomes a two-vertex line mesh ``<label_i>-<label_j>`` under
+        ``<take>/sticks`` whose animated translation, rotation and uniform scale put its
+        vertices on the two points at every frame where both are valid (held, and Visibility
+        0, elsewhere).
 
     Raises
     ------
@@ -382,8 +389,7 @@ def write_fbx(
         if v.shape != (n_frames, n_points) or v.dtype != bool:
             raise ValueError(f"valid must be a bool array of shape ({n_frames}, {n_points})")
         ok &= v
-    if sticks:
-        raise NotImplementedError("sticks are not written to FBX yet")
+    pairs = _check_sticks(sticks, n_points)
     cams = _check_cameras(cameras, n_frames) if cameras is not None else None
     if not take_name.strip():
         raise ValueError("take_name must not be empty")
@@ -408,6 +414,8 @@ def write_fbx(
     with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
         curves = _Curves(sc, layer_id, rate, pool)
         _add_points(sc, curves, pts, ok, labels, kinds_arr, group_ids)
+        if len(pairs):
+            _add_sticks(sc, curves, pts, ok, labels, pairs, sc.null("sticks", take_id)[0])
         if cams is not None:
             _add_cameras(sc, curves, cams, take_id, axis)
         root = _build_document(sc, take_name, rate, up_axis, stop)
@@ -472,6 +480,116 @@ def _add_points(
         if len(frames) < n_frames:
             _p(props, "Visibility", "Visibility", "", "A", _d(1.0))
             vf, vv = _visibility_keys(ok[p])
+            curves.curve_node(mid, "Visibility", ["Visibility"], vf, vv[:, None], _CONSTANT)
+
+
+def _check_sticks(sticks: Sequence[tuple[int, int]] | None, n_points: int) -> np.ndarray:
+    """Validate stick index pairs; return them as an [S, 2] int array."""
+    if sticks is None:
+        return np.zeros((0, 2), np.int64)
+    try:
+        pairs = np.asarray(sticks, dtype=np.int64).reshape(-1, 2)
+    except (TypeError, ValueError):
+        raise ValueError("sticks must be a sequence of (i, j) point index pairs") from None
+    if len(pairs) != len(sticks):
+        raise ValueError("sticks must be a sequence of (i, j) point index pairs")
+    if ((pairs < 0) | (pairs >= n_points)).any():
+        raise ValueError(f"sticks hold point indices outside 0..{n_points - 1}")
+    if (pairs[:, 0] == pairs[:, 1]).any():
+        raise ValueError("sticks must join two different points")
+    if len(np.unique(np.sort(pairs, axis=1), axis=0)) != len(pairs):
+        raise ValueError("sticks holds the same pair of points twice")
+    return pairs
+
+
+def _align_rotations(v: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Smallest rotations taking unit vectors ``v`` [..., 3] to unit vectors ``u`` [..., 3]."""
+    w = np.cross(v, u)
+    c = np.einsum("...i,...i->...", v, u)
+    k = np.zeros(w.shape + (3,))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k -= np.swapaxes(k, -1, -2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rot = np.eye(3) + k + k @ k / (1.0 + c)[..., None, None]
+    # u == -v: half turn about an axis perpendicular to v.
+    flip = ~(1.0 + c > 1e-9)
+    if flip.any():
+        vf = v[flip] if v.shape == u.shape else np.broadcast_to(v, u.shape)[flip]
+        a = np.cross(vf, np.eye(3)[np.argmin(np.abs(vf), axis=-1)])
+        a /= np.linalg.norm(a, axis=-1, keepdims=True)
+        rot[flip] = 2 * a[:, :, None] * a[:, None, :] - np.eye(3)
+    return rot
+
+
+def _add_sticks(
+    sc: _Scene,
+    curves: _Curves,
+    pts: np.ndarray,
+    ok: np.ndarray,
+    labels: list[str],
+    pairs: np.ndarray,
+    parent: int,
+) -> None:
+    """One two-vertex line mesh per stick, rigidly animated onto its two points.
+
+    The geometry is the segment from the origin to the stick's mean unit direction ``v``;
+    the node sits on point i (translation), turns ``v`` onto the current direction by the
+    smallest rotation (small angles, so the Euler angles stay far from gimbal lock) and
+    scales uniformly by the current length, which puts vertex 1 on point j. Only plain
+    TRS animation is used, which every importer reads (skin clusters would turn the marker
+    nulls into armature bones in Blender).
+    """
+    a, b = pts[:, pairs[:, 0]], pts[:, pairs[:, 1]]  # [F, S, 3]
+    d = b - a
+    length = np.linalg.norm(d, axis=2)
+    ok_s = ok[:, pairs[:, 0]] & ok[:, pairs[:, 1]] & (length > 1e-9)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(ok_s[..., None], d / length[..., None], 0.0)
+    mean = u.sum(axis=0)
+    norm = np.linalg.norm(mean, axis=1)
+    rest = np.where(norm[:, None] > 1e-9, mean / np.maximum(norm, 1e-300)[:, None], [1.0, 0, 0])
+    u = np.where(ok_s[..., None], u, rest)
+    euler = _euler_xyz_deg(_align_rotations(rest[None], u))  # [F, S, 3]
+    n_frames = pts.shape[0]
+    for s, (i, j) in enumerate(pairs):
+        frames = np.flatnonzero(ok_s[:, s])
+        f0 = frames[0] if len(frames) else 0
+        name = f"{labels[i]}-{labels[j]}"
+        gid, geom = sc.obj("Geometry", name, "Geometry", "Mesh")
+        _props70(geom)
+        geom.add("GeometryVersion", _i(124))
+        geom.add("Vertices", _arr("d", np.concatenate([np.zeros(3), rest[s]])))
+        # A loose edge: a two-vertex polygon (last index stored as -(index + 1)) plus its
+        # Edges entry, as Blender's exporter writes loose edges.
+        geom.add("PolygonVertexIndex", _arr("i", np.array([0, -2])))
+        geom.add("Edges", _arr("i", np.array([0])))
+        mid, model = sc.obj("Model", name, "Model", "Mesh")
+        model.add("Version", _i(232))
+        mp = _props70(model)
+        t0 = a[f0, s] if len(frames) else np.zeros(3)
+        s0 = length[f0, s] if len(frames) else 1.0
+        _p(mp, "Lcl Translation", "Lcl Translation", "", "A", *map(_d, t0))
+        _p(mp, "Lcl Rotation", "Lcl Rotation", "", "A", *map(_d, euler[f0, s]))
+        _p(mp, "Lcl Scaling", "Lcl Scaling", "", "A", *map(_d, (s0,) * 3))
+        _p(mp, "DefaultAttributeIndex", "int", "Integer", "", _i(0))
+        _p(mp, "InheritType", "enum", "", "", _i(1))
+        model.add("Shading", _c(1))
+        model.add("Culling", _s("CullingOff"))
+        sc.oo(gid, mid)
+        sc.oo(mid, parent)
+        if len(frames) == 0:
+            _p(mp, "Visibility", "Visibility", "", "A", _d(0.0))
+            continue
+        keys, src = _hold_keys(ok_s[:, s])
+        key = np.packbits(ok_s[:, s]).tobytes()
+        curves.curve_node(mid, "Lcl Translation", "XYZ", keys, a[src, s], cache_key=key)
+        angles = np.unwrap(euler[src, s], period=360.0, axis=0)
+        curves.curve_node(mid, "Lcl Rotation", "XYZ", keys, angles, cache_key=key)
+        scale = np.repeat(length[src, s][:, None], 3, axis=1)
+        curves.curve_node(mid, "Lcl Scaling", "XYZ", keys, scale, cache_key=key)
+        if len(frames) < n_frames:
+            _p(mp, "Visibility", "Visibility", "", "A", _d(1.0))
+            vf, vv = _visibility_keys(ok_s[:, s])
             curves.curve_node(mid, "Visibility", ["Visibility"], vf, vv[:, None], _CONSTANT)
 
 
