@@ -1,8 +1,9 @@
 """Fit the blob detector's probability model on synthetic images with known truth.
 
-Renders face images with ``carapost.algorithms._blob_synth`` (all presets, motion blur,
-noise levels, merged pairs, saturated highlights, dark exposure, white markers),
-collects every blob candidate with its features, labels it true when it lies on a
+Renders views of ``carapost.synth`` takes (all marker sets and motion presets, noise,
+optical and motion blur, highlights, merged pair) plus images of the detector's own
+renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
+every blob candidate with its features, labels it true when it lies on a
 truth marker centre, and fits a logistic regression (Newton / IRLS with a small ridge).
 The weights go to ``src/carapost/resources/blob_model.json``. A held-out set of images
 gives the reliability table (predicted probability vs observed fraction of true

@@ -282,25 +282,16 @@ _KERNEL_RING = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
 
 
 def _background(d: np.ndarray, max_radius: float) -> np.ndarray:
-    """Surround level: median of ``d`` over a square about 3x the largest blob radius.
-
-    A median (unlike a grey opening, which takes the extreme of the window) follows
-    shading gradients: on a linear ramp it equals the centre value, so skin on the dark
-    side of a shadow edge keeps a small contrast. The window is wide enough that a blob
-    of ``max_radius`` covers well under half of it, so it never becomes its own surround.
-    It is computed on an image reduced 2-8x (cheap even for a 150 px window).
-    """
+    """Surround level: grey opening of ``d`` by a square larger than the largest blob."""
     h, w = d.shape
-    win = 3.0 * max_radius + 6
-    f = 8 if win >= 96 else (4 if win >= 40 else (2 if win >= 16 else 1))
-    f = min(f, max(1, min(h, w) // 16))
+    f = 4 if max_radius >= 12 else (2 if max_radius >= 5 else 1)
     if f > 1:
         small = cv2.resize(d, (w // f, h // f), interpolation=cv2.INTER_AREA)
     else:
         small = d
-    k = 2 * int(math.ceil(win / f / 2)) + 1
-    k = min(k, 2 * (min(small.shape) // 2) - 1)
-    bg = cv2.medianBlur(small, max(k, 3))
+    k = 2 * int(math.ceil(max_radius / f)) + 3
+    ker = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+    bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, ker, borderType=cv2.BORDER_REPLICATE)
     bg = cv2.blur(bg, (3, 3))
     if f > 1:
         bg = cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR)
