@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -25,7 +26,8 @@ def _settle(app, seconds: float = 0.3) -> None:
 
 def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
     """Write the PNGs into ``outdir``; returns their paths."""
-    os.environ.setdefault("CARAPOST_SETTINGS_DIR", str(Path(outdir) / ".settings"))
+    # private settings: screenshots neither read nor change the user's layout
+    os.environ.setdefault("CARAPOST_SETTINGS_DIR", tempfile.mkdtemp(prefix="carapost-shots-"))
     from carapost.ui.app import application
 
     app = application()
