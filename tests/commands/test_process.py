@@ -234,3 +234,31 @@ def test_detect_blobs_command_cameras_cancel_and_undo():
     assert 1 <= p.detections.counts()[:, 0].astype(bool).sum() < 3
     with pytest.raises(CommandError, match="no image source"):
         DetectBlobs(p, (0, 0))
+
+
+def test_process_menu_entry_points_return_commands_for_the_current_frame():
+    """The functions the main window calls (on a worker thread) build the same commands."""
+    from carapost.commands import process
+
+    p, scene, _ = synthetic_project(seed=4)
+    p.calibration.set_static(scene.nominal_R, scene.nominal_t)
+    p.set_current_frame(1)
+    stack = CommandStack(p)
+    # no brim point attached yet: Solve Calibration Brim falls back to the automatic solve
+    cmd = process.solve_brim(p, progress=None)
+    assert isinstance(cmd, SolveBrimAuto)
+    stack.push(cmd)
+    pos, rot = camera_errors(p.calibration.R[1], p.calibration.t[1], scene.cam_R[1],
+                             scene.cam_t[1])
+    assert pos.max() <= 0.2 and rot.max() <= 0.05
+    # now the brim is attached at this frame: the same item runs the manual solve
+    assert isinstance(process.solve_brim(p), SolveBrimManual)
+    stack.push(process.initialize_3d(p))
+    assert (p.points.kind == KIND_FACE).sum() >= 0.95 * (scene.visible[1].sum(1) >= 2).sum()
+    stack.push(process.bundle_current_frame(p))
+    n_brim = (p.points.kind == KIND_BRIM).sum()
+    stack.push(process.initialize_brim_v20(p))
+    assert (p.points.kind == KIND_BRIM).sum() != n_brim or n_brim == 38
+    while stack.undo():
+        pass
+    assert (p.points.kind == KIND_FACE).sum() == 0

@@ -515,3 +515,51 @@ class BundleCurrentFrame(Command):
             pts.positions[f, cols] = self.points
             pts.recon[f, cols] = RECON_TRIANGULATED
             pts.residual[f, cols] = self.residual
+
+
+# ----------------------------------------------------------------------------------------
+# Process-menu entry points: ``name(project, progress=None) -> Command``.
+# The main window calls these on a worker thread (the commands compute when created)
+# and pushes the returned command on the GUI thread as one undo entry.
+# ----------------------------------------------------------------------------------------
+ProgressFn = Callable[[int, int], bool] | None
+
+
+def initialize_brim_v20(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Initialize Default Calibration Brim [v2.0]."""
+    return InitializeDefaultBrim(project, "2.0")
+
+
+def initialize_brim_v11(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Initialize Default Calibration Brim [v1.1]."""
+    return InitializeDefaultBrim(project, "1.1")
+
+
+def initialize_brim_v10(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Initialize Default Calibration Brim [v1.0]."""
+    return InitializeDefaultBrim(project, "1.0")
+
+
+def solve_brim(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Solve Calibration Brim [Manual] at the current frame.
+
+    With brim points attached to detections (at least 4 per camera) this is the manual
+    solve; with none attached and an XCP calibration loaded, the automatic solve finds
+    the correspondences itself.
+    """
+    f = project.current_frame
+    brim = np.flatnonzero(project.points.kind == KIND_BRIM)
+    attached = (project.points.detection[f, brim] >= 0).sum(axis=0) if len(brim) else []
+    if len(brim) and np.any(np.asarray(attached) > 0):
+        return SolveBrimManual(project, f)
+    return SolveBrimAuto(project, f)
+
+
+def initialize_3d(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Initialize 3D at the current frame (seeds: points attached in 2+ cameras)."""
+    return Initialize3D(project, project.current_frame)
+
+
+def bundle_current_frame(project: Project, progress: ProgressFn = None) -> Command:
+    """Process > Bundle Current Frame [Unconstrained]."""
+    return BundleCurrentFrame(project, project.current_frame)

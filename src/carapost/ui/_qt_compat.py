@@ -26,7 +26,7 @@ def _affected() -> bool:
         import PySide6
     except ImportError:
         return False
-    return PySide6.__version__.startswith("6.12.")
+    return str(getattr(PySide6, "__version__", "")).startswith("6.12.")
 
 
 def protect_true() -> bool:
