@@ -54,7 +54,8 @@ def test_import_full_take(tmp_path, rng):
     (folder / "Speech_01.json").write_text(json.dumps({
         "fps": 59.94, "timecode_start": "10:00:00:12", "logger_name": "Logger A",
         "logger_id": "L-7", "cameras": {"cam1": {"frame_offset": 1, "rotation": 180}},
-        "blob_parameters": {"min_radius": 2.0}}))
+        "blob_parameters": {"black_min_radius": 2.0, "black_threshold": 0.5,
+                            "min_radius": 2.0}}))
     # XCP cameras in another order than the channels: matched by name
     calib = calibration(["cam10", "cam0", "cam1"], rng)
     write_xcp(folder / "Speech_01.xcp", calib)
@@ -74,7 +75,11 @@ def test_import_full_take(tmp_path, rng):
     assert take.metadata["logger_name"] == "Logger A" and take.metadata["logger_id"] == "L-7"
     assert take.metadata["take_folder"] == str(folder.absolute())
     assert take.metadata["brim_file"].endswith("Speech_01_brim.csv")
-    assert project.imported_blob_parameters == {"min_radius": 2.0}
+    # the take's blob parameters are applied and remembered (unknown keys ignored)
+    assert project.properties["black_min_radius"] == 2.0
+    assert project.imported_blob_parameters["black_threshold"] == 0.5
+    assert project.imported_blob_parameters["find_black_blobs"] is True
+    assert "min_radius" not in project.imported_blob_parameters
     assert project.labels == ["Brow_L", "Brow_R", "Nose", "Nose - Copy"]
     cal = project.calibration
     assert cal.intrinsics.names == ["cam0", "cam1", "cam10"]

@@ -389,6 +389,27 @@ def _load_calibration(project: Project, xcp_path: Path) -> None:
         log.info("%s: %s", xcp_path.name, note)
 
 
+def _import_blob_parameters(project: Project, given: object) -> None:
+    """Apply the take's blob parameters (if it has any) and remember the ones in force.
+
+    Read Blob Parameters From Take Files goes back to exactly these values later.
+    """
+    from carapost.model.properties import BLOB, PropertyError
+
+    keys = project.properties.section(BLOB)
+    if isinstance(given, dict):
+        values = {k: v for k, v in given.items() if k in keys}
+        ignored = sorted(set(given) - set(values))
+        if ignored:
+            log.warning("Ignoring unknown blob parameters in the take metadata: %s",
+                        ", ".join(map(str, ignored)))
+        try:
+            project.properties.update(values)
+        except PropertyError as exc:
+            log.warning("Blob parameters of the take ignored: %s", exc)
+    project.imported_blob_parameters = project.properties.section(BLOB)
+
+
 def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
     """Import Camera Files: a new project from the camera files of one take.
 
@@ -485,8 +506,7 @@ def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -
         _load_calibration(project, files.xcp)
     if files.labels is not None:
         project.labels = merge_labels([], read_label_file(files.labels))
-    if isinstance(meta.get("blob_parameters"), dict):
-        project.imported_blob_parameters = dict(meta["blob_parameters"])
+    _import_blob_parameters(project, meta.get("blob_parameters"))
     project.modified = True
     log.info("Imported take %s: %d cameras (%s), %d frames at %g fps", files.name,
              len(cameras), ", ".join(files.channels), n_frames, take.fps)
