@@ -43,7 +43,7 @@ def _check_output(path: str | Path, suffix: str) -> Path:
 
 
 def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
-                   max_px: float = 2.0, max_spread_mm: float = 0.3,
+                   max_px: float = 2.0, max_spread_mm: float = 1.0,
                    min_points: int = 6) -> tuple[list[str], NDArray[np.float64]]:
     """Triangulate a brim model from the take: points fixed relative to the cameras.
 
@@ -70,7 +70,7 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
     ref = int(np.flatnonzero(cal.solved)[0]) if cal.solved.any() else 0
     R, t = cal.R[ref], cal.t[ref]
     if frames is None:
-        frames = np.unique(np.linspace(0, F - 1, min(F, 6)).round().astype(np.intp))
+        frames = np.unique(np.linspace(0, F - 1, min(F, 8)).round().astype(np.intp))
     clouds = []
     for f in frames:
         dets_n = []
@@ -90,17 +90,20 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
         raise ValueError("no marker is seen by three cameras in the first frame")
     from scipy.spatial import cKDTree
 
+    # a rig point is found at the same place (within max_spread_mm: the rig flexes a
+    # little) in most sampled frames; face markers move and slip between them
     base = clouds[0]
-    keep = np.ones(len(base), bool)
-    acc = [base]
-    for X in clouds[1:]:
+    hits = np.zeros(len(base), dtype=np.intp)
+    acc = np.zeros_like(base)
+    for X in clouds:
         if len(X) == 0:
-            keep[:] = False
-            break
+            continue
         d, j = cKDTree(X).query(base)
-        keep &= d <= max_spread_mm
-        acc.append(X[j])
-    xyz = np.mean(np.stack(acc), axis=0)[keep]
+        near = d <= max_spread_mm
+        hits += near
+        acc[near] += X[j[near]]
+    keep = hits >= max(2, int(np.ceil(0.6 * len(clouds))))
+    xyz = acc[keep] / hits[keep, None]
     if len(xyz) < min_points:
         raise ValueError(f"only {len(xyz)} markers stay fixed relative to the cameras "
                          f"(need {min_points} for a brim); give the brim model with --brim")
@@ -157,8 +160,8 @@ def process_take(
         DetectBlobs,
         ImportBrimSvg,
         Initialize3D,
+        SetBrimModel,
         SolveBrimAuto,
-        _CreateBrim,
     )
     from carapost.commands.stack import CommandError, CommandStack
     from carapost.commands.tracking import InitializeFromRom, LoadRom, TrackCommand
@@ -249,7 +252,7 @@ def process_take(
                     except ValueError as exc:
                         raise ValueError(f"brim: {exc}") from None
                     brim_source = "triangulated from the take"
-                cmd = _CreateBrim(*brim_model, description="Brim model")
+                cmd = SetBrimModel(*brim_model, description="Set Calibration Brim")
                 stack.push(cmd)
             try:
                 stack.push(SolveBrimAuto(project, frame=0))

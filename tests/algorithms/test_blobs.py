@@ -228,8 +228,8 @@ def test_projected_ellipse_of_a_frontal_disc():
 # The acceptance targets (recall, precision, centre median / p95 in px) ...
 RECALL_TARGET, PRECISION_TARGET, MEDIAN_TARGET, P95_TARGET = 0.99, 0.98, 0.08, 0.25
 # ... and what the detector reaches on carapost.synth today (regression guard; see
-# docs/parts/benchmarks-blobs.md for the gap).
-RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.88, 0.97, 0.13, 0.9
+# docs/parts/benchmarks-blobs.md for the gap: recall ~0.95).
+RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.93, 0.98, 0.08, 0.25
 
 
 def _synth_score(markers, preset, frames, **options):
@@ -254,13 +254,38 @@ def test_carapost_synth_take_regression():
     assert s["false_per_image_background"] <= 0.25
 
 
-@pytest.mark.xfail(reason="the detector does not reach the issue's targets on carapost.synth "
-                          "yet (see docs/parts/benchmarks-blobs.md)", strict=False)
-def test_carapost_synth_take_meets_the_targets():
+@pytest.mark.xfail(reason="on carapost.synth recall is ~0.95, not 0.99: markers touching a "
+                          "large dark feature or lying on a crease (see "
+                          "docs/parts/benchmarks-blobs.md)", strict=False)
+def test_carapost_synth_take_meets_the_recall_target():
     s = _synth_score("standard", "speech", [30]).summary()
     assert s["recall"] >= RECALL_TARGET
+
+
+def test_carapost_synth_take_meets_the_precision_and_centre_targets():
+    s = _synth_score("standard", "speech", [30]).summary()
     assert s["precision"] >= PRECISION_TARGET
     assert s["centre_median_px"] <= MEDIAN_TARGET and s["centre_p95_px"] <= P95_TARGET
+
+
+def test_shading_gradient_does_not_bias_the_centre(rng):
+    # Dots on a steep linear shading ramp (1.5 grey levels per px, as strong as the
+    # marker's own contrast over a few px): the ring plane removes the gradient.
+
+    h, w = 80, 120
+    xx = np.mgrid[0:h, 0:w][1]
+    img = 40.0 + 1.5 * xx  # dark left, bright right
+    truth = []
+    for k, cx in enumerate((42.3, 61.7, 80.2)):
+        cy = 20.4 + 20 * k
+        x0, y0, cov = _ellipse_coverage(cx, cy, 5.0, 4.0, 0.3)
+        _paint(img, x0, y0, cov, 20.0)
+        truth.append((cx, cy))
+    img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
+    det = detect_blobs(img, BlobParameters())
+    assert len(det) == 3
+    idx, dist = _match(det.centre, np.array(truth))
+    assert dist.max() < 0.1
 
 
 @pytest.mark.slow

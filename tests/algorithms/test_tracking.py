@@ -372,3 +372,28 @@ def test_ragged_detections_serves_model_layout():
     frame = src(1)
     assert len(frame) == 2 and len(frame[0][0]) == 0
     assert frame[1][0].tolist() == [[1.0, 2.0], [3.0, 4.0]]
+
+
+def test_patch_tracking_bridges_a_missing_blob():
+    """With images, a marker whose blob is missing in one camera is patch-tracked there."""
+    from carapost.model.project import SOURCE_PATCH
+    from carapost.synth import render_frame
+
+    scene = scene_of("speech", 4)
+    dets = synth_detections(scene, clutter=0, dropout=0.0)
+    p = int(np.flatnonzero(scene.visible[:4].sum(-1).min(0) == 4)[0])
+    for f in range(1, 4):
+        cen, ax, ids = dets[f][0]
+        keep = ids != p
+        dets[f][0] = (cen[keep], ax[keep], ids[keep])
+    M, B = len(scene.labels), len(scene.brim3d)
+    X0 = np.concatenate([scene.points3d[0], scene.brim3d])
+    kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
+    obs0 = np.concatenate([scene.uv[0], scene.brim_uv[0]])
+    res = track(lambda f: [(d[0], d[1]) for d in dets[f]], InitialState(X0, kind, obs0),
+                scene.cam_R[0], scene.cam_t[0], scene.intrinsics, start=0, stop=3,
+                get_image=lambda f, c: render_frame(scene, f, c))
+    assert np.all(res.source[:, p, 0] == SOURCE_PATCH)
+    err = np.linalg.norm(res.obs[:, p, 0] - scene.uv[1:4, p, 0], axis=-1)
+    assert err.max() < 1.0
+    assert np.all(res.quality[:, p, 0] >= 0.8)

@@ -2,30 +2,32 @@
 
 The detector turns one grey image into a table of elliptical blob detections, each with
 a sub-pixel centre, semi-axes, angle, colour (black / white) and a calibrated
-probability ``score`` that it is really a blob centre. It works in five steps, all on
-whole images with OpenCV / numpy (no Python loop per pixel or per blob):
+probability ``score`` that it is really a blob centre. All steps work on whole images
+with OpenCV or on all candidates at once with numpy (no Python loop per pixel or blob):
 
 1. Polarity: black blobs are found on the inverted image, so blobs are always bright
    peaks ``d`` on a darker surround.
-2. Surround at matching scale: a morphological opening of ``d`` with a window larger
-   than the largest allowed blob (computed on a 2x / 4x reduced image for speed) is the
-   local background; the top-hat ``t = d - opening(d)`` is each pixel's contrast
-   against its surround.
-3. Boundary: a pixel belongs to a blob when its contrast is at least half of the
-   highest contrast nearby (a 9x9 window) and clearly above the image noise; connected
-   components of that mask are the candidates, and their outline is the half-contrast
-   boundary.
-4. Shape and centre: per candidate, the coverage ``c = (t - t0) / (peak - t0)`` clipped
-   to 0-1 over the candidate and a 2-pixel ring gives, through its moments, the
-   sub-pixel centre (coverage centroid) and the fitted ellipse (axes from the
-   eigenvalues of the second moments, ``a = 2 sqrt(lambda_1)``).
-5. Probability: a logistic model over a few scale-free features (signal-to-noise,
-   contrast relative to the surround, how well the coverage fills its ellipse, edge
-   sharpness, symmetry, axis ratio) gives the probability that the candidate is a
-   blob centre. It was fitted on synthetic blobs with known truth by
-   ``scripts/train_blob_model.py`` (weights in ``carapost/resources/blob_model.json``)
-   so that the score means what it says. Candidates whose semi-major axis is outside
-   the radius range, or whose score is below the threshold, are dropped.
+2. Seeds per scale: a small pyramid (1x, 2x, 4x, ... reduced copies) gives each level a
+   band of blob sizes (semi-major axis up to ~10 px of that level). On every level the
+   surround is a grey opening with a window just larger than the band's largest blob,
+   so a blob is judged against the skin right around it; pixels at least half their
+   local peak contrast form connected regions whose coverage moments are the seed
+   ellipses.
+3. Refinement at the blob's own scale: per seed, a plane fitted (twice, the second time
+   without ring pixels far above the first plane) to a ring of pixels around the seed
+   ellipse is the local background, which removes shading gradients; each pixel's
+   coverage is its contrast over the plane divided by the peak contrast, clipped to
+   0-1, inside the seed ellipse grown by 1.5 px. Its centroid is the sub-pixel centre
+   and its second moments the ellipse (``a = 2 sqrt(lambda_1)``). Seeds larger than
+   ~14 px are refined on a reduced copy (moments survive area reduction).
+4. Probability: a logistic model over scale-free features (signal-to-noise, contrast
+   relative to the surround, how well the coverage fills its ellipse, ring roughness,
+   symmetry, axis ratio, how much of the ring is as dark as the blob) gives the
+   probability that the candidate is a blob centre. It was fitted on synthetic images
+   with known truth by ``scripts/train_blob_model.py`` (weights in
+   ``carapost/resources/blob_model.json``). Candidates whose semi-major axis is outside
+   the radius range, or whose score is below the threshold, are dropped; the same blob
+   seen on two levels is kept once.
 
 Fully saturated regions (255) have no contrast against their surround and give no
 detections; white candidates that are mostly saturated are rejected.
@@ -65,9 +67,10 @@ FEATURE_NAMES = (
     "rel_contrast",
     "fill_dev",
     "half_fill_dev",
-    "edge_ratio",
+    "ring_roughness",
     "asymmetry",
     "axis_ratio",
+    "ring_fill",
 )
 
 
@@ -276,26 +279,261 @@ REL_FLOOR = 0.2
 MIN_RADIUS_TOLERANCE = 0.5
 #: Grey level from which a pixel counts as saturated.
 SATURATED = 250
+#: Smallest peak contrast (grey levels) of a candidate, whatever the noise estimate.
+MIN_CONTRAST = 5.0
+#: Largest semi-major axis (px of its own level) a pyramid level is responsible for.
+LEVEL_RADIUS = 10.0
+#: Overlap between neighbouring levels' radius bands (fraction).
+LEVEL_OVERLAP = 0.15
+#: Margin (px) of the refinement support beyond the seed ellipse, and ring width (px).
+SUPPORT_MARGIN = 1.5
+RING_WIDTH = 3.0
+#: Seeds larger than this (px of a level) are refined on the next coarser level.
+REFINE_RADIUS = 14.0
 
 _KERNEL_LOCALMAX = cv2.getStructuringElement(cv2.MORPH_RECT, (9, 9))
 _KERNEL_RING = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
 
 
-def _background(d: np.ndarray, max_radius: float) -> np.ndarray:
-    """Surround level: grey opening of ``d`` by a square larger than the largest blob."""
+def _background(d: np.ndarray, radius: float) -> np.ndarray:
+    """Surround level: grey opening of ``d`` by a square just larger than a blob of
+    semi-major axis ``radius`` (computed on a reduced copy for speed)."""
     h, w = d.shape
-    f = 4 if max_radius >= 12 else (2 if max_radius >= 5 else 1)
-    if f > 1:
-        small = cv2.resize(d, (w // f, h // f), interpolation=cv2.INTER_AREA)
-    else:
-        small = d
-    k = 2 * int(math.ceil(max_radius / f)) + 3
+    f = 2 if radius >= 6 else 1
+    small = cv2.resize(d, (w // f, h // f), interpolation=cv2.INTER_AREA) if f > 1 else d
+    k = 2 * int(math.ceil(radius / f)) + 3
     ker = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
     bg = cv2.morphologyEx(small, cv2.MORPH_OPEN, ker, borderType=cv2.BORDER_REPLICATE)
     bg = cv2.blur(bg, (3, 3))
     if f > 1:
         bg = cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR)
     return bg
+
+
+def _segments(ids: np.ndarray, x0: np.ndarray, y0: np.ndarray, bw: np.ndarray,
+              bh: np.ndarray, w: int):
+    """Flat pixel indices of many boxes, grouped per box (for ``ufunc.reduceat``).
+
+    Returns (k, lx, ly, flat, starts): box index, local x / y, flat image index of every
+    gathered pixel, and the start of each box's segment.
+    """
+    sizes = bw * bh
+    starts = np.zeros(ids.size, np.int64)
+    np.cumsum(sizes[:-1], out=starts[1:])
+    total = int(sizes.sum())
+    k = np.repeat(np.arange(ids.size, dtype=np.int32), sizes)
+    local = np.arange(total, dtype=np.int32) - starts[k].astype(np.int32)
+    ly, lx = np.divmod(local, bw[k])
+    flat = (y0[k] + ly) * w + (x0[k] + lx)
+    return k, lx, ly, flat, starts
+
+
+def _ellipse_from_moments(s0, sx, sy, sxx, syy, sxy):
+    """Centre, semi-axes and angle from raw weighted moments (arrays per candidate)."""
+    s0 = np.maximum(s0, 1e-9)
+    mx, my = sx / s0, sy / s0
+    cxx = np.maximum(sxx / s0 - mx * mx - 1.0 / 12.0, 1e-6)  # less a pixel's own variance
+    cyy = np.maximum(syy / s0 - my * my - 1.0 / 12.0, 1e-6)
+    cxy = sxy / s0 - mx * my
+    tr = cxx + cyy
+    root = np.sqrt(((cxx - cyy) * 0.5) ** 2 + cxy * cxy)
+    a = 2.0 * np.sqrt(tr * 0.5 + root)
+    b = 2.0 * np.sqrt(np.maximum(tr * 0.5 - root, 1e-6))
+    theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    return mx, my, a, b, theta
+
+
+def _level_seeds(d: np.ndarray, d_bg: np.ndarray, sigma: float, a_lo: float, a_hi: float,
+                 fine: bool = True) -> tuple[np.ndarray, ...]:
+    """Seed ellipses of one pyramid level (all in that level's pixels).
+
+    The surround is an opening with a window just larger than ``a_hi``, so a blob is
+    judged against skin right around it (a marker on the dark side of a shading edge
+    does not merge with the dark skin). Candidates are connected regions at half their
+    local peak contrast; their coverage moments give a seed centre and ellipse.
+    """
+    h, w = d.shape
+    bg = _background(d_bg, a_hi)
+    top = cv2.subtract(d, bg)
+    t_low = max(MIN_CONTRAST, 4.0 * sigma)
+    # Light smoothing keeps pixel noise from shattering regions; reduced levels are
+    # already smooth (and blurring them would join neighbouring dots of a dense grid).
+    top_s = cv2.GaussianBlur(top, (5, 5), 1.0) if fine else top
+    local_max = cv2.dilate(top_s, _KERNEL_LOCALMAX)
+    half = cv2.compare(cv2.add(top_s, top_s), local_max, cv2.CMP_GE)
+    floor = cv2.max(cv2.convertScaleAbs(cv2.bitwise_not(bg), alpha=REL_FLOOR), int(t_low))
+    cand = cv2.bitwise_and(half, cv2.compare(top_s, floor, cv2.CMP_GE))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8,
+                                                           ltype=cv2.CV_16U)
+    empty = tuple(np.zeros(0) for _ in range(5))
+    if n <= 1:
+        return empty
+    x0, y0, bw, bh, area = (stats[1:, i].astype(np.int32) for i in range(5))
+    ext = np.maximum(bw, bh)
+    keep = (area >= max(3.0, 0.5 * a_lo * a_lo)) & (ext >= 1.2 * a_lo - 2)
+    keep &= ext <= 2.4 * a_hi + 6
+    ids = (np.flatnonzero(keep) + 1).astype(np.int32)
+    if ids.size == 0:
+        return empty
+    pad = 2
+    x0, y0 = x0[ids - 1] - pad, y0[ids - 1] - pad
+    bw, bh = bw[ids - 1] + 2 * pad, bh[ids - 1] + 2 * pad
+    x0c, y0c = np.clip(x0, 0, w - 1), np.clip(y0, 0, h - 1)
+    bw, bh = np.minimum(x0 + bw, w) - x0c, np.minimum(y0 + bh, h) - y0c
+    x0, y0 = x0c, y0c
+    k, lx, ly, flat, starts = _segments(ids, x0, y0, bw, bh, w)
+    lab = np.take(labels.reshape(-1), flat)
+    ring_lab = np.take(cv2.dilate(labels, _KERNEL_RING).reshape(-1), flat)
+    idk = ids[k]
+    own = lab == idk
+    near = own | ((lab == 0) & (ring_lab == idk))
+    tv = np.take(top.reshape(-1), flat).astype(np.float32)
+    peak = np.maximum.reduceat(np.where(own, tv, 0.0), starts)
+    t0 = min(2.0 * sigma, 0.5 * t_low)
+    cov = np.clip((tv - t0) / np.maximum(peak - t0, 1e-6)[k], 0.0, 1.0) * near
+    fx, fy = lx.astype(np.float32), ly.astype(np.float32)
+    cx_, cy_ = cov * fx, cov * fy
+    mx, my, a, b, th = _ellipse_from_moments(
+        np.add.reduceat(cov, starts).astype(np.float64),
+        np.add.reduceat(cx_, starts).astype(np.float64),
+        np.add.reduceat(cy_, starts).astype(np.float64),
+        np.add.reduceat(cx_ * fx, starts).astype(np.float64),
+        np.add.reduceat(cy_ * fy, starts).astype(np.float64),
+        np.add.reduceat(cx_ * fy, starts).astype(np.float64))
+    ok = (a >= a_lo) & (a <= a_hi)
+    return (x0 + mx)[ok], (y0 + my)[ok], a[ok], b[ok], th[ok]
+
+
+def _refine(d: np.ndarray, raw: np.ndarray, sigma: float, cx, cy, a, b, th, colour: int):
+    """Full-resolution centre, ellipse and features of seed ellipses.
+
+    Per candidate, a plane fitted to the ring of pixels around the seed ellipse is the
+    local background (so a shading gradient neither shifts the centre nor changes the
+    contrast); each pixel's coverage is its contrast over that plane scaled by the
+    candidate's peak contrast and clipped to 0-1 (the painted fraction of an
+    anti-aliased pixel); the coverage moments inside the support give the centre and
+    ellipse.
+    """
+    h, w = d.shape
+    m = SUPPORT_MARGIN
+    ext = np.ceil(a + m + RING_WIDTH + 1).astype(np.int32)
+    xi, yi = np.rint(cx).astype(np.int32), np.rint(cy).astype(np.int32)
+    x0, y0 = np.clip(xi - ext, 0, w - 1), np.clip(yi - ext, 0, h - 1)
+    bw = np.minimum(xi + ext + 1, w) - x0
+    bh = np.minimum(yi + ext + 1, h) - y0
+    good = (bw > 2) & (bh > 2)
+    n = cx.size
+    k, lx, ly, flat, starts = _segments(np.arange(n, dtype=np.int32), x0, y0,
+                                        np.maximum(bw, 1), np.maximum(bh, 1), w)
+    # Coordinates relative to the seed centre, in the seed ellipse's frame.
+    px = (x0[k] + lx).astype(np.float32) - cx[k].astype(np.float32)
+    py = (y0[k] + ly).astype(np.float32) - cy[k].astype(np.float32)
+    c, s = np.cos(th).astype(np.float32), np.sin(th).astype(np.float32)
+    u = px * c[k] + py * s[k]
+    v = -px * s[k] + py * c[k]
+    ai, bi = (a + m).astype(np.float32), (b + m).astype(np.float32)
+    ao, bo = ai + RING_WIDTH, bi + RING_WIDTH
+    r_out = (u / ao[k]) ** 2 + (v / bo[k]) ** 2
+    # Keep only the pixels inside the outer ellipse (the boxes are mostly corners);
+    # every candidate keeps its centre pixel, so no segment becomes empty.
+    sel = np.flatnonzero(r_out <= 1.0)
+    k, flat, px, py, u, v = k[sel], flat[sel], px[sel], py[sel], u[sel], v[sel]
+    counts = np.bincount(k, minlength=n)
+    good &= counts > 0
+    starts = np.zeros(n, np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    starts = np.minimum(starts, max(k.size - 1, 0))
+    r_in = (u / ai[k]) ** 2 + (v / bi[k]) ** 2
+    support = r_in <= 1.0
+    ring = ~support
+    dv = np.take(d.reshape(-1), flat).astype(np.float32)
+
+    def plane(sel):
+        wgt = sel.astype(np.float32)
+        sums = [np.add.reduceat(q, starts).astype(np.float64) for q in (
+            wgt, wgt * px, wgt * py, wgt * px * px, wgt * px * py, wgt * py * py,
+            wgt * dv, wgt * dv * px, wgt * dv * py)]
+        n0, sx, sy, sxx, sxy, syy, sd, sdx, sdy = sums
+        mat = np.stack([np.stack([n0, sx, sy], -1), np.stack([sx, sxx, sxy], -1),
+                        np.stack([sy, sxy, syy], -1)], -2)
+        mat += np.eye(3) * 1e-3
+        rhs = np.stack([sd, sdx, sdy], -1)
+        coef = np.linalg.solve(mat, rhs[..., None])[..., 0]
+        coef[n0 < 3] = 0.0
+        coef[n0 < 3, 0] = sd[n0 < 3] / np.maximum(n0[n0 < 3], 1)
+        return coef, n0
+
+    coef, _ = plane(ring)
+    res = dv - (coef[k, 0] + coef[k, 1] * px + coef[k, 2] * py).astype(np.float32)
+    # Second pass without ring pixels well above the plane (a neighbouring marker's
+    # edge, a dark crease): they would lift the background under this blob.
+    peak = np.maximum.reduceat(np.where(support, res, -1e9), starts)
+    ring2 = ring & (res < np.maximum(3.0 * sigma, 0.25 * peak[k]))
+    coef, n_ring = plane(ring2)
+    res = dv - (coef[k, 0] + coef[k, 1] * px + coef[k, 2] * py).astype(np.float32)
+    peak = np.maximum.reduceat(np.where(support, res, -1e9), starts).astype(np.float64)
+    pk = np.maximum(peak, 1e-3).astype(np.float32)
+    # Paint is opaque: a fully covered pixel has the paint's level whatever the skin
+    # under it, so the full-coverage contrast is (paint level - plane) at each pixel,
+    # not one number per blob (which would weight the centroid towards brighter skin).
+    core = np.maximum.reduceat(np.where(support, dv, -1e9), starts).astype(np.float32)
+    full = np.maximum(core[k] - (dv - res), 0.25 * pk[k])
+    cov = np.clip(res / full, 0.0, 1.0) * support
+    # Moments about the seed centre (small numbers) for float32 accuracy.
+    cpx, cpy = cov * px, cov * py
+    s0 = np.add.reduceat(cov, starts).astype(np.float64)
+    mx, my, a2, b2, th2 = _ellipse_from_moments(
+        s0, np.add.reduceat(cpx, starts).astype(np.float64),
+        np.add.reduceat(cpy, starts).astype(np.float64),
+        np.add.reduceat(cpx * px, starts).astype(np.float64),
+        np.add.reduceat(cpy * py, starts).astype(np.float64),
+        np.add.reduceat(cpx * py, starts).astype(np.float64))
+    ncx, ncy = cx + mx, cy + my
+    half = support & (res >= 0.5 * pk[k])
+    n_half = np.add.reduceat(half.astype(np.float32), starts).astype(np.float64)
+    hx = np.add.reduceat(half * px, starts) / np.maximum(n_half, 1)
+    hy = np.add.reduceat(half * py, starts) / np.maximum(n_half, 1)
+    ringf = ring.astype(np.float32)
+    n_r = np.maximum(np.add.reduceat(ringf, starts).astype(np.float64), 1)
+    rr = np.sqrt(np.add.reduceat(ring2 * res * res, starts) / np.maximum(n_ring, 1))
+    ring_fill = np.add.reduceat(ring & (res >= 0.5 * pk[k]), starts) / n_r
+    ell_area = math.pi * a2 * b2
+    bg_c = np.clip(coef[:, 0], 0, 255)
+    rv = np.take(raw.reshape(-1), flat)
+    sat_level = 255 if colour == WHITE else 0
+    saturated = np.add.reduceat((half & (rv == sat_level)).astype(np.float32), starts)
+    saturated = saturated > 0.3 * n_half
+    feats = np.column_stack([
+        np.log(np.maximum(peak, 1e-3) / sigma),
+        np.clip(peak / np.maximum(255.0 - bg_c, 1.0), 0, 2),
+        np.clip(np.abs(1.0 - s0 / ell_area), 0, 5),
+        np.clip(np.abs(1.0 - n_half / ell_area), 0, 5),
+        np.clip(rr / np.maximum(peak, 1e-3), 0, 2),
+        np.clip(np.hypot(hx - mx, hy - my) / np.maximum(b2, 0.5), 0, 5),
+        b2 / a2,
+        ring_fill,
+    ])
+    ok = good & (peak > 0) & np.isfinite(feats).all(axis=1)
+    # A refined centre far from its seed means the support did not hold the blob.
+    ok &= np.hypot(mx, my) <= 0.5 * a + 1.0
+    return ncx, ncy, a2, b2, th2, feats, saturated, ok
+
+
+def _levels(min_radius: float, max_radius: float) -> list[tuple[int, float, float]]:
+    """Pyramid levels (factor, lowest, highest semi-major axis in full-res px)."""
+    out = []
+    f, lo = 1, 0.0
+    while True:
+        hi = LEVEL_RADIUS * f
+        band_lo = lo * (1 - LEVEL_OVERLAP)
+        band_hi = hi * (1 + LEVEL_OVERLAP)
+        if band_lo > max_radius:
+            break
+        if band_hi >= min_radius - MIN_RADIUS_TOLERANCE:
+            out.append((f, max(band_lo, min_radius - MIN_RADIUS_TOLERANCE - 0.5),
+                        min(band_hi, max_radius + 1.0)))
+        lo, f = hi, 2 * f
+    return out
 
 
 def blob_candidates(
@@ -308,6 +546,9 @@ def blob_candidates(
     noise: float | None = None,
 ) -> Candidates:
     """All candidate blobs of one colour with their features (before thresholding).
+
+    Seeds come from a small image pyramid (each level judges blobs of its own size
+    band against their own surround), then every seed is refined at full resolution.
 
     Parameters
     ----------
@@ -332,121 +573,82 @@ def blob_candidates(
         d_for_bg = cv2.max(d, cv2.compare(image8, SATURATED, cv2.CMP_GE))
     else:
         d = d_for_bg = image8
-    bg = _background(d_for_bg, max_radius)
-    top = cv2.subtract(d, bg)
     sigma = _noise_sigma(image8) if noise is None else float(noise)
-    t_low = max(3.0, 3.5 * sigma)
-    # The boundary mask is taken on a lightly smoothed top-hat so pixel noise does not
-    # shatter the background into thousands of one-pixel components.
-    top_s = cv2.GaussianBlur(top, (5, 5), 1.0)
-    local_max = cv2.dilate(top_s, _KERNEL_LOCALMAX)
-    # Half-contrast boundary: 2*t >= local max (saturating add keeps this exact).
-    half = cv2.compare(cv2.add(top_s, top_s), local_max, cv2.CMP_GE)
-    # Contrast floor: above the noise and a tenth of the surround's headroom, so skin
-    # texture and pores never become candidates (true markers are far above this).
-    floor = cv2.max(cv2.convertScaleAbs(cv2.bitwise_not(bg), alpha=REL_FLOOR), int(t_low))
-    strong = cv2.compare(top_s, floor, cv2.CMP_GE)
-    cand = cv2.bitwise_and(half, strong)
-    n, labels, stats, _cent = cv2.connectedComponentsWithStats(cand, connectivity=8,
-                                                               ltype=cv2.CV_16U)
+    seeds = []
+    pyramid = {1: (d, d_for_bg, image8)}
+    for f, lo, hi in _levels(min_radius, max_radius):
+        if h // f < 16 or w // f < 16:
+            break
+        if f not in pyramid:
+            size = (w // f, h // f)
+            pyramid[f] = tuple(
+                cv2.resize(x[: h // f * f, : w // f * f], size, interpolation=cv2.INTER_AREA)
+                for x in (d, d_for_bg, image8))
+        dl, bl, _ = pyramid[f]
+        sx, sy, sa, sb, st = _level_seeds(dl, bl, max(0.7, sigma / f), max(lo / f, 1.0),
+                                          hi / f, fine=f == 1)
+        # A level pixel i covers full-res pixels f*i .. f*i + f - 1.
+        seeds.append((sx * f + 0.5 * (f - 1), sy * f + 0.5 * (f - 1), sa * f, sb * f, st,
+                      np.full(sx.size, f)))
     empty = Candidates(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0),
                        np.zeros((0, len(FEATURE_NAMES))), np.zeros(0, bool))
-    if n <= 1:
+    if not seeds:
         return empty
-    x0, y0, bw, bh, area = (stats[1:, i].astype(np.int32) for i in range(5))
-    ext = np.maximum(bw, bh)
-    # Cheap gates on the bounding box and area before any per-pixel work.
-    keep = (area >= max(3.0, 0.5 * min_radius * min_radius)) & (ext >= 1.2 * min_radius - 2)
-    keep &= ext <= 2.0 * max_radius * 1.2 + 6
-    ids = (np.flatnonzero(keep) + 1).astype(np.int32)
-    if ids.size == 0:
+    cx, cy, a, b, th, lev = (np.concatenate([s[i] for s in seeds]) for i in range(6))
+    if cx.size == 0:
         return empty
-    pad = 2
-    x0, y0 = x0[ids - 1] - pad, y0[ids - 1] - pad
-    bw, bh = bw[ids - 1] + 2 * pad, bh[ids - 1] + 2 * pad
-    x0c, y0c = np.clip(x0, 0, w - 1), np.clip(y0, 0, h - 1)
-    bw = np.minimum(x0 + bw, w) - x0c
-    bh = np.minimum(y0 + bh, h) - y0c
-    x0, y0 = x0c, y0c
-    # Gather every pixel of every padded bounding box, grouped per candidate.
-    sizes = bw * bh
-    starts = np.zeros(ids.size, np.int64)
-    np.cumsum(sizes[:-1], out=starts[1:])
-    total = int(sizes.sum())
-    k = np.repeat(np.arange(ids.size, dtype=np.int32), sizes)
-    local = np.arange(total, dtype=np.int32) - starts[k].astype(np.int32)
-    ly, lx = np.divmod(local, bw[k])
-    flat = (y0[k] + ly) * w + (x0[k] + lx)
-    lab = np.take(labels.reshape(-1), flat)
-    ring_lab = np.take(cv2.dilate(labels, _KERNEL_RING).reshape(-1), flat)
-    idk = ids[k]
-    own = lab == idk
-    near = own | ((lab == 0) & (ring_lab == idk))
-    tv = np.take(top.reshape(-1), flat).astype(np.float64)
-
-    # Peak contrast per candidate (segments are contiguous: reduceat).
-    peak = np.maximum.reduceat(np.where(own, tv, 0.0), starts)
-    t0 = min(2.0 * sigma, 0.5 * t_low)
-    cov = np.clip((tv - t0) / np.maximum(peak - t0, 1e-6)[k], 0.0, 1.0) * near
-    fx = lx.astype(np.float64)
-    fy = ly.astype(np.float64)
-    s0 = np.add.reduceat(cov, starts)
-    s0 = np.maximum(s0, 1e-9)
-    mx = np.add.reduceat(cov * fx, starts) / s0
-    my = np.add.reduceat(cov * fy, starts) / s0
-    dx, dy = fx - mx[k], fy - my[k]
-    sxx = np.add.reduceat(cov * dx * dx, starts) / s0
-    syy = np.add.reduceat(cov * dy * dy, starts) / s0
-    sxy = np.add.reduceat(cov * dx * dy, starts) / s0
-    # Pixels are unit squares: remove their own variance (1/12) from the moments.
-    sxx_c = np.maximum(sxx - 1.0 / 12.0, 1e-6)
-    syy_c = np.maximum(syy - 1.0 / 12.0, 1e-6)
-    tr = sxx_c + syy_c
-    det_term = np.sqrt(((sxx_c - syy_c) * 0.5) ** 2 + sxy * sxy)
-    l1 = tr * 0.5 + det_term
-    l2 = np.maximum(tr * 0.5 - det_term, 1e-6)
-    a = 2.0 * np.sqrt(l1)
-    b = 2.0 * np.sqrt(l2)
-    theta = 0.5 * np.arctan2(2.0 * sxy, sxx_c - syy_c)
-    cx = x0 + mx
-    cy = y0 + my
-
-    n_half = np.add.reduceat(own.astype(np.float64), starts)
-    n_near = np.add.reduceat((near & (cov > 0)).astype(np.float64), starts)
-    # Unweighted centroid of the half-contrast region, for the symmetry feature.
-    hx = np.add.reduceat(own * fx, starts) / np.maximum(n_half, 1)
-    hy = np.add.reduceat(own * fy, starts) / np.maximum(n_half, 1)
-    ell_area = math.pi * a * b
-    bg_c = bg[np.clip(np.rint(cy).astype(np.int64), 0, h - 1),
-              np.clip(np.rint(cx).astype(np.int64), 0, w - 1)].astype(np.float64)
-    raw = np.take(image8.reshape(-1), flat)
-    sat_level = 255 if colour == WHITE else 0
-    saturated = np.add.reduceat((own & (raw == sat_level)).astype(np.float64), starts)
-    saturated = saturated > 0.3 * n_half
-
-    feats = np.column_stack([
-        np.log(np.maximum(peak, 1e-3) / sigma),
-        np.clip(peak / np.maximum(255.0 - bg_c, 1.0), 0, 2),
-        np.abs(1.0 - s0 / ell_area),
-        np.abs(1.0 - n_half / ell_area),
-        np.clip(n_near / np.maximum(n_half, 1), 0, 5),
-        np.hypot(hx - mx, hy - my) / np.maximum(b, 0.5),
-        b / a,
-    ])
-    # The measured axis scatters by a few tenths of a pixel (noise, blur, thin slivers), so
-    # the lower bound has a 0.5 px tolerance: a marker at the edge of the range is kept.
-    ok = (a >= min_radius - MIN_RADIUS_TOLERANCE) & (a <= max_radius)
-    ok &= np.isfinite(feats).all(axis=1)
+    # Refine each seed on the finest level where it is at most REFINE_RADIUS level-px
+    # (moments of an area-reduced image equal those of the original, and the pixel
+    # variance removed in the moments is that of the reduced pixel).
+    g = np.ones(cx.size, np.int64)
+    while True:
+        up = (a > REFINE_RADIUS * g) & np.isin(2 * g, list(pyramid))
+        if not up.any():
+            break
+        g[up] *= 2
+    n = cx.size
+    cx2, cy2, a2, b2, th2 = (np.zeros(n) for _ in range(5))
+    feats = np.zeros((n, len(FEATURE_NAMES)))
+    saturated, ok = np.zeros(n, bool), np.zeros(n, bool)
+    for f in np.unique(g):
+        i = np.flatnonzero(g == f)
+        dl, _, rl = pyramid[int(f)]
+        o = 0.5 * (f - 1)
+        r = _refine(dl, rl, max(0.7, sigma / f), (cx[i] - o) / f, (cy[i] - o) / f, a[i] / f,
+                    b[i] / f, th[i], colour)
+        cx2[i], cy2[i], a2[i], b2[i] = r[0] * f + o, r[1] * f + o, r[2] * f, r[3] * f
+        th2[i], feats[i], saturated[i], ok[i] = r[4], r[5], r[6], r[7]
+    ok &= (a2 >= min_radius - MIN_RADIUS_TOLERANCE) & (a2 <= max_radius)
     if mask is not None:
-        mc = np.asarray(mask)[np.clip(np.rint(cy).astype(np.int64), 0, h - 1),
-                              np.clip(np.rint(cx).astype(np.int64), 0, w - 1)]
+        mc = np.asarray(mask)[np.clip(np.rint(cy2).astype(np.int64), 0, h - 1),
+                              np.clip(np.rint(cx2).astype(np.int64), 0, w - 1)]
         ok &= mc.astype(bool)
+    idx = np.flatnonzero(ok)
+    # The same blob seen on two levels (close and of similar size): keep the finer
+    # level's copy.
+    if idx.size > 1 and np.unique(lev[idx]).size > 1:
+        from scipy.spatial import cKDTree
+
+        pts = np.column_stack([cx2[idx], cy2[idx]])
+        pairs = cKDTree(pts).query_pairs(0.5 * float(a2[idx].max()) + 1.0,
+                                         output_type="ndarray")
+        drop = np.zeros(idx.size, bool)
+        if len(pairs):
+            i, j = pairs[:, 0], pairs[:, 1]
+            dist = np.hypot(*(pts[i] - pts[j]).T)
+            same = (lev[idx[i]] != lev[idx[j]]) & (
+                dist <= 0.5 * np.minimum(b2[idx[i]], b2[idx[j]]) + 1.0)
+            # ... and of a similar size (texture inside a large dot is not the dot).
+            same &= np.abs(np.log(a2[idx[i]] / a2[idx[j]])) < 0.4
+            coarse = np.where(lev[idx[i]] > lev[idx[j]], i, j)
+            drop[coarse[same]] = True
+        idx = idx[~drop]
     return Candidates(
-        centre=np.column_stack([cx, cy])[ok],
-        axes=np.column_stack([a, b])[ok],
-        angle=theta[ok],
-        features=feats[ok],
-        saturated=saturated[ok],
+        centre=np.column_stack([cx2, cy2])[idx],
+        axes=np.column_stack([a2, b2])[idx],
+        angle=th2[idx],
+        features=feats[idx],
+        saturated=saturated[idx],
     )
 
 

@@ -50,7 +50,6 @@ from scipy.spatial import cKDTree
 
 from carapost.algorithms.camera import (
     CameraIntrinsics,
-    camera_centres,
     pixel_rays,
     pixels_to_normalised,
     project,
@@ -1072,13 +1071,13 @@ def track(
             pf = prev_frame
 
             def patch_fn(missing: NDArray[np.bool_], pred: NDArray[np.float64],
-                         _pf: int = pf, _f: int = frame) -> tuple[NDArray, NDArray]:
+                         _pf: int = pf, _f: int = frame, _obs: NDArray = prev_obs,
+                         _run: NDArray = patch_run) -> tuple[NDArray, NDArray]:
                 uv = np.full(pred.shape, np.nan)
                 score = np.full(pred.shape[:2], -1.0)
-                cand = missing & np.isfinite(prev_obs).all(-1) & \
-                    (patch_run < params.max_patch_frames)
+                cand = missing & np.isfinite(_obs).all(-1) & (_run < params.max_patch_frames)
                 for pp, cc in zip(*np.nonzero(cand), strict=True):
-                    u, s = patch_search(image(_pf, cc), image(_f, cc), prev_obs[pp, cc],
+                    u, s = patch_search(image(_pf, cc), image(_f, cc), _obs[pp, cc],
                                         pred[pp, cc], params.patch_match_size,
                                         params.face_point_max_elastic_prediction_distance)
                     uv[pp, cc], score[pp, cc] = u, s

@@ -1,0 +1,113 @@
+"""Tracking benchmark: speed of the tracker and accuracy of the headless pipeline.
+
+    python benchmarks/tracking.py [--frames 600] [--runs 3] [--skip-accuracy]
+
+Prints JSON lines:
+
+- ``tracking_fps``: frames per second of :func:`carapost.algorithms.tracking.track` over a
+  synthetic speech take (4 cameras, 89 face markers + 23 brim dots, detections present:
+  the truth projections plus noise, clutter and dropouts), median of ``--runs`` runs,
+  with ``reference_ratio`` = our fps / 0.7 fps (the reference guide's own log).
+- ``tracking_coverage``, ``tracking_swaps``, ``tracking_rmse_mm``: a rendered speech take
+  (standard markers) processed end to end by ``carapost.pipeline.process_take`` (blob
+  detection, automatic brim solve, automatic Initialize 3D at frame 0, tracking) and
+  scored with ``carapost.api.evaluate`` against its truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REFERENCE_FPS = 0.7
+
+
+def emit(metric: str, value: float | int | None, unit: str, **extra: object) -> None:
+    print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+
+
+def synthetic_detections(scene, rng):
+    F, M, C = scene.visible.shape
+    W, H = scene.size
+    out = []
+    for f in range(F):
+        per = []
+        for c in range(C):
+            v = scene.visible[f, :, c] & (rng.random(M) > 0.01)
+            cen = np.concatenate([scene.uv[f, v, c],
+                                  scene.brim_uv[f, scene.brim_visible[f, :, c], c],
+                                  rng.random((10, 2)) * [W, H]])
+            cen += rng.normal(0, 0.15, cen.shape)
+            per.append((cen[rng.permutation(len(cen))], np.full((len(cen), 2), 5.0)))
+        out.append(per)
+    return out
+
+
+def bench_speed(frames: int, runs: int) -> None:
+    from carapost.algorithms.tracking import InitialState, TrackingParameters, track
+    from carapost.synth import SynthConfig, build_scene
+
+    scene = build_scene(SynthConfig(preset="speech", frames=frames, seed=1))
+    dets = synthetic_detections(scene, np.random.default_rng(0))
+    M, B = len(scene.labels), len(scene.brim3d)
+    X0 = np.concatenate([scene.points3d[0], scene.brim3d])
+    kind = np.r_[np.zeros(M, np.int8), np.ones(B, np.int8)]
+    rates = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        res = track(lambda f: dets[f], InitialState(X0, kind), scene.cam_R[0], scene.cam_t[0],
+                    scene.intrinsics, TrackingParameters(), start=0, stop=frames - 1)
+        rates.append(res.frames_done / (time.perf_counter() - t0))
+    fps = statistics.median(rates)
+    emit("tracking_fps", round(fps, 1), "frames/s", cameras=scene.n_cameras, markers=M,
+         brim=B, frames=frames - 1, runs=[round(r, 1) for r in rates],
+         reference_ratio=round(fps / REFERENCE_FPS, 1))
+
+
+def bench_accuracy(frames: int, folder: Path) -> None:
+    from carapost.api import evaluate
+    from carapost.pipeline import process_take
+    from carapost.synth import SynthConfig, generate_take
+
+    take = folder / f"speech{frames}"
+    if not (take / "truth.npz").is_file():
+        generate_take(take, SynthConfig(preset="speech", frames=frames, seed=1,
+                                        take_name="speech"))
+    out = folder / f"speech{frames}.cara"
+    t0 = time.perf_counter()
+    info = process_take(take, output=out)
+    seconds = time.perf_counter() - t0
+    ev = evaluate(out, take / "truth.npz")
+    common = {"preset": "speech", "frames": frames, "pipeline_seconds": round(seconds, 1),
+              "stage_seconds": info["seconds"], "initialised": info["initialised"]}
+    emit("tracking_coverage", round(ev["coverage"], 4), "fraction", **common)
+    emit("tracking_swaps", ev["swaps"], "count", spurious_points=ev["spurious_points"])
+    emit("tracking_rmse_mm", None if ev["rmse_mm"] is None else round(ev["rmse_mm"], 3), "mm")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=600)
+    ap.add_argument("--accuracy-frames", type=int, default=300,
+                    help="frames of the rendered take (600 for the full acceptance run)")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /
+                    "carapost-bench-tracking")
+    args = ap.parse_args(argv)
+    bench_speed(args.frames, args.runs)
+    if not args.skip_accuracy:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        bench_accuracy(args.accuracy_frames, args.cache)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
