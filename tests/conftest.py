@@ -33,3 +33,16 @@ def fixtures_dir() -> Path:
 def rng() -> np.random.Generator:
     """A fixed-seed random generator, fresh for every test."""
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def synth_take(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A short rendered synthetic take (8 frames, 4 cameras, 1280x720), made once per run.
+
+    Returns the path of its ``<take>.json``; ``truth.npz`` lies beside it.
+    """
+    from carapost.synth import SynthConfig, generate_take
+
+    folder = tmp_path_factory.mktemp("synth_take")
+    return Path(generate_take(folder, SynthConfig(preset="speech", frames=8, seed=11),
+                              workers=1))

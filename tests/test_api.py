@@ -288,22 +288,15 @@ def test_open_project_finds_videos_beside_it(tmp_path):
     assert api.missing_files(reopened) == {}
 
 
-def test_process_take_imports_saves_and_reports_exports(tmp_path):
+def test_process_take_without_calibration_says_why_and_writes_nothing(tmp_path):
     take = tmp_path / "take"
     take.mkdir()
     for c in ("cam0", "cam1"):
         _video(take / f"T_{c}.mkv", n=6)
-    brim = tmp_path / "brim.csv"
-    brim.write_text("B1,0,0,0\nB2,5,0,0\n")
-    result = api.process_take(take / "T_cam0.mkv", output=tmp_path / "out", brim=brim,
-                              c3d=tmp_path / "out.c3d")
-    assert result["project"] == str((tmp_path / "out.cara").absolute())
-    assert result["frames"] == 6 and result["cameras"] == 2
-    assert result["stages"].startswith("import") and result["stages"].endswith("save")
-    assert result["c3d"].startswith("not written")  # no 3D points without the later stages
-    assert not (tmp_path / "out.c3d").exists()
-    reopened = api.open_project(result["project"])
-    assert reopened.take.metadata["brim_file"] == str(brim.absolute())
+    with pytest.raises(ValueError, match="no XCP calibration and no ROM"):
+        api.process_take(take / "T_cam0.mkv", output=tmp_path / "out.cara",
+                         c3d=tmp_path / "out.c3d")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["take"]
 
 
 def test_process_take_rejects_bad_input_before_any_work(tmp_path):

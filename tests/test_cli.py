@@ -98,27 +98,35 @@ def test_export_and_evaluate_commands(tmp_path, capsys):
     assert not (tmp_path / "o.xcp").exists()
 
 
-def test_process_command(tmp_path, capsys):
-    cam0 = _take(tmp_path / "take")
-    assert main(["process", str(cam0), "-o", str(tmp_path / "r.cara")]) == 0
+def test_process_command(tmp_path, capsys, synth_take):
+    assert main(["process", str(synth_take), "-o", str(tmp_path / "r.cara"),
+                 "--c3d", str(tmp_path / "r.c3d")]) == 0
     out = capsys.readouterr().out
     assert "project:" in out and (tmp_path / "r.cara").is_file()
+    assert (tmp_path / "r.c3d").is_file()
 
 
-def test_demo_headless_with_a_cached_take(tmp_path, capsys, monkeypatch):
-    """The headless demo on a tiny take standing in for the generated one."""
-    cam0 = _take(tmp_path / "cache" / "take", n=4)
-    monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (cam0, None))
+def test_process_command_bad_input_exits_2(tmp_path, capsys):
+    cam0 = _take(tmp_path / "take")  # videos only: no XCP, no ROM
+    assert main(["process", str(cam0), "-o", str(tmp_path / "r.cara")]) == 2
+    assert "no XCP calibration" in capsys.readouterr().err
+    assert not (tmp_path / "r.cara").exists()
+
+
+def test_demo_headless_with_a_cached_take(tmp_path, capsys, monkeypatch, synth_take):
+    """The headless demo on a short take standing in for the generated one."""
+    truth = synth_take.parent / "truth.npz"
+    monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, truth))
     out = tmp_path / "results"
     assert main(["demo", "--headless", "--frames", "4", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"Project:     {out / 'demo.cara'}" in text and "C3D:" in text
-    assert (out / "demo.cara").is_file()
+    assert (out / "demo.cara").is_file() and (out / "demo.c3d").is_file()
+    assert "Evaluation:" in text and (out / "evaluation.json").is_file()
 
 
-def test_demo_without_display_says_so(tmp_path, capsys, monkeypatch):
-    cam0 = _take(tmp_path / "take", n=3)
-    monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (cam0, None))
+def test_demo_without_display_says_so(tmp_path, capsys, monkeypatch, synth_take):
+    monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, None))
     for key in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"):
         monkeypatch.delenv(key, raising=False)
     assert demo.run_demo(frames=3, out=str(tmp_path / "r")) == 0

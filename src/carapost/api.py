@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,23 +29,18 @@ from carapost.commands.stack import Command, CommandError, CommandStack, Journal
 from carapost.io import cara
 from carapost.io.errors import CaraFileError
 from carapost.io.take_import import import_take as _import_take
-from carapost.io.take_import import read_brim_csv
 from carapost.model.project import (
     KIND_BRIM,
     KIND_FACE,
     RECON_FILTERED,
     RECON_INTERPOLATED,
     Project,
-    RomReference,
 )
 
 log = logging.getLogger("carapost.api")
 
 __all__ = [
-    "PROCESSING_STAGES",
-    "ProcessOptions",
     "RelocateFiles",
-    "Stage",
     "evaluate",
     "export_c3d",
     "export_fbx",
@@ -459,42 +453,6 @@ def export_xcp(project: Project, path: str | Path, *, frame: int | None = None) 
 # ----------------------------------------------------------------------------------------
 
 
-@dataclass
-class ProcessOptions:
-    """Inputs of the processing stages of `process_take`.
-
-    Attributes
-    ----------
-    rom : Path or None
-        ROM ``.cara`` project to initialise from.
-    brim : Path or None
-        Brim model file.
-    brim_labels, brim_xyz :
-        The brim model read from a ``.csv`` (labels, [B, 3] mm), when given.
-    progress : callable or None
-        ``progress(done, total) -> bool`` for long stages (False = cancel).
-    """
-
-    rom: Path | None = None
-    brim: Path | None = None
-    brim_labels: list[str] = field(default_factory=list)
-    brim_xyz: NDArray[np.float64] | None = None
-    progress: Callable[[int, int], bool] | None = None
-
-
-@dataclass
-class Stage:
-    """One processing step of the headless pipeline: ``run(project, options)``."""
-
-    name: str
-    run: Callable[[Project, ProcessOptions], None]
-
-
-#: Processing stages run by `process_take` between import and save, in order. Detection,
-#: camera solve, initialisation and tracking append themselves here as they land.
-PROCESSING_STAGES: list[Stage] = []
-
-
 def process_take(
     take: str | Path,
     *,
@@ -505,95 +463,15 @@ def process_take(
     fbx: str | Path | None = None,
     progress: Callable[[int, int], bool] | None = None,
 ) -> dict[str, Any]:
-    """Headless pipeline: import a take, run the processing stages, save, export.
+    """Headless pipeline: import, detect, solve the brim, initialise, track, save, export.
 
-    Parameters
-    ----------
-    take : str or Path
-        One camera file of the take, or its folder.
-    output : str or Path
-        Project file to write (``.cara``).
-    rom : str or Path, optional
-        ROM ``.cara`` project to initialise from.
-    brim : str or Path, optional
-        Brim model (``.csv`` label,x,y,z in mm, or ``.svg``).
-    c3d, fbx : str or Path, optional
-        Also export C3D / FBX here (face points, all frames). Skipped, with the reason in
-        the result, when the project has no 3D point data.
-    progress : callable, optional
-        Passed to the stages.
-
-    Returns
-    -------
-    dict
-        ``project`` (path written), ``take``, ``frames``, ``cameras``, ``stages`` (names
-        run) and, when asked, ``c3d`` / ``fbx`` (path written or why not).
-
-    Raises
-    ------
-    CaraFileError
-        Missing or unreadable inputs, unwritable outputs (checked before any work).
+    See :func:`carapost.pipeline.process_take` for the stages, the result and the
+    errors; every input is checked before any work and nothing is written on failure.
     """
-    # Check every input and output location first, so bad input costs nothing.
-    take = Path(take)
-    if not take.exists():
-        raise CaraFileError(take, "no such file or folder")
-    out = Path(output)
-    if out.suffix.lower() != ".cara":
-        out = out.with_name(out.name + ".cara")
-    if out.parent and not out.parent.is_dir():
-        raise CaraFileError(out, f"the folder {out.parent} does not exist")
-    exports = {k: _check_output(v, (f".{k}",)) for k, v in (("c3d", c3d), ("fbx", fbx)) if v}
-    options = ProcessOptions(progress=progress)
-    if rom is not None:
-        options.rom = Path(rom)
-        if not options.rom.is_file():
-            raise CaraFileError(options.rom, "ROM project not found")
-        if options.rom.suffix.lower() != ".cara":
-            raise CaraFileError(options.rom, "a ROM must be a .cara project")
-    if brim is not None:
-        options.brim = Path(brim)
-        if not options.brim.is_file():
-            raise CaraFileError(options.brim, "brim model not found")
-        if options.brim.suffix.lower() == ".csv":
-            options.brim_labels, options.brim_xyz = read_brim_csv(options.brim)
-        elif options.brim.suffix.lower() != ".svg":
-            raise CaraFileError(options.brim, "a brim model must be a .csv or .svg file")
+    from carapost.pipeline import process_take as run_pipeline
 
-    project = import_take(take)
-    if options.rom is not None:
-        project.rom = RomReference(path=str(options.rom.absolute()))
-    if options.brim is not None:
-        project.take.metadata["brim_file"] = str(options.brim.absolute())
-    stages = ["import"]
-    for stage in PROCESSING_STAGES:
-        log.info("Stage: %s", stage.name)
-        stage.run(project, options)
-        stages.append(stage.name)
-    written = save_project(project, out)
-    stages.append("save")
-    result: dict[str, Any] = {
-        "project": str(written),
-        "take": project.take.name,
-        "frames": project.n_frames,
-        "cameras": project.n_cameras,
-        "stages": ", ".join(stages),
-    }
-    has_data = bool(np.any(~np.isnan(
-        project.points.positions[:, project.points.kind == KIND_FACE, 0])))
-    for kind, target in exports.items():
-        if not has_data:
-            reason = ("not written: the project has no 3D face points (stages run: "
-                      f"{result['stages']})")
-            log.warning("%s %s", kind.upper(), reason)
-            result[kind] = reason
-            continue
-        if kind == "c3d":
-            export_c3d(project, target)
-        else:
-            export_fbx(project, target)
-        result[kind] = str(target)
-    return result
+    return run_pipeline(take, output=output, rom=rom, brim=brim, c3d=c3d, fbx=fbx,
+                        progress=progress)
 
 
 # ----------------------------------------------------------------------------------------

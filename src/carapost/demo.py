@@ -109,6 +109,24 @@ def ensure_demo_take(frames: int) -> tuple[Path, Path | None]:
     return folder / rel_take, (folder / info["truth"]) if info["truth"] else None
 
 
+def _process(take: Path, project_path: Path, results: Path) -> dict:
+    """Run the headless pipeline on the demo take, printing its progress."""
+    _say("Processing the demo take: detect blobs, solve the brim, initialise, track ...")
+    last = [-1]
+
+    def progress(done: int, total: int) -> bool:
+        pct = 100 * done // max(total, 1)
+        if pct // 10 != last[0]:
+            last[0] = pct // 10
+            _say(f"  {pct} %")
+        return True
+
+    from carapost import api
+
+    return api.process_take(take, output=project_path, c3d=results / "demo.c3d",
+                            fbx=results / "demo.fbx", progress=progress)
+
+
 def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = None) -> int:
     """Run the demo.
 
@@ -154,18 +172,20 @@ def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = Non
                 _say(f"The main window is not available in this build ({exc}); running the "
                      "headless pipeline instead.")
             else:
-                written = api.save_project(api.import_take(take), project_path)
-                _say(f"Opening {written}")
-                return int(run_gui(str(written)) or 0)
+                result = _process(take, project_path, results)
+                _say(f"Opening {result['project']}")
+                return int(run_gui(str(result["project"])) or 0)
         else:
             _say("No display found (DISPLAY and WAYLAND_DISPLAY are not set), so no window "
                  "can open; running the headless pipeline instead.")
 
-    result = api.process_take(take, output=project_path, c3d=results / "demo.c3d",
-                              fbx=results / "demo.fbx")
+    result = _process(take, project_path, results)
     print(f"Demo take:   {take}")
     print(f"Project:     {result['project']}")
-    print(f"Stages run:  {result['stages']}")
+    print(f"Points:      {result['points']} face markers ({result['initialised']} initialised"
+          f" at frame 0), {result['brim_points']} brim dots; brim from "
+          f"{result['brim_source']}")
+    print(f"Tracked:     {100 * result['tracked_fraction']:.1f} % of face point-frames")
     for kind in ("c3d", "fbx"):
         print(f"{kind.upper() + ':':<12} {result[kind]}")
     if truth is not None and truth.is_file():
