@@ -29,6 +29,7 @@ from carapost.commands.stack import Command, CommandError, CommandStack, Journal
 from carapost.io import cara
 from carapost.io.errors import CaraFileError
 from carapost.io.take_import import import_take as _import_take
+from carapost.io.take_import import read_brim_csv
 from carapost.model.project import (
     KIND_BRIM,
     KIND_FACE,
@@ -84,9 +85,19 @@ def save_project(project: Project, path: str | Path) -> Path:
 def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
     """Import Camera Files: a new project from one file (or the folder) of a take.
 
-    See `carapost.io.take_import.import_take` for the files a take is made of.
+    See `carapost.io.take_import.import_take` for the files a take is made of. When the
+    take carries its brim model (``<take>_brim.csv``), the project starts with those
+    brim points, ready for Solve Calibration Brim.
     """
-    return _import_take(path, relocate=relocate)
+    project = _import_take(path, relocate=relocate)
+    brim_file = project.take.metadata.get("brim_file")
+    if brim_file:
+        from carapost.commands.process import SetBrimModel
+
+        labels, xyz = read_brim_csv(brim_file)
+        SetBrimModel(labels, xyz, description="Calibration brim of the take").do(project)
+        log.info("Brim model of the take: %d dots from %s", len(xyz), brim_file)
+    return project
 
 
 # ----------------------------------------------------------------------------------------

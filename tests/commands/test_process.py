@@ -238,7 +238,7 @@ def test_detect_blobs_command_cameras_cancel_and_undo():
 
 def test_process_menu_entry_points_return_commands_for_the_current_frame():
     """The functions the main window calls (on a worker thread) build the same commands."""
-    from carapost.commands import process
+    from carapost.commands import menu as process
 
     p, scene, _ = synthetic_project(seed=4)
     p.calibration.set_static(scene.nominal_R, scene.nominal_t)

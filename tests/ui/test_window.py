@@ -233,14 +233,14 @@ def test_detect_blobs_current_frame_finds_the_dots(make_window, demo, qtbot):
 
 def test_process_failure_logged_red_and_shown_once(make_window, demo, qtbot, monkeypatch):
     p, frames = demo
-    module = types.ModuleType("carapost.commands.process")
+    module = types.ModuleType("carapost.commands.menu")
 
     def initialize_3d(project, progress):
         progress(1, 2)
         raise RuntimeError("no seed points")
 
     module.initialize_3d = initialize_3d
-    monkeypatch.setitem(sys.modules, "carapost.commands.process", module)
+    monkeypatch.setitem(sys.modules, "carapost.commands.menu", module)
     w = make_window(p, frames)
     w.run_process("initialize_3d")
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=5000)

@@ -7,8 +7,8 @@ imported the item is shown disabled with the tooltip :data:`NOT_AVAILABLE` and l
 once the code lands (no change here needed).
 
 Processing commands of other parts of the project plug in through
-``carapost.commands.process``: an item with ``handler="run_process"`` and ``arg="name"``
-calls ``carapost.commands.process.name(project, progress=progress, **options)`` on a
+``carapost.commands.menu``: an item with ``handler="run_process"`` and ``arg="name"``
+calls ``carapost.commands.menu.name(project, progress=progress, **options)`` on a
 worker thread; it returns a :class:`~carapost.commands.stack.Command` (or None), which
 the window pushes on the GUI thread as one undo entry.
 """
@@ -19,7 +19,7 @@ import importlib
 from dataclasses import dataclass
 
 NOT_AVAILABLE = "Not available yet"
-PROCESS_MODULE = "carapost.commands.process"
+PROCESS_MODULE = "carapost.commands.menu"
 
 #: Menu titles in menu-bar order.
 MENUS = ("File", "Edit", "View", "Process", "Help")

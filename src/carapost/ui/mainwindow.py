@@ -644,7 +644,7 @@ class MainWindow(QMainWindow):
 
     def import_take(self) -> None:
         """File > Import Camera Files: read a take on a worker thread."""
-        from carapost.io.take_import import import_take
+        from carapost.api import import_take
 
         if not self.maybe_save():
             return
@@ -658,8 +658,15 @@ class MainWindow(QMainWindow):
                           and self.set_project(project))
 
     def import_brim(self) -> None:
-        """File > Import Calibration Brim [svg]."""
-        self.run_process("import_brim_svg")
+        """File > Import Calibration Brim [svg]: a planar custom brim replaces the brim."""
+        from carapost.commands.process import ImportBrimSvg
+
+        path = self.dialogs.open_file("Import Calibration Brim [svg]",
+                                      "SVG files (*.svg);;All files (*)")
+        if not path:
+            return
+        self.make_and_push(lambda: ImportBrimSvg(self.project, path),
+                           "Import Calibration Brim [svg]")
 
     def show_brim_svg(self) -> None:
         """View > Show Calibration Brim SVG."""
@@ -768,7 +775,7 @@ class MainWindow(QMainWindow):
         self.runner.start(title, job, done)
 
     def run_process(self, hook: str) -> None:
-        """A Process-menu item provided by ``carapost.commands.process.<hook>``."""
+        """A Process-menu item provided by ``carapost.commands.menu.<hook>``."""
         try:
             module = importlib.import_module(action_table.PROCESS_MODULE)
             fn = getattr(module, hook)
@@ -789,20 +796,13 @@ class MainWindow(QMainWindow):
         self.runner.start(title, lambda progress: fn(project, progress=progress), done)
 
     def load_rom(self) -> None:
-        """Process > Load ROM."""
-        from carapost.io.cara import load_project
-        from carapost.io.errors import CaraFileError
-        from carapost.ui.uicommands import LoadRom
+        """Process > Load ROM (the ROM project is read and checked by the command)."""
+        from carapost.commands.tracking import LoadRom
 
         path = self.dialogs.open_file("Load ROM", CARA_FILTER)
         if not path:
             return
-        try:
-            rom = load_project(path)
-        except CaraFileError as exc:
-            self.report_error("Load ROM", str(exc))
-            return
-        self.make_and_push(lambda: LoadRom(self.project, path, rom), "Load ROM")
+        self.make_and_push(lambda: LoadRom(self.project, path), "Load ROM")
 
     def _job_started(self, title: str) -> None:
         self.progress.setRange(0, 0)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from carapost.commands.stack import Command, CommandError, Journal
-from carapost.model.project import KIND_BRIM, Project, RomReference, Stick
+from carapost.model.project import KIND_BRIM, Project, Stick
 
 
 class RenameLabel(Command):
@@ -64,27 +64,6 @@ class ApplyCalibration(Command):
         new.solved[:] = True
         new.xcp_extras = copy.deepcopy(self.calib.extras)
         project.calibration = new
-
-
-class LoadRom(Command):
-    """Process > Load ROM: keep another project as the ROM reference."""
-
-    def __init__(self, project: Project, path: str, rom: Project) -> None:
-        super().__init__()
-        if rom.n_cameras != project.n_cameras:
-            raise CommandError(f"{path}: the ROM has {rom.n_cameras} cameras, the take has "
-                               f"{project.n_cameras}")
-        self.rom = RomReference(path, rom)
-        self.description = "Load ROM"
-
-    def apply(self, project: Project, journal: Journal) -> None:
-        old = project.rom
-
-        def undo() -> None:
-            project.rom = old
-
-        journal.call(undo, "rom")
-        project.rom = self.rom
 
 
 class CreateStickMesh(Command):
