@@ -283,3 +283,34 @@ def test_random_edit_undo_sequences(ops, seed) -> None:
     while stack.redo():
         pass
     assert snapshot(project) == states[-1]
+
+
+def test_flipped_byte_in_an_array_is_caught(rng: np.random.Generator, tmp_path: Path) -> None:
+    project = _full_project(rng, tmp_path)
+    path = save_project(project, tmp_path / "shot.cara")
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo("points/positions.npy")
+    data = bytearray(path.read_bytes())
+    data[info.header_offset + 200 + len(info.filename)] ^= 0x40  # inside the payload
+    path.write_bytes(bytes(data))
+    with pytest.raises(CaraFileError, match="positions.npy is damaged"):
+        load_project(path)
+
+
+def test_opened_arrays_are_editable_and_never_write_back(
+    rng: np.random.Generator, tmp_path: Path
+) -> None:
+    project = _full_project(rng, tmp_path)
+    path = save_project(project, tmp_path / "shot.cara")
+    original = path.read_bytes()
+    loaded = load_project(path)
+    loaded.points.positions[:] = 42.0  # copy-on-write pages: only memory changes
+    stack = CommandStack(loaded)
+    stack.push(edit.ClearActiveRange(loaded))
+    stack.undo()
+    assert (loaded.points.positions == 42.0).all()
+    assert path.read_bytes() == original
+    # saving over the file the arrays are mapped from works and reads back
+    save_project(loaded, path)
+    again = load_project(path)
+    assert (again.points.positions == 42.0).all()
