@@ -164,7 +164,7 @@ def process_take(
         SolveBrimAuto,
     )
     from carapost.commands.stack import CommandError, CommandStack
-    from carapost.commands.tracking import InitializeFromRom, LoadRom, TrackCommand
+    from carapost.commands.tracking import InitializeFromRom, LoadRom, TrackTakeCommand
     from carapost.io.cara import save_project
     from carapost.io.take_import import import_take, read_brim_csv
     from carapost.io.video import TakeFrames
@@ -217,7 +217,7 @@ def process_take(
                 return None
             return lambda d, n: progress(offset + d, total)
 
-        total = 2 * F
+        total = 3 * F  # detection, then the forward and backward tracking passes
         # ---- detect blobs in every frame ----------------------------------------------
         t0 = time.perf_counter()
         try:
@@ -276,13 +276,12 @@ def process_take(
             raise ValueError("initialisation found no face marker at frame 0")
         seconds["initialise"] = time.perf_counter() - t0
 
-        # ---- track forwards over the whole take ---------------------------------------
+        # ---- track the whole take (forwards, finding missed markers, then backwards) ----
         t0 = time.perf_counter()
         project.set_active_range((0, F - 1))
         if F > 1:
             try:
-                cmd = TrackCommand(project, 1, point_ids=None, get_image=None,
-                                   progress=stage_progress(F, total))
+                cmd = TrackTakeCommand(project, 0, progress=stage_progress(F, total))
             except CommandError as exc:
                 raise ValueError(f"tracking: {exc}") from None
             if cmd.computation.cancelled:

@@ -397,3 +397,85 @@ def test_patch_tracking_bridges_a_missing_blob():
     err = np.linalg.norm(res.obs[:, p, 0] - scene.uv[1:4, p, 0], axis=-1)
     assert err.max() < 1.0
     assert np.all(res.quality[:, p, 0] >= 0.8)
+
+
+# ------------------------------------------------------------------------------------------
+# Whole-take tracking with markers found on the way
+# ------------------------------------------------------------------------------------------
+def take_quality(scene, positions):
+    """Evaluate-style metrics over every marker seen by >= 2 cameras (points matched by
+    mean distance, one-to-one): coverage, swaps, RMSE (mm), spurious points."""
+    from scipy.optimize import linear_sum_assignment
+
+    X = scene.points3d
+    Y = positions.astype(np.float64)
+    Y = Y[:, np.isfinite(Y[..., 0]).any(0)]
+    d = np.linalg.norm(Y[:, :, None] - X[:, None], axis=-1)  # (F, P, M)
+    cnt = np.isfinite(d).sum(0)
+    mean = np.where(cnt > 0, np.nansum(d, 0) / np.maximum(cnt, 1), 1e9)
+    r, c = linear_sum_assignment(mean)
+    ok = mean[r, c] <= 5.0
+    covered = np.zeros(X.shape[:2], bool)
+    err = []
+    for i, m in zip(r[ok], c[ok], strict=True):
+        covered[:, m] = np.nan_to_num(d[:, i, m], nan=np.inf) <= 2.0
+        err.append(d[:, i, m][np.isfinite(d[:, i, m])])
+    seen = scene.visible.sum(-1) >= 2
+    dn = np.nan_to_num(d, nan=np.inf)
+    hit = np.where(dn.min(2) <= 2.0, dn.argmin(2), -1)
+    swaps = sum(int(np.count_nonzero(np.diff(h[h >= 0]))) for h in hit.T)
+    e = np.concatenate(err)
+    return (float(covered[seen].mean()), swaps, float(np.sqrt(np.mean(e**2))),
+            int(Y.shape[1] - ok.sum()))
+
+
+def test_track_take_finds_markers_initialisation_missed():
+    """Initialised with only the markers four cameras see at frame 0, the take tracker
+    finds the rest and carries them back to frame 0 without doubles or swaps."""
+    from carapost.algorithms.tracking import make_spawner, track_take
+
+    scene = scene_of("speech", 60)
+    dets = synth_detections(scene, noise=0.05)
+    M, B = len(scene.labels), len(scene.brim3d)
+    X0 = np.concatenate([scene.points3d[0], scene.brim3d])
+    four = scene.visible[0].sum(-1) == 4
+    X0[:M][~four] = np.nan
+    kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
+    axes = np.full((M + B, 4, 2), 5.0)
+    res = track_take(lambda f: [(d[0], d[1]) for d in dets[f]], InitialState(X0, kind,
+                     axes=axes), scene.cam_R[0], scene.cam_t[0], scene.intrinsics,
+                     start=0, n_frames=60,
+                     spawn=make_spawner(scene.intrinsics, brim_model=scene.brim3d))
+    assert (res.first, res.last) == (0, 59)
+    assert res.n_new >= (~four & (scene.visible[0].sum(-1) >= 2)).sum() // 2
+    pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)
+    coverage, swaps, rmse, spurious = take_quality(scene, pos)
+    only_init, _, _, _ = take_quality(scene, res.positions[:, :M])
+    assert coverage >= 0.98 and coverage > only_init + 0.05
+    assert swaps == 0 and spurious == 0
+    assert rmse <= 0.3
+
+
+def test_track_take_command_appends_points_undo_redo():
+    from carapost.commands.tracking import TrackTakeCommand
+
+    scene = scene_of("speech", 30)
+    dets = synth_detections(scene)
+    prj = synth_project(scene, dets)
+    # forget a few initialised markers: the command must find them again
+    face = np.flatnonzero(prj.points.kind != KIND_BRIM)
+    prj.points.positions[0, face[:5]] = np.nan
+    prj.points.detection[0, face[:5]] = -1
+    prj.points.obs[0, face[:5]] = np.nan
+    stack = CommandStack(prj)
+    before = snapshot(prj)
+    n_before = prj.points.count
+    cmd = stack.push(TrackTakeCommand(prj, 0))
+    assert prj.points.count == n_before + cmd.computation.result.n_new
+    assert cmd.computation.result.n_new >= 3
+    assert prj.calibration.solved.all()
+    after = snapshot(prj)
+    assert stack.undo()
+    assert snapshot(prj) == before
+    assert stack.redo()
+    assert snapshot(prj) == after

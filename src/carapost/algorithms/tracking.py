@@ -182,6 +182,9 @@ class TrackResult(NamedTuple):
     frames_done : int
         Frames tracked (fewer than asked only when cancelled).
     cancelled : bool
+    n_new : int
+        Points found during tracking (``spawn``), appended after the initial ones (face
+        points; the point axis of the arrays is ``P + n_new``).
     """
 
     first: int
@@ -197,6 +200,7 @@ class TrackResult(NamedTuple):
     t: NDArray[np.float64]
     frames_done: int
     cancelled: bool
+    n_new: int = 0
 
 
 @dataclass
@@ -945,6 +949,16 @@ def patch_search(prev_image: NDArray[Any], image: NDArray[Any], prev_uv: ArrayLi
 # Sequence tracking
 # --------------------------------------------------------------------------------------
 
+#: ``spawn(frame, detections, used, positions, detection, R, t) -> (X [N, 3], det [N, C])``:
+#: markers found among the detections no point uses (see :func:`make_spawner`).
+Spawner = Callable[[int, FrameDetections, NDArray[np.bool_], NDArray[np.float64],
+                    NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]],
+                   tuple[NDArray[np.float64], NDArray[np.intp]]]
+
+#: Frames a point found by ``spawn`` must keep being triangulated to be kept.
+PROBATION_FRAMES = 3
+
+
 def track(
     detections: Callable[[int], FrameDetections],
     initial: InitialState,
@@ -958,6 +972,9 @@ def track(
     get_image: Callable[[int, int], NDArray[Any]] | None = None,
     resolve_cameras: bool = True,
     progress: Callable[[int, int], bool] | None = None,
+    spawn: Spawner | None = None,
+    spawn_interval: int = 1,
+    guide: ArrayLike | None = None,
 ) -> TrackResult:
     """Track points from frame ``start`` to frame ``stop`` (either direction).
 
@@ -983,6 +1000,19 @@ def track(
         Re-solve the cameras of each frame from the tracked brim points.
     progress : callable, optional
         ``progress(done, total)`` after each frame; False cancels and keeps what was done.
+    spawn : callable, optional
+        Finds markers among the detections no point uses (:data:`Spawner`, e.g.
+        :func:`make_spawner`). A found marker within a third of the marker spacing of a
+        lost point's neighbour-carried estimate revives that point; one far from every
+        point becomes a new face point, kept only if it is triangulated in each of the
+        next :data:`PROBATION_FRAMES` frames.
+    spawn_interval : int
+        Call ``spawn`` every this many frames.
+    guide : array_like, shape (F, Pg, 3), optional
+        Positions of the first ``Pg`` points from another pass over the take (mm, NaN
+        where unknown): a point not tracked in a frame where the guide has it restarts
+        from there (a backward pass carries every point found forwards back to its first
+        appearance; see :func:`track_take`).
 
     Returns
     -------
@@ -1008,6 +1038,11 @@ def track(
     per_frame = Ra.ndim == 4
     if Ra.shape[-3:] != (C, 3, 3) or ta.shape[-2:] != (C, 3):
         raise ValueError(f"R and t must be for {C} cameras, got {Ra.shape} and {ta.shape}")
+    G = None if guide is None else np.asarray(guide, np.float64)
+    if G is not None and (G.ndim != 3 or G.shape[2] != 3 or G.shape[1] > P):
+        raise ValueError(f"guide must be (F, Pg <= {P}, 3), got {G.shape}")
+    if int(spawn_interval) < 1:
+        raise ValueError(f"spawn_interval must be >= 1, got {spawn_interval!r}")
 
     def cams(frame: int) -> tuple[NDArray, NDArray]:
         return (Ra[frame], ta[frame]) if per_frame else (Ra, ta)
@@ -1015,38 +1050,64 @@ def track(
     step = 1 if stop >= start else -1
     frames = list(range(start + step, stop + step, step))
     n = len(frames)
-    has_brim = bool(np.any((kind == KIND_BRIM) & np.isfinite(X0).all(-1)))
+    brim = kind == KIND_BRIM
+    has_brim = bool(np.any(brim & np.isfinite(X0).all(-1)))
     resolve = resolve_cameras and has_brim
-    matcher = FrameMatcher(intr, kind, X0, params)
 
-    out_pos = np.full((n, P, 3), np.nan, np.float32)
-    out_recon = np.zeros((n, P), np.int8)
-    out_res = np.full((n, P), np.nan, np.float32)
-    out_obs = np.full((n, P, C, 2), np.nan, np.float32)
-    out_src = np.zeros((n, P, C), np.int8)
-    out_det = np.full((n, P, C), -1, np.int32)
-    out_q = np.zeros((n, P, C), np.float16)
+    # Per-point state (grows when spawn finds new markers).
+    st: dict[str, NDArray[Any]] = {
+        "X_est": X0.copy(),
+        "alive": np.isfinite(X0).all(-1),
+        "velocity": np.zeros((P, 3)),
+        "last_seen": np.isfinite(X0).all(-1),
+        "prev_obs": (np.full((P, C, 2), np.nan) if initial.obs is None
+                     else np.asarray(initial.obs, np.float64).copy()),
+        "prev_axes": (np.full((P, C, 2), np.nan) if initial.axes is None
+                      else np.asarray(initial.axes, np.float64).copy()),
+        "patch_run": np.zeros((P, C), np.int32),
+        "X_ref": X0.copy(),
+        "born": np.full(P, -1, np.intp),
+        "kind": kind.copy(),
+    }
+    out: dict[str, NDArray[Any]] = {
+        "positions": np.full((n, P, 3), np.nan, np.float32),
+        "recon": np.zeros((n, P), np.int8),
+        "residual": np.full((n, P), np.nan, np.float32),
+        "obs": np.full((n, P, C, 2), np.nan, np.float32),
+        "source": np.zeros((n, P, C), np.int8),
+        "detection": np.full((n, P, C), -1, np.int32),
+        "quality": np.zeros((n, P, C), np.float16),
+    }
+    fills = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan,
+             "source": 0, "detection": -1, "quality": 0}
+    st_fills = {"X_est": np.nan, "alive": False, "velocity": 0.0, "last_seen": False,
+                "prev_obs": np.nan, "prev_axes": np.nan, "patch_run": 0, "X_ref": np.nan,
+                "born": -1, "kind": KIND_FACE}
     out_R = np.zeros((n, C, 3, 3))
     out_t = np.zeros((n, C, 3))
 
-    # State carried from frame to frame.
-    X_est = X0.copy()
-    alive = np.isfinite(X0).all(-1)
-    velocity = np.zeros((P, 3))
-    last_seen = alive.copy()
-    prev_obs = (np.full((P, C, 2), np.nan) if initial.obs is None
-                else np.asarray(initial.obs, np.float64).copy())
-    prev_axes = (np.full((P, C, 2), np.nan) if initial.axes is None
-                 else np.asarray(initial.axes, np.float64).copy())
-    patch_run = np.zeros((P, C), np.int32)
-    face = matcher.face
-    X_ref = X0.copy()
-    face_pad = np.concatenate([X0[face], np.full((1, 3), np.nan)])
-    NB_ref = face_pad[matcher.nb]  # (P_face, k, 3)
+    def grow(m: int) -> None:
+        for d, fl, ax in ((st, st_fills, 0), (out, fills, 1)):
+            for key, arr in d.items():
+                shape = list(arr.shape)
+                shape[ax] = m
+                d[key] = np.concatenate([arr, np.full(shape, fl[key], arr.dtype)], axis=ax)
+
+    def rebuild() -> tuple[FrameMatcher, NDArray, NDArray]:
+        # a new neighbour graph: every point's reference restarts from the current
+        # estimates (its own and its new neighbours', taken at the same time)
+        rest = np.where(st["alive"][:, None], st["X_est"], np.nan)
+        m = FrameMatcher(intr, st["kind"], rest, params)
+        st["X_ref"] = rest.copy()
+        pad = np.concatenate([rest[m.face], np.full((1, 3), np.nan)])
+        return m, pad, pad[m.nb]
+
+    matcher, face_pad, NB_ref = rebuild()
     Rc, tc = cams(start)
     Rc, tc = Rc.copy(), tc.copy()
     prev_frame = start
     images: dict[tuple[int, int], NDArray[Any]] = {}
+    spacing = _spacing(X0[~brim])
 
     def image(frame: int, cam: int) -> NDArray[Any]:
         key = (frame, cam)
@@ -1057,22 +1118,24 @@ def track(
     done = 0
     cancelled = False
     for i, frame in enumerate(frames):
-        fr = _pack(detections(frame), C)
+        raw = detections(frame)
+        fr = _pack(raw, C)
         if not resolve and (per_frame or i == 0):
             Rc, tc = cams(frame)
-        X_pred = X_est.copy()
-        X_pred[alive & last_seen] += params.velocity_weight * velocity[alive & last_seen]
+        alive, last_seen = st["alive"], st["last_seen"]
+        X_pred = st["X_est"].copy()
+        X_pred[alive & last_seen] += params.velocity_weight * \
+            st["velocity"][alive & last_seen]
         X_pred[~alive] = np.nan
-        brim = kind == KIND_BRIM
-        X_pred[brim] = X0[brim]
+        X_pred[:P][brim] = X0[brim]  # brim points are known structure (never spawned)
 
         patch_fn = None
         if get_image is not None:
             pf = prev_frame
 
             def patch_fn(missing: NDArray[np.bool_], pred: NDArray[np.float64],
-                         _pf: int = pf, _f: int = frame, _obs: NDArray = prev_obs,
-                         _run: NDArray = patch_run) -> tuple[NDArray, NDArray]:
+                         _pf: int = pf, _f: int = frame, _obs: NDArray = st["prev_obs"],
+                         _run: NDArray = st["patch_run"]) -> tuple[NDArray, NDArray]:
                 uv = np.full(pred.shape, np.nan)
                 score = np.full(pred.shape[:2], -1.0)
                 cand = missing & np.isfinite(_obs).all(-1) & (_run < params.max_patch_frames)
@@ -1084,39 +1147,128 @@ def track(
                 return uv, score
 
         res = matcher.match_frame(
-            fr, X_pred, Rc, tc, prev_axes, reacquire=alive & ~last_seen, patch=patch_fn,
-            resolve_cameras=resolve, ref=(X_ref, NB_ref),
+            fr, X_pred, Rc, tc, st["prev_axes"], reacquire=alive & ~last_seen,
+            patch=patch_fn, resolve_cameras=resolve, ref=(st["X_ref"], NB_ref),
         )
         Rc, tc = res["R"], res["t"]
+        pos, X_el = res["positions"], res["X_elastic"]
+        got = np.isfinite(pos).all(-1)
+        restart = np.zeros_like(got)
+        X_restart = np.full_like(pos, np.nan)
+        if G is not None:
+            g = G[frame]
+            Pg = g.shape[0]
+            restart[:Pg] = ~got[:Pg] & np.isfinite(g).all(-1) & (st["kind"][:Pg] != KIND_BRIM)
+            X_restart[:Pg] = g
+        new_rows: NDArray[np.intp] = np.zeros(0, np.intp)
+        if spawn is not None and i % int(spawn_interval) == 0:
+            used = np.zeros((C, max(fr.centres.shape[1], 1)), bool)
+            d = res["detection"]
+            for c in range(C):
+                used[c, d[:, c][d[:, c] >= 0]] = True
+            face_pos = np.where((st["kind"] != KIND_BRIM)[:, None], pos, np.nan)
+            Xs, ds = spawn(frame, raw, used, face_pos, d, Rc, tc)
+            Xs = np.asarray(Xs, np.float64).reshape(-1, 3)
+            ds = np.asarray(ds, np.intp).reshape(-1, C)
+            if len(Xs):
+                face_now = st["kind"] != KIND_BRIM
+                lost = np.flatnonzero(alive & ~got & ~restart & face_now
+                                      & np.isfinite(X_el).all(-1))
+                gate = spacing / 3.0
+                take = np.full(len(Xs), -1, np.intp)
+                # nearest tracked point: a find this close to one is its double, not new
+                tracked = pos[got & face_now]
+                dk = (cKDTree(tracked).query(Xs)[0] if len(tracked)
+                      else np.full(len(Xs), np.inf))
+                far = dk > 0.5 * spacing
+                if lost.size:
+                    # a lost point takes the find nearest its carried estimate, when no
+                    # tracked point is nearer to that find
+                    dd = np.linalg.norm(Xs[:, None] - X_el[lost][None], axis=-1)
+                    ok = (dd <= gate) & (dd < dk[:, None])
+                    cost = np.where(ok, dd / spacing, _BIG)
+                    take = _assign(cost)
+                    take = np.where(take >= 0, lost[np.maximum(take, 0)], -1)
+                new = np.flatnonzero((take < 0) & far)
+                old = np.flatnonzero(take >= 0)
+                rows = take[old]
+                if new.size:
+                    P_now = st["kind"].size
+                    grow(new.size)
+                    new_rows = np.arange(P_now, P_now + new.size)
+                    st["born"][new_rows] = i
+                    pad = new.size
+                    pos = np.concatenate([pos, np.full((pad, 3), np.nan)])
+                    X_el = np.concatenate([X_el, np.full((pad, 3), np.nan)])
+                    got = np.r_[got, np.zeros(pad, bool)]
+                    restart = np.r_[restart, np.zeros(pad, bool)]
+                    X_restart = np.concatenate([X_restart, np.full((pad, 3), np.nan)])
+                    res = {k: (np.concatenate([v, np.full((pad,) + v.shape[1:], fills[k],
+                                                          v.dtype)])
+                               if k in fills else v) for k, v in res.items()}
+                    rows = np.r_[rows, new_rows]
+                    old = np.r_[old, new]
+                if rows.size:
+                    cc = np.arange(C)[None, :]
+                    dsel = ds[old]
+                    uv = np.where((dsel >= 0)[..., None], fr.centres[cc, np.maximum(dsel, 0)],
+                                  np.nan)
+                    pos[rows] = Xs[old]
+                    got[rows] = True
+                    res["positions"] = pos
+                    res["recon"][rows] = RECON_TRIANGULATED
+                    res["residual"][rows] = 0.0
+                    res["obs"][rows] = uv
+                    res["detection"][rows] = dsel
+                    res["source"][rows] = np.where(dsel >= 0, SOURCE_BLOB, SOURCE_NONE)
+                    res["quality"][rows] = np.where(dsel >= 0, 1.0, 0.0)
+                    st["alive"][rows] = True
+        # points on probation that were not triangulated are dropped altogether
+        born = st["born"]
+        probe = (born >= 0) & (i - born <= PROBATION_FRAMES) & st["alive"]
+        fail = probe & ~(res["recon"] == RECON_TRIANGULATED)
+        if fail.any():
+            for key in ("positions", "recon", "residual", "obs", "source", "detection",
+                        "quality"):
+                res[key][fail] = fills[key]
+                out[key][:, fail] = fills[key]
+            st["alive"][fail] = False
+            st["X_est"][fail] = np.nan
+            st["X_ref"][fail] = np.nan
+            got = got & ~fail
+            pos = res["positions"]
         k = frame - min(frames[0], frames[-1])
-        out_pos[k] = res["positions"]
-        out_recon[k] = res["recon"]
-        out_res[k] = res["residual"]
-        out_obs[k] = res["obs"]
-        out_src[k] = res["source"]
-        out_det[k] = res["detection"]
-        out_q[k] = res["quality"]
+        for key in out:
+            out[key][k] = res[key]
         out_R[k], out_t[k] = Rc, tc
 
-        got = np.isfinite(res["positions"]).all(-1)
-        X_new = np.where(got[:, None], res["positions"], res["X_elastic"])
+        alive, last_seen = st["alive"], st["last_seen"]
+        X_new = np.where(got[:, None], pos, X_el)
+        X_new = np.where(restart[:, None], X_restart, X_new)
+        seen_now = got | restart
         moved = got & last_seen
-        velocity = np.where(moved[:, None], X_new - X_est, 0.0)
-        X_est = np.where(alive[:, None], X_new, X_est)
-        last_seen = got
-        tri = res["recon"][face] == RECON_TRIANGULATED
-        if tri.any():
-            face_pad[:-1] = np.where((res["recon"][face] == RECON_TRIANGULATED)[:, None],
-                                     res["positions"][face], np.nan)
-            X_ref[face[tri]] = res["positions"][face[tri]]
-            NB_ref[tri] = face_pad[matcher.nb[tri]]
+        st["velocity"] = np.where(moved[:, None], X_new - st["X_est"], 0.0)
+        joined = restart & ~alive
+        st["alive"] = alive = alive | restart
+        st["X_est"] = np.where(alive[:, None], X_new, st["X_est"])
+        st["last_seen"] = seen_now
         d = res["detection"]
         cc = np.arange(C)[None, :]
         new_axes = fr.axes[cc, np.maximum(d, 0)]
-        prev_axes = np.where((d >= 0)[..., None], new_axes, prev_axes)
+        st["prev_axes"] = np.where((d >= 0)[..., None], new_axes, st["prev_axes"])
         has_obs = np.isfinite(res["obs"]).all(-1)
-        prev_obs = np.where(has_obs[..., None], res["obs"], np.nan)
-        patch_run = np.where(res["source"] == SOURCE_PATCH, patch_run + 1, 0)
+        st["prev_obs"] = np.where(has_obs[..., None], res["obs"], np.nan)
+        st["patch_run"] = np.where(res["source"] == SOURCE_PATCH, st["patch_run"] + 1, 0)
+        ref_now = (res["recon"] == RECON_TRIANGULATED) | restart
+        st["X_ref"] = np.where(ref_now[:, None], X_new, st["X_ref"])
+        if new_rows.size or joined.any() or fail.any():
+            matcher, face_pad, NB_ref = rebuild()
+        else:
+            face = matcher.face
+            tri = ref_now[face]
+            if tri.any():
+                face_pad[:-1] = np.where(tri[:, None], X_new[face], np.nan)
+                NB_ref[tri] = face_pad[matcher.nb[tri]]
         if get_image is not None:
             for key in [key for key in images if key[0] != frame]:
                 del images[key]
@@ -1126,12 +1278,301 @@ def track(
             cancelled = done < n
             break
 
+    # points that never passed probation are not returned
+    P_all = st["kind"].size
+    keep = np.ones(P_all, bool)
+    keep[P:] = np.isfinite(out["positions"][:, P:, 0]).any(0)
     if step > 0:
         first, last = start + 1, start + done
         sl = slice(0, done)
     else:
         first, last = start - done, start - 1
         sl = slice(n - done, n)
-    return TrackResult(first, last, out_pos[sl], out_recon[sl], out_res[sl], out_obs[sl],
-                       out_src[sl], out_det[sl], out_q[sl], out_R[sl], out_t[sl], done,
-                       cancelled)
+    o = {key: arr[sl][:, keep] for key, arr in out.items()}
+    return TrackResult(first, last, o["positions"], o["recon"], o["residual"], o["obs"],
+                       o["source"], o["detection"], o["quality"], out_R[sl], out_t[sl], done,
+                       cancelled, int(keep[P:].sum()))
+
+
+def _spacing(X: NDArray[np.float64]) -> float:
+    """Median nearest-neighbour distance of the finite rows of ``X`` (mm; 10 if unknown)."""
+    X = X[np.isfinite(X).all(-1)]
+    if len(X) < 2:
+        return 10.0
+    d, _ = cKDTree(X).query(X, k=2)
+    return float(np.median(d[:, 1]))
+
+
+def make_spawner(
+    intr: CameraIntrinsics,
+    caddies: Sequence[tuple[int, int]] | None = None,
+    init_params: Any = None,
+    *,
+    brim_model: ArrayLike | None = None,
+    size_ratio: float = 2.0,
+    min_views: int = 2,
+) -> Spawner:
+    """A :data:`Spawner` that runs Initialize 3D on the detections no point uses.
+
+    The points tracked in the frame with two or more cameras are the seeds (so growth
+    starts from them and nothing is created twice); detections used by other points, and
+    with ``brim_model`` those in the brim's image region, are left out.
+
+    Parameters
+    ----------
+    intr : CameraIntrinsics
+    caddies : sequence of (int, int), optional
+        Camera pairs of one caddy (default (0, 1), (2, 3), ...).
+    init_params : Init3DParameters, optional
+        Initialize 3D parameters (the final bundle adjustment is always off here).
+    brim_model : array_like, shape (B, 3), optional
+        Brim structure (mm): detections around its projection are never face markers.
+    size_ratio : float
+        A found marker's blobs must be within this factor of the median blob size of the
+        tracked markers in the same camera (nostrils, eyes and the like are bigger).
+    min_views : int
+        Fewest cameras a found marker must be seen by.
+
+    Returns
+    -------
+    Spawner
+    """
+    from dataclasses import replace
+
+    from carapost.algorithms.brim import brim_exclusion_mask
+    from carapost.algorithms.init3d import Init3DParameters, initialize_3d
+
+    C = intr.n_cameras
+    cad = tuple(caddies) if caddies is not None else tuple(
+        (i, i + 1) for i in range(0, C - 1, 2))
+    ip = replace(init_params or Init3DParameters(), bundle_adjust=False)
+    bm = None if brim_model is None else np.asarray(brim_model, np.float64).reshape(-1, 3)
+    empty = (np.zeros((0, 3)), np.zeros((0, C), np.intp))
+
+    def spawn(frame: int, dets: FrameDetections, used: NDArray[np.bool_],
+              positions: NDArray[np.float64], detection: NDArray[np.intp],
+              R: NDArray[np.float64], t: NDArray[np.float64]
+              ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        cen = [np.asarray(d[0], np.float64).reshape(-1, 2) for d in dets]
+        seed = np.isfinite(positions).all(-1) & ((detection >= 0).sum(1) >= 2)
+        seeds = detection[seed]
+        exclude = []
+        for c in range(C):
+            m = np.zeros(len(cen[c]), bool)
+            u = used[c, :len(cen[c])]
+            m[: u.size] = u
+            s = seeds[:, c]
+            m[s[s >= 0]] = False
+            exclude.append(m)
+        if bm is not None:
+            region = brim_exclusion_mask(cen, bm, R, t, intr)
+            exclude = [e | r for e, r in zip(exclude, region, strict=True)]
+        free = sum(int((~e).sum()) for e in exclude) - int((seeds >= 0).sum())
+        if free < min_views:
+            return empty
+        try:
+            res = initialize_3d(cen, R, t, intr, caddies=cad,
+                                seeds=[list(r) for r in seeds] or None,
+                                exclude_mask=exclude, params=ip)
+        except ValueError:
+            return empty
+        if not res.success or len(res.points) <= res.n_seeds:
+            return empty
+        X = res.points[res.n_seeds:]
+        dn = res.detections[res.n_seeds:]
+        ok = np.isfinite(X).all(-1) & ((dn >= 0).sum(1) >= min_views)
+        if size_ratio > 0:
+            for c in range(C):
+                ax = dets[c][1]
+                if ax is None or not len(seeds):
+                    continue
+                ax = np.asarray(ax, np.float64).reshape(-1, 2)
+                s = seeds[:, c][seeds[:, c] >= 0]
+                if s.size < 3:
+                    continue
+                ref = float(np.median(ax[s].max(1)))
+                has = dn[:, c] >= 0
+                a = ax[np.maximum(dn[:, c], 0)].max(1)
+                ok &= ~has | ((a <= size_ratio * ref) & (a >= ref / size_ratio))
+        return X[ok], dn[ok]
+
+    return spawn
+
+
+def track_take(
+    detections: Callable[[int], FrameDetections],
+    initial: InitialState,
+    R: ArrayLike,
+    t: ArrayLike,
+    intr: CameraIntrinsics,
+    params: TrackingParameters | None = None,
+    *,
+    start: int,
+    n_frames: int,
+    spawn: Spawner | None = None,
+    spawn_interval: int = 1,
+    resolve_cameras: bool = True,
+    progress: Callable[[int, int], bool] | None = None,
+    min_frames: int = 10,
+    merge_mm: float = 1.0,
+) -> TrackResult:
+    """Track a whole take from one initialised frame, finding missed markers on the way.
+
+    1. Forwards from ``start`` to the last frame, with ``spawn`` finding markers no point
+       has yet (and reviving lost points).
+    2. Backwards from the last frame to frame 0 with every point, guided by the forward
+       pass: a point restarts wherever the forward pass had it, so each marker is tracked
+       back from where it was found to where it first appears.
+    3. Merge: the forward result where it has a point, else the backward one. Points
+       found during tracking that coincide (median distance below ``merge_mm``) with an
+       earlier point are merged into it, and found points triangulated in fewer than
+       ``min_frames`` frames are dropped.
+
+    Parameters
+    ----------
+    detections, initial, R, t, intr, params, spawn, spawn_interval, resolve_cameras
+        As for :func:`track`.
+    start : int
+        Frame holding ``initial``.
+    n_frames : int
+        Frames in the take.
+    progress : callable, optional
+        ``progress(done, total)`` over both passes; False cancels (``cancelled`` set).
+    min_frames : int
+    merge_mm : float
+
+    Returns
+    -------
+    TrackResult
+        Arrays for every frame ``0..n_frames - 1`` (``first`` 0, ``last`` n_frames - 1);
+        the ``start`` row of the initial points is the backward pass's re-estimate.
+    """
+    params = TrackingParameters() if params is None else params
+    F = int(n_frames)
+    if not 0 <= start < F:
+        raise ValueError(f"start frame {start} is outside the take (0-{F - 1})")
+    P = np.asarray(initial.positions).shape[0]
+    kind0 = np.asarray(initial.kind, np.int8)
+    C = intr.n_cameras
+    L = F - 1
+    total = (L - start) + L
+
+    def prog(offset: int) -> Callable[[int, int], bool] | None:
+        if progress is None:
+            return None
+        return lambda d, n: progress(offset + d, total)
+
+    names = ("positions", "recon", "residual", "obs", "source", "detection", "quality")
+    fills = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan,
+             "source": 0, "detection": -1, "quality": 0}
+    shapes = {"positions": (3,), "recon": (), "residual": (), "obs": (C, 2), "source": (C,),
+              "detection": (C,), "quality": (C,)}
+    dtypes = {"positions": np.float32, "recon": np.int8, "residual": np.float32,
+              "obs": np.float32, "source": np.int8, "detection": np.int32,
+              "quality": np.float16}
+
+    def empty(p: int) -> dict[str, NDArray[Any]]:
+        return {k: np.full((F, p) + shapes[k], fills[k], dtypes[k]) for k in names}
+
+    Rall = np.zeros((F, C, 3, 3))
+    tall = np.zeros((F, C, 3))
+    R0 = np.asarray(R, np.float64)
+    t0 = np.asarray(t, np.float64)
+    Rs, ts = (R0[start], t0[start]) if R0.ndim == 4 else (R0, t0)
+    Rall[start], tall[start] = Rs, ts
+    # ---- forwards ------------------------------------------------------------------------
+    P1 = P
+    fwd = None
+    cancelled = False
+    done = 0
+    if start < L:
+        fwd = track(detections, initial, R, t, intr, params, start=start, stop=L,
+                    resolve_cameras=resolve_cameras, progress=prog(0), spawn=spawn,
+                    spawn_interval=spawn_interval)
+        P1 = P + fwd.n_new
+        cancelled = fwd.cancelled
+        done += fwd.frames_done
+    A = empty(P1)
+    X_start = np.asarray(initial.positions, np.float64)
+    A["positions"][start, :P] = X_start
+    A["recon"][start, :P] = np.where(np.isfinite(X_start).all(-1), RECON_TRIANGULATED,
+                                     RECON_NONE)
+    if initial.obs is not None:
+        A["obs"][start, :P] = initial.obs
+    if fwd is not None and fwd.frames_done:
+        sl = slice(fwd.first, fwd.last + 1)
+        for k in names:
+            A[k][sl] = getattr(fwd, k)
+        Rall[sl], tall[sl] = fwd.R, fwd.t
+    kind1 = np.r_[kind0, np.full(P1 - P, KIND_FACE, np.int8)]
+    last = start if fwd is None else start + fwd.frames_done
+    if cancelled or last == 0:
+        return _take_result(A, Rall, tall, 0, last, done, cancelled, kind1, P, min_frames,
+                            merge_mm)
+    # ---- backwards from the last tracked frame, guided by the forward pass ---------------
+    guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
+                     A["positions"].astype(np.float64), np.nan)
+    guide[:, kind1 == KIND_BRIM] = np.nan
+    Xl = A["positions"][last].astype(np.float64)
+    brim = kind1 == KIND_BRIM
+    Xl[brim] = np.r_[X_start, np.full((P1 - P, 3), np.nan)][brim]
+    init_b = InitialState(Xl, kind1, A["obs"][last].astype(np.float64))
+    bwd = track(detections, init_b, Rall[last], tall[last], intr, params, start=last,
+                stop=0, resolve_cameras=resolve_cameras, progress=prog(L - start),
+                spawn=spawn, spawn_interval=spawn_interval, guide=guide)
+    done += bwd.frames_done
+    P2 = P1 + bwd.n_new
+    B = empty(P2)
+    for k in names:
+        B[k][:, :P1] = A[k]
+    if bwd.frames_done:
+        sl = slice(bwd.first, bwd.last + 1)
+        # backward fills what the forward pass did not have (and every frame before start)
+        fill = (B["recon"][sl] == RECON_NONE)
+        fill[:, :P1] |= np.arange(bwd.first, bwd.last + 1)[:, None] < start
+        fill[:, P1:] = True
+        for k in names:
+            cur = B[k][sl]
+            new = getattr(bwd, k)
+            m = fill.reshape(fill.shape + (1,) * (cur.ndim - 2))
+            B[k][sl] = np.where(m, new, cur)
+        before = np.arange(bwd.first, bwd.last + 1) < start
+        Rall[sl][before], tall[sl][before] = bwd.R[before], bwd.t[before]
+    kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
+    first = bwd.first if bwd.frames_done else start
+    return _take_result(B, Rall, tall, first, last, done, bwd.cancelled, kind2, P, min_frames,
+                        merge_mm)
+
+
+def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
+                 done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
+                 merge_mm: float) -> TrackResult:
+    """Merge doubles among the found points, drop short ones, build the result."""
+    X = A["positions"].astype(np.float64)
+    n_all = X.shape[1]
+    keep = np.ones(n_all, bool)
+    face = np.flatnonzero(kind != KIND_BRIM)
+    for q in range(P, n_all):
+        others = face[(face < q) & keep[face]]
+        if others.size == 0:
+            continue
+        d = np.linalg.norm(X[:, others] - X[:, q:q + 1], axis=-1)  # (F, n)
+        both = np.isfinite(d)
+        cnt = both.sum(0)
+        med = np.array([np.median(d[both[:, j], j]) if cnt[j] else np.inf
+                        for j in range(others.size)])
+        j = int(np.argmin(med))
+        if med[j] <= merge_mm:
+            o = others[j]
+            gap = ~np.isfinite(X[:, o]).all(-1) & np.isfinite(X[:, q]).all(-1)
+            for k in A:
+                A[k][gap, o] = A[k][gap, q]
+            X[gap, o] = X[gap, q]
+            keep[q] = False
+    tri = (A["recon"] == RECON_TRIANGULATED).sum(0)
+    keep[P:] &= tri[P:] >= min_frames
+    sl = slice(first, last + 1)
+    o = {k: v[sl][:, keep] for k, v in A.items()}
+    return TrackResult(first, last, o["positions"], o["recon"], o["residual"], o["obs"],
+                       o["source"], o["detection"], o["quality"], R[sl], t[sl], done,
+                       cancelled, int(keep[P:].sum()))

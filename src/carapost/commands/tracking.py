@@ -29,7 +29,9 @@ from carapost.algorithms.tracking import (
     RaggedDetections,
     TrackingParameters,
     TrackResult,
+    make_spawner,
     track,
+    track_take,
 )
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import (
@@ -52,6 +54,8 @@ __all__ = [
     "TrackCommand",
     "TrackComputation",
     "TrackResultCommand",
+    "TrackTakeCommand",
+    "compute_take_tracking",
     "compute_rom_initialisation",
     "compute_tracking",
 ]
@@ -311,6 +315,162 @@ class TrackCommand(TrackResultCommand):
                                 point_ids=point_ids, frame=frame, progress=progress,
                                 get_image=get_image)
         super().__init__(comp)
+
+
+@dataclass
+class TakeTrackComputation:
+    """What :func:`compute_take_tracking` found (nothing of the project is changed).
+
+    Attributes
+    ----------
+    result : TrackResult
+        Every frame of the take; the point axis is ``point_ids`` then ``n_new`` new face
+        points.
+    point_ids : list of int
+    start : int
+        The initialised frame (its rows of the existing points are not overwritten).
+    description : str
+    """
+
+    result: TrackResult
+    point_ids: list[int]
+    start: int
+    description: str = "Track Take"
+
+    @property
+    def cancelled(self) -> bool:
+        """True when the user cancelled."""
+        return bool(self.result.cancelled)
+
+
+def compute_take_tracking(
+    project: Project,
+    frame: int | None = None,
+    *,
+    find_markers: bool = True,
+    spawn_interval: int = 1,
+    progress: Callable[[int, int], bool] | None = None,
+) -> TakeTrackComputation:
+    """Track every point over the whole take from one frame, finding missed markers.
+
+    Runs :func:`carapost.algorithms.tracking.track_take`: forwards to the end with
+    Initialize 3D run on the unused detections (``find_markers``; the tracked points are
+    its seeds, so nothing is created twice), then backwards to frame 0 guided by the
+    forward pass, so each marker is tracked from its first appearance. Thread-safe: reads
+    copies, changes nothing.
+
+    Raises
+    ------
+    CommandError
+        No calibration, unsolved start frame, no point with 3D data there, bad parameters.
+    """
+    from carapost.algorithms.init3d import Init3DParameters
+
+    what = "Track Take"
+    intr = _intrinsics(project, what)
+    params = _tracking_parameters(project, what)
+    pts = project.points
+    start = project.current_frame if frame is None else int(frame)
+    if not 0 <= start < project.n_frames:
+        raise _refuse(f"{what}: frame {start} is outside the take")
+    cal = project.calibration
+    if not cal.solved[start]:
+        raise _refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
+                      "Calibration Brim first)")
+    X0 = pts.positions[start].astype(np.float64)
+    kind = pts.kind.copy()
+    if not (np.isfinite(X0).all(-1) & (kind != KIND_BRIM)).any():
+        raise _refuse(f"{what}: no point has a 3D position at frame {start} (initialise "
+                      "the frame first)")
+    brim = kind == KIND_BRIM
+    has_brim = bool(np.isfinite(X0[brim]).all(-1).any()) if brim.any() else False
+    if not has_brim and not cal.solved.all():
+        raise _refuse(f"{what}: without a calibration brim every frame's cameras must be "
+                      "solved (import an XCP calibration)")
+    obs0 = pts.obs[start].astype(np.float64)
+    det0 = pts.detection[start]
+    axes0 = np.full(det0.shape + (2,), np.nan)
+    for c in range(project.n_cameras):
+        ax = project.detections.get(start, c)["axes"].astype(np.float64)
+        m = (det0[:, c] >= 0) & (det0[:, c] < len(ax))
+        axes0[m, c] = ax[det0[m, c]]
+    spawn = None
+    if find_markers:
+        try:
+            ip = Init3DParameters(**project.properties.section("Initialize 3D Parameters"))
+        except (TypeError, ValueError) as exc:
+            raise _refuse(f"{what}: {exc}") from None
+        bm = X0[brim][np.isfinite(X0[brim]).all(-1)] if has_brim else None
+        caddies = tuple((i, i + 1) for i in range(0, intr.n_cameras - 1, 2))
+        spawn = make_spawner(intr, caddies, ip, brim_model=bm)
+    source = _detection_source(project, None, {})
+    R = cal.R[start].copy() if has_brim else cal.R.copy()
+    t = cal.t[start].copy() if has_brim else cal.t.copy()
+    result = track_take(source, InitialState(X0, kind, obs0, axes0), R, t, intr, params,
+                        start=start, n_frames=project.n_frames, spawn=spawn,
+                        spawn_interval=spawn_interval, resolve_cameras=has_brim,
+                        progress=progress)
+    return TakeTrackComputation(result, [int(i) for i in pts.ids], start,
+                                f"{what} [from frame {start}]")
+
+
+class TrackTakeCommand(Command):
+    """Track Take: every point over the whole take, missed markers found on the way.
+
+    Parameters
+    ----------
+    project : Project
+    frame : int, optional
+        Initialised frame to start from (default: the current frame).
+    computation : TakeTrackComputation, optional
+        A result computed on a worker thread (then nothing is computed here).
+    progress : callable, optional
+    find_markers : bool
+        Find markers Initialize 3D missed (default True).
+    """
+
+    def __init__(self, project: Project, frame: int | None = None, *,
+                 computation: TakeTrackComputation | None = None,
+                 progress: Callable[[int, int], bool] | None = None,
+                 find_markers: bool = True):
+        super().__init__()
+        self.computation = computation or compute_take_tracking(
+            project, frame, progress=progress, find_markers=find_markers)
+        self.description = self.computation.description
+
+    def apply(self, project: Project, journal: Journal) -> None:
+        comp = self.computation
+        res = comp.result
+        if res.last < res.first:
+            return
+        pts = project.points
+        old = pts.index_of(comp.point_ids)
+        new = (journal.append_points(res.n_new, kind=KIND_FACE) if res.n_new
+               else np.zeros(0, np.intp))
+        cols = np.concatenate([old, new]).astype(np.intp)
+        frames = np.arange(res.first, res.last + 1)
+        fr = slice(res.first, res.last + 1)
+        journal.point_block(fr, cols, _ARRAYS + ("keyframe",))
+        keep_start = frames == comp.start
+        for name in _ARRAYS:
+            sub = pts.arrays[name][fr]
+            cur = sub[:, cols]
+            val = np.asarray(getattr(res, name)).astype(cur.dtype)
+            # the initialised frame of the existing points stays as initialised
+            val[keep_start, : old.size] = cur[keep_start, : old.size]
+            sub[:, cols] = val
+        sub = pts.keyframe[fr]
+        sub[:, cols] = False
+        cal = project.calibration
+        Rn, tn = res.R.copy(), res.t.copy()
+        Rn[keep_start], tn[keep_start] = cal.R[comp.start], cal.t[comp.start]
+        _set_camera_block(journal, project, fr, Rn, tn)
+
+    def memory(self) -> int:
+        """Bytes held (saved slices plus the result kept for redo)."""
+        res = self.computation.result
+        return super().memory() + sum(int(np.asarray(getattr(res, n)).nbytes)
+                                      for n in _ARRAYS)
 
 
 # ------------------------------------------------------------------------------------------

@@ -1,0 +1,57 @@
+"""The Process menu end to end in the real window on a rendered synthetic take.
+
+Import the take's files, Detect Blobs [Active Range], Solve Calibration Brim, Initialize
+3D, Track Forwards [Sequence], each on the worker thread and each one undo entry, then
+check the tracked points against the take's ground truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from carapost import api
+from carapost.model.project import KIND_BRIM, KIND_FACE
+
+
+def _run(qtbot, w, fn, *args) -> None:
+    before = len(w.stack)
+    fn(*args)
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    qtbot.waitUntil(lambda: len(w.stack) == before + 1, timeout=5_000)
+    assert w.last_error in (None, ""), w.last_error
+
+
+def test_detect_solve_initialise_track_from_the_menus(make_window, qtbot, synth_take):
+    project = api.import_take(synth_take)
+    assert (project.points.kind == KIND_BRIM).sum() > 10  # the take's brim model
+    w = make_window(project)
+    w.last_error = None
+    _run(qtbot, w, w.detect_blobs, "range")
+    assert project.detections.counts().min() > 20
+    _run(qtbot, w, w.run_process, "solve_brim")
+    assert project.calibration.solved[0]
+    _run(qtbot, w, w.run_process, "initialize_3d")
+    face = np.flatnonzero(project.points.kind == KIND_FACE)
+    assert len(face) > 40
+    _run(qtbot, w, w.run_process, "track_forwards_sequence")
+    tracked = np.isfinite(project.points.positions[:, face, 0])
+    assert tracked[-1].mean() > 0.8  # still tracked at the last frame
+
+    # every tracked point sits on one truth marker
+    truth = np.load(synth_take.parent / "truth.npz")
+    X = truth["points3d"]  # (F, M, 3)
+    P = project.points.positions[:, face].astype(np.float64)
+    d = np.linalg.norm(P[:, :, None] - X[:, None], axis=-1)  # (F, P, M)
+    nearest = np.nanargmin(np.where(np.isnan(d), np.inf, d), axis=-1)
+    for k in range(len(face)):
+        ok = tracked[:, k]
+        assert len(set(nearest[ok, k].tolist())) <= 1, "a point changed marker"
+    err = d[tracked].min(axis=-1)
+    assert np.sqrt(np.mean(err**2)) < 0.5
+
+    # four processing steps, four undo entries, undone in one go through History
+    assert [h.description.split(" [")[0] for h in w.stack.history()][-4:] == [
+        "Detect Blobs", "Solve Calibration Brim", "Initialize 3D", "Track Forwards"]
+    w.stack.goto(len(w.stack) - 4)
+    assert project.n_points == (project.points.kind == KIND_BRIM).sum()
+    assert project.detections.total == 0
