@@ -37,6 +37,7 @@ from carapost.model.project import (
     RECON_INTERPOLATED,
     Project,
 )
+from carapost.pipeline import process_take
 
 log = logging.getLogger("carapost.api")
 
@@ -457,32 +458,6 @@ def export_xcp(project: Project, path: str | Path, *, frame: int | None = None) 
     write_xcp(path, calib, frame=None)
     log.info("Exported the cameras of frame %d to %s", frame, path)
     return path
-
-
-# ----------------------------------------------------------------------------------------
-# Headless pipeline
-# ----------------------------------------------------------------------------------------
-
-
-def process_take(
-    take: str | Path,
-    *,
-    output: str | Path,
-    rom: str | Path | None = None,
-    brim: str | Path | None = None,
-    c3d: str | Path | None = None,
-    fbx: str | Path | None = None,
-    progress: Callable[[int, int], bool] | None = None,
-) -> dict[str, Any]:
-    """Headless pipeline: import, detect, solve the brim, initialise, track, save, export.
-
-    See :func:`carapost.pipeline.process_take` for the stages, the result and the
-    errors; every input is checked before any work and nothing is written on failure.
-    """
-    from carapost.pipeline import process_take as run_pipeline
-
-    return run_pipeline(take, output=output, rom=rom, brim=brim, c3d=c3d, fbx=fbx,
-                        progress=progress)
 
 
 # ----------------------------------------------------------------------------------------
