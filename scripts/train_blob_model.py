@@ -4,8 +4,10 @@ Renders views of ``carapost.synth`` takes (all marker sets and motion presets, n
 optical and motion blur, highlights, merged pair) plus images of the detector's own
 renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
 every blob candidate with its features, labels it true when it lies on a
-truth marker centre, and fits a logistic regression (Newton / IRLS with a small ridge).
-The weights go to ``src/carapost/resources/blob_model.json``. A held-out set of images
+truth marker centre, and fits two logistic regressions (Newton / IRLS with a small
+ridge): one for candidates from ordinary seeds, one for candidates from seeds found by
+splitting an over-size region (the ``split`` feature). The weights go to
+``src/carapost/resources/blob_model.json``. A held-out set of images
 gives the reliability table (predicted probability vs observed fraction of true
 candidates) printed here and drawn to ``docs/blob-reliability.png``.
 
@@ -28,6 +30,8 @@ from carapost.algorithms._blob_synth import match_to_truth, render_face
 from carapost.algorithms.blobs import (
     BLACK,
     FEATURE_NAMES,
+    MODEL_INPUTS,
+    MODEL_KINDS,
     WHITE,
     blob_candidates,
     expand_features,
@@ -171,12 +175,26 @@ def main() -> None:
     x_te, y_te = collect(args.test_scenes, seed=2)
     print(f"train: {len(y_tr)} candidates ({y_tr.mean():.1%} true); "
           f"test: {len(y_te)} ({y_te.mean():.1%} true)")
-    e_tr = expand_features(x_tr)
-    mean = e_tr.mean(axis=0)
-    scale = e_tr.std(axis=0) + 1e-9
-    w, b = fit_logistic((e_tr - mean) / scale, y_tr.astype(float))
-    z = ((expand_features(x_te) - mean) / scale) @ w + b
-    p = 1 / (1 + np.exp(-np.clip(z, -40, 40)))
+    models = {}
+    p = np.zeros(len(y_te))
+    for k, kind in enumerate(MODEL_KINDS):
+        tr = (x_tr[:, -1] > 0.5) == bool(k)
+        te = (x_te[:, -1] > 0.5) == bool(k)
+        n_in = MODEL_INPUTS[kind]
+        e_tr = expand_features(x_tr[tr], n_in)
+        mean = e_tr.mean(axis=0)
+        scale = e_tr.std(axis=0) + 1e-9
+        w, b = fit_logistic((e_tr - mean) / scale, y_tr[tr].astype(float))
+        z = ((expand_features(x_te[te], n_in) - mean) / scale) @ w + b
+        p[te] = 1 / (1 + np.exp(-np.clip(z, -40, 40)))
+        print(f"{kind}: train {int(tr.sum())} candidates ({y_tr[tr].mean():.1%} true), "
+              f"test {int(te.sum())}")
+        models[kind] = {
+            "weights": [round(float(v), 6) for v in w],
+            "bias": round(b, 6),
+            "mean": [round(float(v), 6) for v in mean],
+            "scale": [round(float(v), 6) for v in scale],
+        }
     eps = 1e-12
     ll = -np.mean(y_te * np.log(p + eps) + (1 - y_te) * np.log(1 - p + eps))
     brier = float(np.mean((p - y_te) ** 2))
@@ -190,13 +208,15 @@ def main() -> None:
         acc = p >= th
         print(f"threshold {th}: recall {np.mean(acc[y_te]):.4f}, "
               f"precision {np.mean(y_te[acc]):.4f}")
+    sp = x_te[:, -1] > 0.5
+    if sp.any():
+        acc = p[sp] >= 0.4
+        print(f"split candidates at 0.4: recall {np.mean(acc[y_te[sp]]):.4f}, "
+              f"precision {np.mean(y_te[sp][acc]) if acc.any() else float('nan'):.4f}")
     if not args.no_write:
         model = {
             "features": list(FEATURE_NAMES),
-            "weights": [round(float(v), 6) for v in w],
-            "bias": round(b, 6),
-            "mean": [round(float(v), 6) for v in mean],
-            "scale": [round(float(v), 6) for v in scale],
+            "models": models,
             "trained_on": f"{args.train_scenes} carapost.synth scenes x 6 views + "
                           f"{args.train_scenes // 2} own-renderer images "
                           "(scripts/train_blob_model.py)",

@@ -13,7 +13,10 @@ with OpenCV or on all candidates at once with numpy (no Python loop per pixel or
    so a blob is judged against the skin right around it (the opening runs on the next
    coarser level); pixels at least half their local peak contrast form regions whose
    outlines (``cv2.findContours``) give the seed ellipses by their area moments, for
-   all outlines at once.
+   all outlines at once. Regions too large for the full-resolution level (a marker
+   joined to a nostril, a crease or the dark image border) are cut again at stricter
+   fractions of their local peak contrast; compact parts of the right size become
+   *split* seeds.
 3. Refinement at the blob's own scale: per seed, a plane fitted (twice, the second time
    without ring pixels far above the first plane) to a ring of pixels around the seed
    ellipse is the local background, which removes shading gradients; each pixel's
@@ -25,8 +28,9 @@ with OpenCV or on all candidates at once with numpy (no Python loop per pixel or
    products with one fixed design matrix.
 4. Probability: a logistic model over scale-free features (signal-to-noise, contrast
    relative to the surround, how well the coverage fills its ellipse, ring roughness,
-   symmetry, axis ratio, how much of the ring is as dark as the blob) gives the
-   probability that the candidate is a blob centre. It was fitted on synthetic images
+   symmetry, axis ratio, how much of the ring is as dark as the blob, how far the ring
+   plane sits above the surround) gives the probability that the candidate is a blob
+   centre; split seeds have a model of their own. It was fitted on synthetic images
    with known truth by ``scripts/train_blob_model.py`` (weights in
    ``carapost/resources/blob_model.json``). Candidates whose semi-major axis is outside
    the radius range, or whose score is below the threshold, are dropped; the same blob
@@ -77,7 +81,11 @@ FEATURE_NAMES = (
     "asymmetry",
     "axis_ratio",
     "ring_fill",
+    "pedestal",
+    "split",
 )
+#: Features measured by the refinement (the last one, ``split``, comes from the seed).
+_N_REFINED = len(FEATURE_NAMES) - 1
 
 
 @dataclass(frozen=True)
@@ -196,36 +204,60 @@ class Candidates(NamedTuple):
 # --------------------------------------------------------------------------- model
 
 
+#: The two models of ``blob_model.json``: candidates from ordinary seeds and candidates
+#: from seeds found by splitting an over-size region (indexed by the ``split`` feature),
+#: with the number of leading FEATURE_NAMES each one uses. ``pedestal`` (a blob on a
+#: darker plateau, such as a pupil in its iris) only matters for split seeds: an ordinary
+#: seed's region already ends where its surround begins.
+MODEL_KINDS = ("seed", "split")
+MODEL_INPUTS = {"seed": 8, "split": 9}
+
+
 @lru_cache(maxsize=1)
-def _model() -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Load the logistic model (weights, bias, feature mean, feature scale)."""
+def _model() -> tuple[tuple[np.ndarray, float, np.ndarray, np.ndarray], ...]:
+    """Load the logistic models (weights, bias, feature mean, feature scale), one per
+    entry of MODEL_KINDS."""
     text = resources.files("carapost").joinpath("resources/blob_model.json").read_text()
     m = json.loads(text)
-    if tuple(m["features"]) != FEATURE_NAMES or len(m["weights"]) != len(m["mean"]):
+    if tuple(m.get("features", ())) != FEATURE_NAMES or set(m.get("models", {})) != set(
+            MODEL_KINDS):
         raise RuntimeError("carapost/resources/blob_model.json does not match FEATURE_NAMES; "
                            "re-run scripts/train_blob_model.py")
-    return (np.asarray(m["weights"], np.float64), float(m["bias"]),
-            np.asarray(m["mean"], np.float64), np.asarray(m["scale"], np.float64))
+    out = []
+    for kind in MODEL_KINDS:
+        k = m["models"][kind]
+        if len(k["weights"]) != len(expand_features(np.zeros((1, len(FEATURE_NAMES))),
+                                                    MODEL_INPUTS[kind])[0]):
+            raise RuntimeError(f"carapost/resources/blob_model.json: model {kind!r} has the "
+                               "wrong number of weights; re-run scripts/train_blob_model.py")
+        out.append((np.asarray(k["weights"], np.float64), float(k["bias"]),
+                    np.asarray(k["mean"], np.float64), np.asarray(k["scale"], np.float64)))
+    return tuple(out)
 
 
-def expand_features(features: np.ndarray) -> np.ndarray:
-    """Model inputs: the features, their squares and pairwise products.
+def expand_features(features: np.ndarray, n: int) -> np.ndarray:
+    """Model inputs: the first ``n`` features, their squares and pairwise products.
 
     Parameters
     ----------
-    features : ndarray [N, F]
+    features : ndarray [N, F] (F = len(FEATURE_NAMES))
+    n : int
+        Number of leading features used (MODEL_INPUTS of the model).
 
     Returns
     -------
-    ndarray [N, F + F (F + 1) / 2]
+    ndarray [N, n + n (n + 1) / 2]
     """
-    f = np.asarray(features, np.float64)
+    f = np.asarray(features, np.float64)[:, :n]
     iu, ju = np.triu_indices(f.shape[1])
     return np.hstack([f, f[:, iu] * f[:, ju]])
 
 
 def blob_probability(features: np.ndarray) -> np.ndarray:
     """Calibrated probability that each candidate is a blob centre.
+
+    Candidates from split seeds (``split`` feature 1) have their own model: they are
+    rarer, and a dark feature next to them changes what their other features mean.
 
     Parameters
     ----------
@@ -235,8 +267,14 @@ def blob_probability(features: np.ndarray) -> np.ndarray:
     -------
     ndarray [N] float64 in 0-1
     """
-    w, b, mean, scale = _model()
-    z = ((expand_features(features) - mean) / scale) @ w + b
+    features = np.asarray(features, np.float64)
+    kind = (features[:, -1] > 0.5).astype(np.int64)
+    z = np.zeros(len(features))
+    for k, (w, b, mean, scale) in enumerate(_model()):
+        sel = kind == k
+        if sel.any():
+            x = expand_features(features[sel], MODEL_INPUTS[MODEL_KINDS[k]])
+            z[sel] = ((x - mean) / scale) @ w + b
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
 
 
@@ -327,10 +365,14 @@ REFINE_RADIUS = 14.0
 
 _KERNEL_LOCALMAX = cv2.getStructuringElement(cv2.MORPH_RECT, (9, 9))
 _KERNEL_PEAK = cv2.getStructuringElement(cv2.MORPH_RECT, (5, 5))
-#: Seed inside over-size regions (see _split_seeds). Off: +1.3 points of recall on
-#: carapost.synth for ~45 % more CPU time (2026-11-22), not worth it yet.
-SPLIT_SEEDS = False
-SPLIT_MIN = 0.8
+#: Seed inside regions of the full-resolution level that are too large for it by cutting
+#: them again at stricter fractions of the local peak contrast (see _split_regions).
+#: Coarser levels are not split: on carapost.synth their split seeds found no marker
+#: that the full-resolution level missed, for ~2 ms per image.
+SPLIT_SEEDS = True
+SPLIT_LEVELS = (0.6, 0.75, 0.9)
+#: Smallest ratio of a split part's area to the area of its outline ellipse.
+SPLIT_FILL = 0.85
 
 
 def _background(d_small: np.ndarray, radius: float, shape: tuple[int, int],
@@ -418,48 +460,70 @@ def _level_seeds(d: np.ndarray, bg: np.ndarray, sigma: float, a_lo: float, a_hi:
     cand = cv2.bitwise_and(half, cv2.compare(top_s, floor, cv2.CMP_GE))
     contours, _ = cv2.findContours(cand, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
-        return tuple(np.zeros(0) for _ in range(5))
+        return tuple(np.zeros(0) for _ in range(7))
     cx, cy, a, b, th, _area, ext, _nv = _contour_ellipses(contours)
     # The outline runs through the centres of the region's border pixels, half a pixel
     # inside the region's edge.
     a, b = a + 0.5, b + 0.5
     ok = (a >= a_lo - 0.5) & (a <= a_hi) & (math.pi * a * b >= max(3.0, 0.5 * a_lo * a_lo))
     ok &= (ext >= 1.2 * a_lo - 2) & (ext <= 2.4 * a_hi + 6)
-    seeds = (cx[ok], cy[ok], a[ok], b[ok], th[ok])
-    big = np.flatnonzero((a > a_hi) | (ext > 2.4 * a_hi + 6)) if SPLIT_SEEDS and fine else []
-    if len(big):
-        seeds = tuple(np.concatenate([p, q]) for p, q in
-                      zip(seeds, _split_seeds(cand, [contours[i] for i in big], a_lo, a_hi),
-                          strict=True))
-    return seeds
+    seeds = (cx[ok], cy[ok], a[ok], b[ok], th[ok], np.zeros(int(ok.sum())))
+    if SPLIT_SEEDS and fine:
+        big = np.flatnonzero((a > a_hi) | (ext > 2.4 * a_hi + 6))
+        if big.size:
+            extra = _split_regions(top_s, local_max, cand, [contours[i] for i in big],
+                                   a_lo, a_hi)
+            seeds = tuple(np.concatenate([p, q]) for p, q in zip(seeds, extra, strict=True))
+    # Surround level (the opening) under each seed centre: a blob sitting on a darker
+    # pedestal (a pupil in its iris) has its ring plane well above it.
+    h, w = d.shape
+    sx = np.clip(np.rint(seeds[0]).astype(np.int64), 0, w - 1)
+    sy = np.clip(np.rint(seeds[1]).astype(np.int64), 0, h - 1)
+    return (*seeds, bg[sy, sx].astype(np.float64))
 
 
-def _split_seeds(cand: np.ndarray, contours, a_lo: float, a_hi: float
-                 ) -> tuple[np.ndarray, ...]:
+def _split_regions(top: np.ndarray, local_max: np.ndarray, cand: np.ndarray, contours,
+                   a_lo: float, a_hi: float) -> tuple[np.ndarray, ...]:
     """Seeds inside regions too large for their level (a marker joined to a nostril, a
     crease or the dark image border by its half-contrast region).
 
-    The distance to the region's edge has a local maximum at the centre of every round
-    part that is wider than the neck joining it to the rest, so each such maximum whose
-    distance fits the level's size band is a circular seed of that radius.
+    The pixels of those regions are cut again at stricter fractions (``SPLIT_LEVELS``)
+    of their local peak contrast: the neck of partly dark pixels joining a marker to
+    the dark feature falls below them before the marker's core does. Compact parts
+    whose outline ellipse fits the level's size band and fills its ellipse are seeds
+    (flag 1); the same part found at several fractions is kept once, from the lowest
+    fraction. Only the bounding box of the rejected regions is processed.
     """
-    h, w = cand.shape
     pts = np.concatenate(contours).reshape(-1, 2)
-    x0, y0 = max(int(pts[:, 0].min()) - 2, 0), max(int(pts[:, 1].min()) - 2, 0)
-    x1, y1 = min(int(pts[:, 0].max()) + 3, w), min(int(pts[:, 1].max()) + 3, h)
-    roi = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    cv2.drawContours(roi, contours, -1, 255, -1, offset=(-x0, -y0))
-    roi = cv2.bitwise_and(roi, cand[y0:y1, x0:x1])
-    dist = cv2.distanceTransform(roi, cv2.DIST_L2, 3)
-    peak = (dist >= cv2.dilate(dist, _KERNEL_PEAK)) & (dist >= max(1.5, SPLIT_MIN * a_lo))
-    peak &= dist <= a_hi
-    # A plateau of maxima along a ridge is a crease or a dark band, not a round part.
-    n, _, stats, cen = cv2.connectedComponentsWithStats(peak.view(np.uint8), connectivity=8)
-    keep = np.flatnonzero(np.maximum(stats[1:, 2], stats[1:, 3]) <= 3) + 1
-    xs, ys = cen[keep, 0], cen[keep, 1]
-    r = dist[np.rint(ys).astype(np.int64), np.rint(xs).astype(np.int64)].astype(np.float64)
-    r = np.maximum(r + 0.5, a_lo)
-    return xs + x0, ys + y0, r, r, np.zeros(r.size)
+    x0, y0 = int(pts[:, 0].min()), int(pts[:, 1].min())
+    x1, y1 = int(pts[:, 0].max()) + 1, int(pts[:, 1].max()) + 1
+    region = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.drawContours(region, contours, -1, 255, -1, offset=(-x0, -y0))
+    cv2.bitwise_and(region, cand[y0:y1, x0:x1], region)
+    # Contrast as a fraction of the local peak, in 1/255 steps.
+    ratio = cv2.divide(top[y0:y1, x0:x1], local_max[y0:y1, x0:x1], scale=255)
+    found = []
+    for q in SPLIT_LEVELS:
+        sub = cv2.bitwise_and(region, cv2.compare(ratio, 255 * q, cv2.CMP_GE))
+        cs, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE,
+                                 offset=(x0, y0))
+        found.extend(cs)
+    if not found:
+        return tuple(np.zeros(0) for _ in range(6))
+    cx, cy, a, b, th, area, ext, _nv = _contour_ellipses(found)
+    a, b = a + 0.5, b + 0.5
+    ok = (a >= a_lo - 0.5) & (a <= a_hi) & (math.pi * a * b >= max(3.0, 0.5 * a_lo * a_lo))
+    ok &= (ext >= 1.2 * a_lo - 2) & (ext <= 2.4 * a_hi + 6)
+    # A marker's part is a filled ellipse; a crease or band cut into pieces is not.
+    ok &= area >= SPLIT_FILL * math.pi * (a - 0.5) * (b - 0.5)
+    i = np.flatnonzero(ok)
+    cx, cy, a, b, th = cx[i], cy[i], a[i], b[i], th[i]
+    if i.size > 1:
+        # The same part at several fractions: keep the first (largest) copy.
+        d = np.hypot(cx[:, None] - cx[None], cy[:, None] - cy[None])
+        dup = np.triu(d <= 0.5 * np.minimum(b[:, None], b[None]) + 1.0, 1).any(axis=0)
+        cx, cy, a, b, th = cx[~dup], cy[~dup], a[~dup], b[~dup], th[~dup]
+    return cx, cy, a, b, th, np.ones(cx.size)
 
 
 #: Half-widths (px) of the square patch classes used by the refinement.
@@ -477,7 +541,7 @@ def _design(r: int) -> np.ndarray:
 
 
 def _refine(d: np.ndarray, raw: np.ndarray, lw: np.ndarray, lh: np.ndarray, lb: np.ndarray,
-            sigma: np.ndarray, cx, cy, a, b, th, colour: int):
+            sigma: np.ndarray, cx, cy, a, b, th, open_bg, colour: int):
     """Centre, ellipse and features of seed ellipses, each on its own pyramid level.
 
     ``d`` and ``raw`` are the flattened levels (contrast image, raw image) one after the
@@ -506,17 +570,18 @@ def _refine(d: np.ndarray, raw: np.ndarray, lw: np.ndarray, lh: np.ndarray, lb: 
                               np.sqrt((ao * s) ** 2 + (bo * c) ** 2)) + 0.5)
     radii = np.asarray(_PATCH_RADII)
     cls = np.minimum(np.searchsorted(radii, need), radii.size - 1)
-    out = np.zeros((n, 6 + len(FEATURE_NAMES)))
+    out = np.zeros((n, 6 + _N_REFINED))
     for ci in np.unique(cls):
         i = np.flatnonzero(cls == ci)
         out[i] = _refine_patches(d, raw, lw[i], lh[i], lb[i], sigma[i], int(radii[ci]),
                                  cx[i], cy[i], ai[i], bi[i], ao[i], bo[i], c[i], s[i], a[i],
-                                 colour)
+                                 open_bg[i], colour)
     return (out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4], out[:, 6:],
             out[:, 5] > 1.5, out[:, 5] > 0)
 
 
-def _refine_patches(d, raw, w, h, lb, sigma, r, cx, cy, ai, bi, ao, bo, c, s, a, colour):
+def _refine_patches(d, raw, w, h, lb, sigma, r, cx, cy, ai, bi, ao, bo, c, s, a, open_bg,
+                    colour):
     """:func:`_refine` for seeds whose ring fits a (2r+1)-pixel square patch.
 
     Returns [n, 6 + F]: centre x, y, semi-axes, angle, status (0 rejected, 1 kept,
@@ -607,6 +672,7 @@ def _refine_patches(d, raw, w, h, lb, sigma, r, cx, cy, ai, bi, ao, bo, c, s, a,
         np.clip(np.hypot(hx - mx, hy - my) / np.maximum(b2, 0.5), 0, 5),
         b2 / a2,
         ring_fill,
+        np.clip((bg_c - open_bg) / np.maximum(peak, 1e-3), -2, 5),
     ])
     ok = (peak > 0) & np.isfinite(feats).all(axis=1) & (n_half > 0)
     # A refined centre far from its seed means the support did not hold the blob.
@@ -694,16 +760,17 @@ def blob_candidates(
             bg = _background(pyramid[2 * f][1], r, dl.shape, 2)
         else:
             bg = _background(bl, r, dl.shape, 1)
-        sx, sy, sa, sb, st = _level_seeds(dl, bg, max(0.7, sigma / f), max(lo / f, 1.0),
+        sx, sy, sa, sb, st, sp, sbg = _level_seeds(dl, bg, max(0.7, sigma / f), max(lo / f, 1.0),
                                           r, fine=f == 1)
         # A level pixel i covers full-res pixels f*i .. f*i + f - 1.
         seeds.append((sx * f + 0.5 * (f - 1), sy * f + 0.5 * (f - 1), sa * f, sb * f, st,
-                      np.full(sx.size, f)))
+                      np.full(sx.size, f), sp, sbg))
     empty = Candidates(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0),
                        np.zeros((0, len(FEATURE_NAMES))), np.zeros(0, bool))
     if not seeds:
         return empty
-    cx, cy, a, b, th, lev = (np.concatenate([s[i] for s in seeds]) for i in range(6))
+    cx, cy, a, b, th, lev, split, open_bg = (np.concatenate([s[i] for s in seeds])
+                                             for i in range(8))
     if cx.size == 0:
         return empty
     # Refine each seed on the finest level where it is at most REFINE_RADIUS level-px
@@ -729,8 +796,9 @@ def blob_candidates(
     o = 0.5 * (g - 1)
     cx2, cy2, a2, b2, th2, feats, saturated, ok = _refine(
         dbuf, rbuf, lw, lh, lb, np.maximum(0.7, sigma / g), (cx - o) / g, (cy - o) / g,
-        a / g, b / g, th, colour)
+        a / g, b / g, th, open_bg, colour)
     cx2, cy2, a2, b2 = cx2 * g + o, cy2 * g + o, a2 * g, b2 * g
+    feats = np.column_stack([feats, split])
     ok &= (a2 >= min_radius - MIN_RADIUS_TOLERANCE) & (a2 <= max_radius)
     if mask is not None:
         mc = np.asarray(mask)[np.clip(np.rint(cy2).astype(np.int64), 0, h - 1),
