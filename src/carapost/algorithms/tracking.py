@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
@@ -113,6 +114,10 @@ class TrackingParameters:
         Bundle adjust each tracked frame (cameras and points; slower; ours).
     max_patch_frames : int
         Longest run of consecutive patch-tracked frames in one camera (ours).
+    elastic_passes : int
+        Most elastic matching passes per frame (ours): each pass predicts the points not
+        yet matched from the neighbours matched in the previous one, so a region moving
+        faster than the search radius is picked up from its edges inwards.
     """
 
     patch_match_threshold: float = 0.8
@@ -132,6 +137,7 @@ class TrackingParameters:
     min_elastic_support: float = 1.5
     bundle_frames: bool = False
     max_patch_frames: int = 5
+    elastic_passes: int = 5
 
     def __post_init__(self) -> None:
         for name in ("face_point_tracking_distance", "face_point_max_elastic_prediction_distance",
@@ -148,6 +154,9 @@ class TrackingParameters:
         if int(self.patch_match_size) < 3:
             raise ValueError(f"TrackingParameters.patch_match_size must be >= 3 px, got "
                              f"{self.patch_match_size!r}")
+        if int(self.elastic_passes) < 1:
+            raise ValueError(f"TrackingParameters.elastic_passes must be >= 1, got "
+                             f"{self.elastic_passes!r}")
         if int(self.neighbours) < 1:
             raise ValueError(f"TrackingParameters.neighbours must be >= 1, got "
                              f"{self.neighbours!r}")
@@ -592,7 +601,7 @@ class FrameMatcher:
         t: NDArray[np.float64], prev_axes: NDArray[np.float64], *,
         face_radius: float | None = None, brim_radius: float | None = None,
         elastic_radius: float | None = None, max_3d: float | None = None,
-        passes: int = 2, reacquire: NDArray[np.bool_] | None = None,
+        passes: int | None = None, reacquire: NDArray[np.bool_] | None = None,
         patch: Callable[[NDArray[np.bool_], NDArray[np.float64]],
                         tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None,
         resolve_cameras: bool = True,
@@ -607,7 +616,8 @@ class FrameMatcher:
         R, t : predicted cameras.
         prev_axes : (P, C, 2) blob axes of the last match (NaN = unknown).
         face_radius, brim_radius, elastic_radius, max_3d : overrides of the parameters.
-        passes : elastic matching passes after the anchor pass.
+        passes : most elastic matching passes after the anchor pass (default
+            ``params.elastic_passes``; stops early once the matches no longer change).
         reacquire : (P,) points that were lost: accepted only from >= 2 cameras.
         patch : callable(missing (P, C) bool, pred (P, C, 2)) -> (uv (P, C, 2), score)
             patch tracking fallback for point-cameras without a blob.
@@ -696,7 +706,9 @@ class FrameMatcher:
             rad = np.full((f.size, C), float(face_radius))
             df = self.match_2d(fr, uvf, rad, size_ok, anchors_only=True, taken=taken,
                                nb_index=fi)
-            for _ in range(max(passes, 1)):
+            n_pass = p.elastic_passes if passes is None else passes
+            for it in range(max(int(n_pass), 1)):
+                df_prev = df
                 m_all = np.zeros((Pf_all, C), bool)
                 m_all[fi] = df >= 0
                 uvm_all = np.full((Pf_all, C, 2), np.nan)
@@ -707,6 +719,10 @@ class FrameMatcher:
                 rad = np.where(sup >= p.min_elastic_support, float(elastic_radius),
                                float(face_radius))
                 df = self.match_2d(fr, pred, rad, size_ok, taken=taken)
+                # matches spread inwards from the matched points pass by pass (a region
+                # moving faster than the search radius); stop once nothing changes
+                if it >= 1 and np.array_equal(df, df_prev):
+                    break
             det[f] = df
             source[f] = np.where(df >= 0, SOURCE_BLOB, SOURCE_NONE)
             quality[f] = np.where(df >= 0, 1.0, 0.0)
@@ -1418,14 +1434,17 @@ def track_take(
 ) -> TrackResult:
     """Track a whole take from one initialised frame, finding missed markers on the way.
 
-    1. Forwards from ``start`` to the last frame, with ``spawn`` finding markers no point
-       has yet (and reviving lost points).
-    2. Backwards from the last frame to frame 0 with every point, guided by the forward
-       pass: a point restarts wherever the forward pass had it, so each marker is tracked
-       back from where it was found to where it first appears.
-    3. Merge: the forward result where it has a point, else the backward one. Points
-       found during tracking that coincide (median distance below ``merge_mm``) with an
-       earlier point are merged into it, and found points triangulated in fewer than
+    1. From ``start`` to the last frame (to frame 0 when ``start`` is the last frame),
+       with ``spawn`` finding markers no point has yet (and reviving lost points).
+    2. Over the whole take the other way, with every point, guided by the first pass: a
+       point restarts wherever the first pass had it, so each marker is tracked back
+       from where it was found to where it first appears.
+    3. Join: the first pass where it has a point, else the second one. Then every point
+       is split where it hops to another marker relative to its neighbours' motion
+       (:func:`hop_segments`; the pieces become points of their own), found points that
+       double an earlier one (median distance below ``merge_mm``) are merged into it,
+       pieces of one marker that never coexist are joined when the joined track has no
+       hop, what still hops is cleared, and found points triangulated in fewer than
        ``min_frames`` frames are dropped.
 
     Parameters
@@ -1445,7 +1464,7 @@ def track_take(
     -------
     TrackResult
         Arrays for every frame ``0..n_frames - 1`` (``first`` 0, ``last`` n_frames - 1);
-        the ``start`` row of the initial points is the backward pass's re-estimate.
+        the ``start`` row of the initial points holds ``initial``.
     """
     params = TrackingParameters() if params is None else params
     F = int(n_frames)
@@ -1455,7 +1474,8 @@ def track_take(
     kind0 = np.asarray(initial.kind, np.int8)
     C = intr.n_cameras
     L = F - 1
-    total = (L - start) + L
+    end1, end2 = (L, 0) if start < L else (0, L)
+    total = abs(end1 - start) + L
 
     def prog(offset: int) -> Callable[[int, int], bool] | None:
         if progress is None:
@@ -1480,13 +1500,13 @@ def track_take(
     t0 = np.asarray(t, np.float64)
     Rs, ts = (R0[start], t0[start]) if R0.ndim == 4 else (R0, t0)
     Rall[start], tall[start] = Rs, ts
-    # ---- forwards ------------------------------------------------------------------------
+    # ---- first pass: forwards to the end (backwards when starting at the last frame) ----
     P1 = P
     fwd = None
     cancelled = False
     done = 0
-    if start < L:
-        fwd = track(detections, initial, R, t, intr, params, start=start, stop=L,
+    if start != end1:
+        fwd = track(detections, initial, R, t, intr, params, start=start, stop=end1,
                     resolve_cameras=resolve_cameras, progress=prog(0), spawn=spawn,
                     spawn_interval=spawn_interval)
         P1 = P + fwd.n_new
@@ -1505,11 +1525,13 @@ def track_take(
             A[k][sl] = getattr(fwd, k)
         Rall[sl], tall[sl] = fwd.R, fwd.t
     kind1 = np.r_[kind0, np.full(P1 - P, KIND_FACE, np.int8)]
-    last = start if fwd is None else start + fwd.frames_done
-    if cancelled or last == 0:
-        return _take_result(A, Rall, tall, 0, last, done, cancelled, kind1, P, min_frames,
+    step1 = 1 if end1 >= start else -1
+    last = start if fwd is None else start + step1 * fwd.frames_done
+    lo, hi = min(start, last), max(start, last)
+    if cancelled or last == end2:
+        return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
                             merge_mm)
-    # ---- backwards from the last tracked frame, guided by the forward pass ---------------
+    # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
     guide[:, kind1 == KIND_BRIM] = np.nan
@@ -1518,8 +1540,9 @@ def track_take(
     Xl[brim] = np.r_[X_start, np.full((P1 - P, 3), np.nan)][brim]
     init_b = InitialState(Xl, kind1, A["obs"][last].astype(np.float64))
     bwd = track(detections, init_b, Rall[last], tall[last], intr, params, start=last,
-                stop=0, resolve_cameras=resolve_cameras, progress=prog(L - start),
-                spawn=spawn, spawn_interval=spawn_interval, guide=guide)
+                stop=end2, resolve_cameras=resolve_cameras, progress=prog(abs(end1 - start)),
+                spawn=spawn if 0 < start < L else None, spawn_interval=spawn_interval,
+                guide=guide)
     done += bwd.frames_done
     P2 = P1 + bwd.n_new
     B = empty(P2)
@@ -1527,32 +1550,60 @@ def track_take(
         B[k][:, :P1] = A[k]
     if bwd.frames_done:
         sl = slice(bwd.first, bwd.last + 1)
-        # backward fills what the forward pass did not have (and every frame before start)
+        fr2 = np.arange(bwd.first, bwd.last + 1)
+        # the second pass fills what the first did not have (and every frame beyond start)
+        beyond = fr2 < start if end2 <= start else fr2 > start
         fill = (B["recon"][sl] == RECON_NONE)
-        fill[:, :P1] |= np.arange(bwd.first, bwd.last + 1)[:, None] < start
+        fill[:, :P1] |= beyond[:, None]
         fill[:, P1:] = True
         for k in names:
             cur = B[k][sl]
             new = getattr(bwd, k)
             m = fill.reshape(fill.shape + (1,) * (cur.ndim - 2))
             B[k][sl] = np.where(m, new, cur)
-        before = np.arange(bwd.first, bwd.last + 1) < start
-        Rall[sl][before], tall[sl][before] = bwd.R[before], bwd.t[before]
+        Rall[sl][beyond], tall[sl][beyond] = bwd.R[beyond], bwd.t[beyond]
+        lo, hi = min(lo, bwd.first), max(hi, bwd.last)
     kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
-    first = bwd.first if bwd.frames_done else start
-    return _take_result(B, Rall, tall, first, last, done, bwd.cancelled, kind2, P, min_frames,
+    return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
                         merge_mm)
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float) -> TrackResult:
-    """Merge doubles among the found points, drop short ones, build the result."""
+    """Clean the joined passes and build the result.
+
+    1. Split every point where it hops to another marker (:func:`hop_segments`): the
+       pieces on another identity become points of their own.
+    2. Merge found points (and pieces) into an earlier point they double (median distance
+       below ``merge_mm`` where both exist), then join pieces of one marker that never
+       coexist (:func:`_stitch`).
+    3. Clear what still hops, drop found points triangulated in fewer than ``min_frames``
+       frames and found points far from every other point (:func:`_drop_isolated`).
+    """
+    keep = np.ones(A["positions"].shape[1], bool)
+    A, kind, keep = _split_hops(A, kind, keep)
+    _merge_doubles(A, kind, keep, P, merge_mm)
+    _stitch(A, kind, keep, P, merge_mm)
+    _remove_hops(A, kind, keep)
+    tri = (A["recon"] == RECON_TRIANGULATED).sum(0)
+    keep[P:] &= tri[P:] >= min_frames
+    _drop_isolated(A, kind, keep, P)
+    sl = slice(first, last + 1)
+    o = {k: v[sl][:, keep] for k, v in A.items()}
+    return TrackResult(first, last, o["positions"], o["recon"], o["residual"], o["obs"],
+                       o["source"], o["detection"], o["quality"], R[sl], t[sl], done,
+                       cancelled, int(keep[P:].sum()))
+
+
+def _merge_doubles(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
+                   P: int, merge_mm: float) -> None:
+    """Merge each found point into the earlier point it doubles (median distance)."""
     X = A["positions"].astype(np.float64)
-    n_all = X.shape[1]
-    keep = np.ones(n_all, bool)
     face = np.flatnonzero(kind != KIND_BRIM)
-    for q in range(P, n_all):
+    for q in range(P, X.shape[1]):
+        if not keep[q] or kind[q] == KIND_BRIM:
+            continue
         others = face[(face < q) & keep[face]]
         if others.size == 0:
             continue
@@ -1563,16 +1614,291 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
                         for j in range(others.size)])
         j = int(np.argmin(med))
         if med[j] <= merge_mm:
-            o = others[j]
-            gap = ~np.isfinite(X[:, o]).all(-1) & np.isfinite(X[:, q]).all(-1)
-            for k in A:
-                A[k][gap, o] = A[k][gap, q]
-            X[gap, o] = X[gap, q]
+            _absorb(A, X, others[j], q)
             keep[q] = False
-    tri = (A["recon"] == RECON_TRIANGULATED).sum(0)
-    keep[P:] &= tri[P:] >= min_frames
-    sl = slice(first, last + 1)
-    o = {k: v[sl][:, keep] for k, v in A.items()}
-    return TrackResult(first, last, o["positions"], o["recon"], o["residual"], o["obs"],
-                       o["source"], o["detection"], o["quality"], R[sl], t[sl], done,
-                       cancelled, int(keep[P:].sum()))
+
+
+def hop_segments(X: ArrayLike, nb: NDArray[np.intp], w: NDArray[np.float64],
+                 gate: float, rows: ArrayLike | None = None) -> NDArray[np.intp]:
+    """Which marker identity each point is on, frame by frame, judged from its neighbours.
+
+    A point that hops to a neighbouring marker moves, between two frames where it is
+    seen, by about the marker spacing relative to how its neighbours moved; normal motion
+    relative to the neighbours is a small fraction of it. Each such hop starts a new
+    segment; segments are labelled by the summed hop vectors (a hop away and the hop back
+    cancel) and grouped when their labels agree within ``gate``. Group 0 is the identity
+    the point holds longest. Neighbours whose own motion disagrees with the others' (a
+    neighbour hopping itself) are left out.
+
+    Parameters
+    ----------
+    X : array_like, shape (F, P, 3)
+        Positions (mm; NaN where absent).
+    nb, w : ndarray, shape (P, k)
+        Neighbour graph (:func:`neighbour_graph`; index ``P`` = padding).
+    gate : float
+        Smallest hop (mm), e.g. half the marker spacing.
+    rows : array_like of int, optional
+        Points to examine (default all; the others get group 0 where present).
+
+    Returns
+    -------
+    ndarray of int, shape (F, P)
+        Identity group per point-frame: -1 absent, 0 the point's own, 1, 2, ... others.
+    """
+    X = np.asarray(X, np.float64)
+    F, P = X.shape[:2]
+    pad = np.concatenate([X, np.full((F, 1, 3), np.nan)], axis=1)
+    group = np.where(np.isfinite(X).all(-1), 0, -1).astype(np.intp)
+    for p in (range(P) if rows is None else np.asarray(rows, np.intp).reshape(-1)):
+        fr = np.flatnonzero(np.isfinite(X[:, p]).all(-1))
+        if fr.size < 2:
+            continue
+        a, b = fr[:-1], fr[1:]
+        dnb = pad[b][:, nb[p]] - pad[a][:, nb[p]]  # (n, k, 3)
+        fin = np.isfinite(dnb).all(-1) & (w[p] > 0)
+        # a neighbour that itself hops must not hide (or fake) this point's hop: only
+        # neighbours moving like most of them count
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(np.where(fin[..., None], dnb, np.nan), axis=1)
+        fin &= np.linalg.norm(dnb - med[:, None], axis=-1) <= 0.5 * gate
+        m = fin * w[p]
+        sw = m.sum(1)
+        mean = (np.nan_to_num(dnb) * m[..., None]).sum(1) / np.maximum(sw, 1e-9)[:, None]
+        r = X[b, p] - X[a, p] - mean
+        rn = np.where(sw > 0.05, np.linalg.norm(r, axis=-1), 0.0)
+        hop = rn > gate
+        if not hop.any():
+            continue
+        # a wrong frame between right ones gives a step out and a step back of which one
+        # may fall just short of the gate: a large step next to a hop counts as one too,
+        # so the two cancel
+        near = np.zeros_like(hop)
+        near[1:] |= hop[:-1]
+        near[:-1] |= hop[1:]
+        hop |= near & (rn > 0.5 * gate)
+        seg = np.r_[0, np.cumsum(hop)]  # segment of each frame in fr
+        label = np.cumsum(np.concatenate([np.zeros((1, 3)),
+                                          np.where(hop[:, None], r, 0.0)]), axis=0)
+        counts = np.bincount(seg)
+        # group segments by label, the longest-held identity first
+        centres: list[NDArray[np.float64]] = []
+        seg_group = np.zeros(counts.size, np.intp)
+        for sgi in np.argsort(-counts, kind="stable"):
+            lab = label[np.flatnonzero(seg == sgi)[0]]
+            dist = [float(np.linalg.norm(lab - c)) for c in centres]
+            if dist and min(dist) <= gate:
+                seg_group[sgi] = int(np.argmin(dist))
+            else:
+                seg_group[sgi] = len(centres)
+                centres.append(lab)
+        group[fr, p] = seg_group[seg]
+    return group
+
+
+def _face_graph(X: NDArray[np.float64], k: int = 12, min_frames: int = 10
+                ) -> tuple[NDArray, NDArray, float] | None:
+    """Neighbour graph of points from their median positions over the take (or None).
+
+    Only points present in at least ``min_frames`` frames serve as neighbours (the
+    short-lived finds of a pass would otherwise be the nearest neighbours of the marker
+    they double, with a random motion).
+    """
+    seen = np.isfinite(X[..., 0]).any(0)
+    if seen.sum() < 3:
+        return None
+    rest = np.full((X.shape[1], 3), np.nan)
+    rest[seen] = np.nanmedian(X[:, seen], axis=0)
+    ref = np.flatnonzero(np.isfinite(X[..., 0]).sum(0) >= min_frames)
+    if ref.size < 3:
+        ref = np.flatnonzero(seen)
+    P = X.shape[1]
+    kk = min(k, ref.size - 1)
+    d, j = cKDTree(rest[ref]).query(rest[seen], k=kk + 1)
+    cols = ref[j]
+    rows = np.flatnonzero(seen)
+    own = cols == rows[:, None]
+    # drop the point itself (or the farthest when it is not a reference)
+    drop = np.where(own.any(1), np.argmax(own, axis=1), kk)
+    keepc = np.ones_like(own)
+    keepc[np.arange(rows.size), drop] = False
+    cols = cols[keepc].reshape(rows.size, kk)
+    d = d[keepc].reshape(rows.size, kk)
+    spacing = _spacing(rest[ref])
+    nb = np.full((P, kk), P, np.intp)
+    w = np.zeros((P, kk))
+    nb[rows] = cols
+    w[rows] = np.exp(-((d / (1.5 * spacing)) ** 2))
+    return nb, w, spacing
+
+
+def _identity_groups(A: dict[str, NDArray[Any]], face: NDArray[np.intp]
+                     ) -> NDArray[np.intp] | None:
+    """:func:`hop_segments` of the ``face`` columns of a take's arrays (F, n).
+
+    Judged on the triangulated frames only (a single-camera frame's depth can be off by
+    a few millimetres without being on another marker); each single-camera frame takes
+    the group of the nearest triangulated frame before it (after it at the start).
+    """
+    pos = A["positions"][:, face].astype(np.float64)
+    tri = A["recon"][:, face] == RECON_TRIANGULATED
+    X = np.where(tri[..., None], pos, np.nan)
+    g = _face_graph(X)
+    if g is None:
+        return None
+    group = hop_segments(X, g[0], g[1], 0.5 * g[2])
+    other = np.isfinite(pos[..., 0]) & ~tri
+    F = pos.shape[0]
+    for j in np.flatnonzero(other.any(0)):
+        fin = np.flatnonzero(tri[:, j])
+        if fin.size == 0:
+            continue
+        idx = np.clip(np.searchsorted(fin, np.arange(F), side="right") - 1, 0, fin.size - 1)
+        group[other[:, j], j] = group[fin[idx], j][other[:, j]]
+    return group
+
+
+_FILLS = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan, "source": 0,
+          "detection": -1, "quality": 0}
+
+
+def _split_hops(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_]
+                ) -> tuple[dict[str, NDArray[Any]], NDArray[np.int8], NDArray[np.bool_]]:
+    """Move the frames where a face point is on another marker to new points."""
+    face = np.flatnonzero((kind != KIND_BRIM) & keep)
+    group = _identity_groups(A, face)
+    if group is None:
+        return A, kind, keep
+    cols, masks = [], []
+    for j in np.flatnonzero((group > 0).any(0)):
+        for gi in range(1, int(group[:, j].max()) + 1):
+            m = group[:, j] == gi
+            if m.any():
+                cols.append(face[j])
+                masks.append(m)
+    if not cols:
+        return A, kind, keep
+    mk = np.stack(masks, axis=1)  # (F, n)
+    src = np.asarray(cols)
+    out = {}
+    for k, arr in A.items():
+        piece = arr[:, src].copy()
+        shape = mk.shape + (1,) * (arr.ndim - 2)
+        piece = np.where(mk.reshape(shape), piece, np.asarray(_FILLS[k], arr.dtype))
+        arr = arr.copy()
+        for i, c in enumerate(src):
+            arr[mk[:, i], c] = _FILLS[k]
+        out[k] = np.concatenate([arr, piece.astype(arr.dtype)], axis=1)
+    kind = np.r_[kind, np.full(src.size, KIND_FACE, np.int8)]
+    keep = np.r_[keep, np.ones(src.size, bool)]
+    return out, kind, keep
+
+
+def _remove_hops(A: dict[str, NDArray[Any]], kind: NDArray[np.int8],
+                 keep: NDArray[np.bool_]) -> None:
+    """Clear the frames where a face point sits on another marker (:func:`hop_segments`)."""
+    face = np.flatnonzero((kind != KIND_BRIM) & keep)
+    group = _identity_groups(A, face)
+    if group is None:
+        return
+    bad = group > 0
+    if bad.any():
+        for k, arr in A.items():
+            sub = arr[:, face]
+            sub[bad] = _FILLS[k]
+            arr[:, face] = sub
+
+
+def _absorb(A: dict[str, NDArray[Any]], X: NDArray[np.float64], o: int, q: int) -> None:
+    """Give point ``o`` point ``q``'s data in the frames where ``o`` has none."""
+    gap = ~np.isfinite(X[:, o]).all(-1) & np.isfinite(X[:, q]).all(-1)
+    for k in A:
+        A[k][gap, o] = A[k][gap, q]
+    X[gap, o] = X[gap, q]
+
+
+def _stitch(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
+            P: int, merge_mm: float) -> None:
+    """Join found points that are pieces of an earlier point's marker.
+
+    A marker lost and found again several times becomes several points that rarely
+    coexist, so their distance cannot be compared. A found point joins an earlier one
+    whose typical position is within half the marker spacing when, wherever both exist,
+    they agree within ``merge_mm``, and the joined track has no hop relative to the
+    neighbours' motion (:func:`hop_segments`), i.e. continues on the same marker.
+    """
+    X = A["positions"].astype(np.float64)
+    X = np.where((A["recon"] == RECON_TRIANGULATED)[..., None], X, np.nan)
+    face = np.flatnonzero((kind != KIND_BRIM) & keep)
+    seen = np.isfinite(X[:, face, 0]).any(0)
+    if seen.sum() < 4 or face.size == 0:
+        return
+    rest = np.full((X.shape[1], 3), np.nan)
+    rest[face[seen]] = np.nanmedian(X[:, face[seen]], axis=0)
+    has = np.isfinite(rest).all(-1)
+    spacing = _spacing(rest[face])
+    gate = 0.5 * spacing
+    base = face[has[face]]
+    if base.size < 4:
+        return
+    tree = cKDTree(rest[base])
+    k = min(8, base.size - 2)
+    kq = min(k + 8, base.size)
+    Xall = A["positions"].astype(np.float64)
+    for q in range(P, X.shape[1]):
+        if not (keep[q] and has[q] and kind[q] != KIND_BRIM):
+            continue
+        others = face[(face < q) & keep[face] & has[face]]
+        dr = np.linalg.norm(rest[others] - rest[q], axis=-1)
+        order = np.argsort(dr)
+        for o in others[order[dr[order] <= gate][:3]]:
+            both = np.isfinite(X[:, o, 0]) & np.isfinite(X[:, q, 0])
+            if both.any() and np.median(np.linalg.norm(X[both, o] - X[both, q], axis=-1)) \
+                    > merge_mm:
+                continue
+            comb = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
+            # the nearest other markers (pieces of this one excluded) as references
+            dd, jj = tree.query(rest[o], k=kq)
+            nbp = base[jj]
+            sel = (nbp != o) & (nbp != q) & (dd > gate) & keep[nbp]
+            nbp, dd = nbp[sel][:k], dd[sel][:k]
+            if nbp.size == 0:
+                continue
+            n = nbp.size
+            loc = np.concatenate([comb[:, None], X[:, nbp]], axis=1)
+            nb = np.full((1 + n, n), 1 + n, np.intp)
+            nb[0] = np.arange(1, 1 + n)
+            w = np.zeros((1 + n, n))
+            w[0] = np.exp(-((dd / spacing) ** 2))
+            g = hop_segments(loc, nb, w, gate, rows=[0])[:, 0]
+            # a few isolated frames off (noisy first frames of a piece) are cleared later
+            if (g > 0).sum() <= 0.02 * (g >= 0).sum():
+                _absorb(A, Xall, o, q)
+                X[:, o] = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
+                keep[q] = False
+                break
+
+
+def _drop_isolated(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
+                   P: int, factor: float = 2.5) -> None:
+    """Drop found points far from every other face point.
+
+    Two real markers matched across the cameras of one caddy make a "ghost" that moves
+    smoothly like a marker but floats off the face: its typical position is several
+    marker spacings from any other point, which no real marker of the set is.
+    """
+    face = np.flatnonzero((kind != KIND_BRIM) & keep)
+    if face.size < 4 or not (face >= P).any():
+        return
+    X = A["positions"][:, face].astype(np.float64)
+    seen = np.isfinite(X[..., 0]).any(0)
+    rest = np.full((face.size, 3), np.nan)
+    rest[seen] = np.nanmedian(X[:, seen], axis=0)
+    ok = np.flatnonzero(seen)
+    if ok.size < 4:
+        return
+    d, _ = cKDTree(rest[ok]).query(rest[ok], k=2)
+    spacing = float(np.median(d[:, 1]))
+    far = face[ok][d[:, 1] > factor * spacing]
+    keep[far[far >= P]] = False

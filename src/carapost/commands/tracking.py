@@ -353,11 +353,12 @@ def compute_take_tracking(
 ) -> TakeTrackComputation:
     """Track every point over the whole take from one frame, finding missed markers.
 
-    Runs :func:`carapost.algorithms.tracking.track_take`: forwards to the end with
-    Initialize 3D run on the unused detections (``find_markers``; the tracked points are
-    its seeds, so nothing is created twice), then backwards to frame 0 guided by the
-    forward pass, so each marker is tracked from its first appearance. Thread-safe: reads
-    copies, changes nothing.
+    Runs :func:`carapost.algorithms.tracking.track_take`: forwards to the end (backwards
+    when ``frame`` is the last frame) with Initialize 3D run on the unused detections
+    (``find_markers``; the tracked points are its seeds, so nothing is created twice),
+    then over the whole take the other way guided by the first pass, so each marker is
+    tracked from its first appearance; points are then split where they hop to another
+    marker and pieces of one marker joined. Thread-safe: reads copies, changes nothing.
 
     Raises
     ------
