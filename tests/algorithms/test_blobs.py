@@ -228,7 +228,7 @@ def test_projected_ellipse_of_a_frontal_disc():
 # The acceptance targets (recall, precision, centre median / p95 in px) ...
 RECALL_TARGET, PRECISION_TARGET, MEDIAN_TARGET, P95_TARGET = 0.99, 0.98, 0.08, 0.25
 # ... and what the detector reaches on carapost.synth today (regression guard; see
-# docs/parts/benchmarks-blobs.md for the gap: recall ~0.984).
+# docs/benchmarks.md for the gap).
 RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.96, 0.98, 0.08, 0.25
 
 
