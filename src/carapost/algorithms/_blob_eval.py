@@ -31,15 +31,28 @@ CIRCLEGRID_PATTERNS = (
 
 
 @dataclass
-class FaceScore:
-    """Accumulated detection accuracy over synthetic face images."""
+class _Tally:
+    """Counts shared by the scorers: truth blobs expected and found, detections, falses."""
 
     expected: int = 0
     found: int = 0
     detections: int = 0
-    false: dict = field(default_factory=lambda: {n: 0 for n in REGION_NAMES.values()})
     images: int = 0
+    false: dict = field(default_factory=lambda: {n: 0 for n in REGION_NAMES.values()})
     centre_err: list = field(default_factory=list)
+
+    @property
+    def recall(self) -> float:
+        return self.found / max(self.expected, 1)
+
+    @property
+    def precision(self) -> float:
+        return 1.0 - sum(self.false.values()) / max(self.detections, 1)
+
+
+@dataclass
+class FaceScore(_Tally):
+    """Accumulated detection accuracy over synthetic face images."""
 
     def add(self, s: SynthImage, det: BlobDetections, params: BlobParameters) -> None:
         """Score one image: recall over markers in the radius range that are unoccluded
@@ -76,14 +89,6 @@ class FaceScore:
                     reg = s.region_map[int(np.clip(round(y), 0, s.region_map.shape[0] - 1)),
                                        int(np.clip(round(x), 0, s.region_map.shape[1] - 1))]
                     self.false[REGION_NAMES[int(reg)]] += 1
-
-    @property
-    def recall(self) -> float:
-        return self.found / max(self.expected, 1)
-
-    @property
-    def precision(self) -> float:
-        return 1.0 - sum(self.false.values()) / max(self.detections, 1)
 
     def summary(self) -> dict:
         e = np.asarray(self.centre_err) if self.centre_err else np.full(1, np.nan)
@@ -327,7 +332,7 @@ def synth_view(scene, frame: int, camera: int, *, regions: bool = True) -> Synth
 
 
 @dataclass
-class SynthScore:
+class SynthScore(_Tally):
     """Blob detection accuracy accumulated over ``carapost.synth`` views (black markers).
 
     A truth blob *counts* for recall when its projected semi-major axis is inside the
@@ -338,12 +343,6 @@ class SynthScore:
     classified by the region map at their centre.
     """
 
-    expected: int = 0
-    found: int = 0
-    detections: int = 0
-    images: int = 0
-    false: dict = field(default_factory=lambda: {n: 0 for n in REGION_NAMES.values()})
-    centre_err: list = field(default_factory=list)
     missed_axes: list = field(default_factory=list)
 
     def add(self, v: SynthView, det: BlobDetections, params: BlobParameters) -> None:
@@ -387,14 +386,6 @@ class SynthScore:
             self.false[k] += v
         self.centre_err.extend(other.centre_err)
         self.missed_axes.extend(other.missed_axes)
-
-    @property
-    def recall(self) -> float:
-        return self.found / max(self.expected, 1)
-
-    @property
-    def precision(self) -> float:
-        return 1.0 - sum(self.false.values()) / max(self.detections, 1)
 
     def summary(self) -> dict:
         e = np.asarray(self.centre_err) if self.centre_err else np.full(1, np.nan)

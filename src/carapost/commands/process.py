@@ -48,7 +48,12 @@ __all__ = [
 ]
 
 
-def _refuse(message: str) -> CommandError:
+def refuse(message: str) -> CommandError:
+    """A :class:`CommandError` for ``message``, logged as an error on ``carapost.process``.
+
+    Processing commands ``raise refuse(...)`` so the reason reaches the Log pane even when
+    the caller (a batch script) only catches the exception.
+    """
     log.error("%s", message)
     return CommandError(message)
 
@@ -56,17 +61,17 @@ def _refuse(message: str) -> CommandError:
 def _check_frame(project: Project, frame: int, what: str) -> int:
     f = int(frame)
     if not 0 <= f < project.n_frames:
-        raise _refuse(f"{what}: frame {f} is outside the take (0-{project.n_frames - 1})")
+        raise refuse(f"{what}: frame {f} is outside the take (0-{project.n_frames - 1})")
     return f
 
 
 def _intrinsics(project: Project, what: str):
     intr = project.calibration.intrinsics
     if intr is None:
-        raise _refuse(f"{what}: the project has no camera calibration (import an XCP file "
+        raise refuse(f"{what}: the project has no camera calibration (import an XCP file "
                       "for the intrinsics)")
     if intr.n_cameras != project.n_cameras:
-        raise _refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
+        raise refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
                       f"{project.n_cameras}")
     return intr
 
@@ -80,11 +85,11 @@ def _brim(project: Project, frame: int, what: str) -> tuple[NDArray[np.intp], ND
     """Columns of the brim points and the brim model (B, 3)."""
     cols = np.flatnonzero(project.points.kind == KIND_BRIM)
     if cols.size == 0:
-        raise _refuse(f"{what}: the project has no calibration brim (Initialize Default "
+        raise refuse(f"{what}: the project has no calibration brim (Initialize Default "
                       "Calibration Brim or Import Calibration Brim [SVG] first)")
     model = project.points.positions[frame, cols].astype(np.float64)
     if not np.all(np.isfinite(model)):
-        raise _refuse(f"{what}: the brim model has points without a position")
+        raise refuse(f"{what}: the brim model has points without a position")
     return cols, model
 
 
@@ -168,7 +173,7 @@ class DetectBlobs(ReplaceDetections):
 
         what = "Detect Blobs"
         if get_image is None:
-            raise _refuse(f"{what}: no image source (the take has no camera videos)")
+            raise refuse(f"{what}: no image source (the take has no camera videos)")
         a, b = frames if frames is not None else (project.current_frame,) * 2
         a, b = _check_frame(project, a, what), _check_frame(project, b, what)
         if a > b:
@@ -176,16 +181,16 @@ class DetectBlobs(ReplaceDetections):
         cams = (project.processing_cameras() if cameras is None
                 else np.array(sorted(set(int(c) for c in cameras)), dtype=np.intp))
         if cams.size == 0 or cams.min() < 0 or cams.max() >= project.n_cameras:
-            raise _refuse(f"{what}: no such camera in {list(cams)}")
+            raise refuse(f"{what}: no such camera in {list(cams)}")
         try:
             params = BlobParameters(**project.properties.section("Blob Parameters"))
         except ValueError as exc:
-            raise _refuse(f"{what}: {exc}") from None
+            raise refuse(f"{what}: {exc}") from None
         keys: list[Hashable] = [(f, int(c)) for f in range(a, b + 1) for c in cams]
         result = detect_blobs_batch(lambda k: get_image(*k), keys, params, workers=workers,
                                     progress=progress)
         if not result:
-            raise _refuse(f"{what}: cancelled before any image was finished")
+            raise refuse(f"{what}: cancelled before any image was finished")
         images = [k for k in keys if k in result]
         tables = [result[k]._asdict() for k in images]
         self.cancelled = len(images) < len(keys)
@@ -208,10 +213,10 @@ class SetBrimModel(Command):
         self.labels = list(labels)
         self.xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
         if len(self.labels) != len(self.xyz) or len(self.xyz) < 4:
-            raise _refuse(f"{description}: a brim needs at least 4 dots with one label each "
+            raise refuse(f"{description}: a brim needs at least 4 dots with one label each "
                           f"(got {len(self.xyz)} dots, {len(self.labels)} labels)")
         if not np.all(np.isfinite(self.xyz)):
-            raise _refuse(f"{description}: a brim dot position is not finite")
+            raise refuse(f"{description}: a brim dot position is not finite")
         self.description = description
 
     def apply(self, project: Project, journal: Journal) -> None:
@@ -231,7 +236,7 @@ class InitializeDefaultBrim(SetBrimModel):
         try:
             labels, xyz = default_brim(version)
         except ValueError as exc:
-            raise _refuse(f"Initialize Default Calibration Brim: {exc}") from None
+            raise refuse(f"Initialize Default Calibration Brim: {exc}") from None
         super().__init__(labels, xyz,
                          f"Initialize Default Calibration Brim [{version.strip().lower()}]")
         log.info("%s: %d brim dots", self.description, len(xyz))
@@ -247,7 +252,7 @@ class ImportBrimSvg(SetBrimModel):
         try:
             labels, xyz = read_brim_svg(path)
         except CaraFileError as exc:
-            raise _refuse(f"Import Calibration Brim [SVG]: {exc}") from None
+            raise refuse(f"Import Calibration Brim [SVG]: {exc}") from None
         super().__init__(labels, xyz, f"Import Calibration Brim [SVG] {Path(path).name}")
         self.path = str(path)
         log.info("%s: %d brim dots", self.description, len(xyz))
@@ -316,7 +321,7 @@ class SolveBrimManual(_ApplyBrimSolve):
         dets = _frame_detections(project, f)
         res = solve_brim_manual(dets, correspondences, model, intr)
         if not res.success:
-            raise _refuse(res.message)
+            raise refuse(res.message)
         super().__init__(project, f, res, cols, model, f"{what} [frame {f}]")
         self.message = res.message
 
@@ -337,13 +342,13 @@ class SolveBrimAuto(_ApplyBrimSolve):
         cols, model = _brim(project, f, what)
         cal = project.calibration
         if not cal.solved.any():
-            raise _refuse(f"{what}: needs the rig geometry of an XCP calibration (import one) "
+            raise refuse(f"{what}: needs the rig geometry of an XCP calibration (import one) "
                           "or a solved frame")
         ref = f if cal.solved[f] else int(np.flatnonzero(cal.solved)[0])
         res = solve_brim_auto(_frame_detections(project, f), model, intr, cal.R[ref],
                               cal.t[ref])
         if not res.success:
-            raise _refuse(res.message)
+            raise refuse(res.message)
         super().__init__(project, f, res, cols, model, f"{what} [frame {f}]")
         self.message = res.message
 
@@ -375,13 +380,13 @@ class Initialize3D(Command):
         intr = _intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:
-            raise _refuse(f"{what}: the cameras of frame {f} are not solved (Solve "
+            raise refuse(f"{what}: the cameras of frame {f} are not solved (Solve "
                           "Calibration Brim first)")
         pts = project.points
         C = project.n_cameras
         dets = _frame_detections(project, f)
         if not any(len(d) for d in dets):
-            raise _refuse(f"{what}: frame {f} has no detections (run Detect Blobs)")
+            raise refuse(f"{what}: frame {f} has no detections (run Detect Blobs)")
         R, t = cal.R[f].copy(), cal.t[f].copy()
         # detections already taken by points stay out; brim ones and the brim region too
         exclude = [np.zeros(len(d), dtype=bool) for d in dets]
@@ -413,15 +418,15 @@ class Initialize3D(Command):
         try:
             params = Init3DParameters(**project.properties.section("Initialize 3D Parameters"))
         except (TypeError, ValueError) as exc:
-            raise _refuse(f"{what}: {exc}") from None
+            raise refuse(f"{what}: {exc}") from None
         try:
             res = initialize_3d(dets, R, t, intr, caddies=_caddies(C),
                                 seeds=seed_rows or None, exclude_mask=exclude, params=params,
                                 brim_model=brim_model, brim_detections=brim_det)
         except ValueError as exc:
-            raise _refuse(f"{what}: {exc}") from None
+            raise refuse(f"{what}: {exc}") from None
         if not res.success:
-            raise _refuse(res.message)
+            raise refuse(res.message)
         super().__init__()
         self.frame = f
         self.seed_ids = pts.ids[seed_cols].copy()
@@ -466,7 +471,7 @@ class BundleCurrentFrame(Command):
         intr = _intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:
-            raise _refuse(f"{what}: the cameras of frame {f} are not solved")
+            raise refuse(f"{what}: the cameras of frame {f} are not solved")
         pts = project.points
         obs = pts.obs[f].astype(np.float64)  # (P, C, 2)
         nview = np.isfinite(obs).all(-1).sum(1)
@@ -476,7 +481,7 @@ class BundleCurrentFrame(Command):
         use |= brim & (nview >= 1) & np.isfinite(X).all(1)
         face = use & ~brim
         if not face.any() and not (use & brim).any():
-            raise _refuse(f"{what}: no point of frame {f} has observations in two cameras")
+            raise refuse(f"{what}: no point of frame {f} has observations in two cameras")
         cols = np.flatnonzero(use)
         X0 = X[cols]
         # face points without a 3D position get one from their rays first
@@ -493,7 +498,7 @@ class BundleCurrentFrame(Command):
         res = bundle_frame(obs[cols], X0, cal.R[f], cal.t[f], intr,
                            fixed_points_mask=brim[cols])
         if not (res.success or np.isfinite(res.rms_after)):
-            raise _refuse(f"{what}: the adjustment failed ({res.message})")
+            raise refuse(f"{what}: the adjustment failed ({res.message})")
         super().__init__()
         self.frame = f
         self.ids = pts.ids[cols[~brim[cols]]].copy()

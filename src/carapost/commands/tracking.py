@@ -33,7 +33,8 @@ from carapost.algorithms.tracking import (
     track,
     track_take,
 )
-from carapost.commands.stack import Command, CommandError, Journal
+from carapost.commands.process import refuse
+from carapost.commands.stack import Command, Journal
 from carapost.model.project import (
     KIND_BRIM,
     KIND_FACE,
@@ -61,18 +62,13 @@ __all__ = [
 ]
 
 
-def _refuse(message: str) -> CommandError:
-    log.error("%s", message)
-    return CommandError(message)
-
-
 def _intrinsics(project: Project, what: str) -> Any:
     intr = project.calibration.intrinsics
     if intr is None:
-        raise _refuse(f"{what}: the project has no camera calibration (import an XCP file "
+        raise refuse(f"{what}: the project has no camera calibration (import an XCP file "
                       "or initialise from a ROM)")
     if intr.n_cameras != project.n_cameras:
-        raise _refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
+        raise refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
                       f"{project.n_cameras}")
     return intr
 
@@ -82,7 +78,7 @@ def _tracking_parameters(project: Project, what: str, **overrides: Any) -> Track
         return TrackingParameters.from_mapping(
             project.properties.section("Tracking Parameters"), **overrides)
     except (TypeError, ValueError) as exc:
-        raise _refuse(f"{what}: {exc}") from None
+        raise refuse(f"{what}: {exc}") from None
 
 
 def _set_camera_block(journal: Journal, project: Project, frames: slice, R: NDArray,
@@ -207,7 +203,7 @@ def compute_tracking(
     pts = project.points
     start = project.current_frame if frame is None else int(frame)
     if not 0 <= start < project.n_frames:
-        raise _refuse(f"{what}: frame {start} is outside the take")
+        raise refuse(f"{what}: frame {start} is outside the take")
     a, b = project.active_range
     if single_frame:
         stop = start + direction
@@ -215,7 +211,7 @@ def compute_tracking(
         stop = b if direction > 0 else a
     stop = min(max(stop, 0), project.n_frames - 1)
     if (stop - start) * direction <= 0:
-        raise _refuse(f"{what}: nothing to track from frame {start} "
+        raise refuse(f"{what}: nothing to track from frame {start} "
                       f"({'end' if direction > 0 else 'start'} of the active range)")
     if point_ids is None:
         cols = project.selected_columns()
@@ -225,24 +221,24 @@ def compute_tracking(
         try:
             cols = np.sort(pts.index_of(sorted(set(int(p) for p in point_ids))))
         except KeyError as exc:
-            raise _refuse(f"{what}: {exc.args[0]}") from None
+            raise refuse(f"{what}: {exc.args[0]}") from None
     brim = np.flatnonzero(pts.kind == KIND_BRIM)
     cols = np.union1d(cols, brim).astype(np.intp)
     X0 = pts.positions[start, cols].astype(np.float64)
     face_ok = np.isfinite(X0).all(-1) & (pts.kind[cols] != KIND_BRIM)
     if not face_ok.any():
-        raise _refuse(f"{what}: no point has a 3D position at frame {start} (initialise "
+        raise refuse(f"{what}: no point has a 3D position at frame {start} (initialise "
                       "the frame first)")
     cal = project.calibration
     has_brim = bool(np.isfinite(X0[pts.kind[cols] == KIND_BRIM]).all(-1).any()) \
         if brim.size else False
     if not cal.solved[start]:
-        raise _refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
+        raise refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
                       "Calibration Brim first)")
     if not has_brim:
         lo, hi = min(start, stop), max(start, stop)
         if not cal.solved[lo:hi + 1].all():
-            raise _refuse(f"{what}: without a calibration brim every frame's cameras must "
+            raise refuse(f"{what}: without a calibration brim every frame's cameras must "
                           "be solved (import an XCP calibration)")
     # start-frame observations and blob sizes (for patch templates and the size test)
     obs0 = pts.obs[start, cols].astype(np.float64)
@@ -373,20 +369,20 @@ def compute_take_tracking(
     pts = project.points
     start = project.current_frame if frame is None else int(frame)
     if not 0 <= start < project.n_frames:
-        raise _refuse(f"{what}: frame {start} is outside the take")
+        raise refuse(f"{what}: frame {start} is outside the take")
     cal = project.calibration
     if not cal.solved[start]:
-        raise _refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
+        raise refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
                       "Calibration Brim first)")
     X0 = pts.positions[start].astype(np.float64)
     kind = pts.kind.copy()
     if not (np.isfinite(X0).all(-1) & (kind != KIND_BRIM)).any():
-        raise _refuse(f"{what}: no point has a 3D position at frame {start} (initialise "
+        raise refuse(f"{what}: no point has a 3D position at frame {start} (initialise "
                       "the frame first)")
     brim = kind == KIND_BRIM
     has_brim = bool(np.isfinite(X0[brim]).all(-1).any()) if brim.any() else False
     if not has_brim and not cal.solved.all():
-        raise _refuse(f"{what}: without a calibration brim every frame's cameras must be "
+        raise refuse(f"{what}: without a calibration brim every frame's cameras must be "
                       "solved (import an XCP calibration)")
     obs0 = pts.obs[start].astype(np.float64)
     det0 = pts.detection[start]
@@ -400,7 +396,7 @@ def compute_take_tracking(
         try:
             ip = Init3DParameters(**project.properties.section("Initialize 3D Parameters"))
         except (TypeError, ValueError) as exc:
-            raise _refuse(f"{what}: {exc}") from None
+            raise refuse(f"{what}: {exc}") from None
         bm = X0[brim][np.isfinite(X0[brim]).all(-1)] if has_brim else None
         caddies = tuple((i, i + 1) for i in range(0, intr.n_cameras - 1, 2))
         spawn = make_spawner(intr, caddies, ip, brim_model=bm)
@@ -489,11 +485,11 @@ class LoadRom(Command):
         try:
             rom = load_project(p)
         except CaraFileError as exc:
-            raise _refuse(f"Load ROM: {exc}") from None
+            raise refuse(f"Load ROM: {exc}") from None
         if rom.points.count == 0:
-            raise _refuse(f"Load ROM: {p} has no points to initialise from")
+            raise refuse(f"Load ROM: {p} has no points to initialise from")
         if rom.calibration.intrinsics is None:
-            raise _refuse(f"Load ROM: {p} has no camera calibration")
+            raise refuse(f"Load ROM: {p} has no camera calibration")
         self.reference = RomReference(path=str(p.absolute()), project=rom)
         self.description = f"Load ROM {p.name}"
         log.info("Loaded ROM %s: %d points, %d frames", p, rom.points.count, rom.n_frames)
@@ -537,24 +533,24 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
     """
     what = "Initialize from ROM" + (" [Brim Only]" if brim_only else "")
     if project.rom is None or project.rom.project is None:
-        raise _refuse(f"{what}: no ROM is loaded (File > Load ROM first)")
+        raise refuse(f"{what}: no ROM is loaded (File > Load ROM first)")
     rom: Project = project.rom.project
     f = project.current_frame if frame is None else int(frame)
     if not 0 <= f < project.n_frames:
-        raise _refuse(f"{what}: frame {f} is outside the take")
+        raise refuse(f"{what}: frame {f} is outside the take")
     if rom.n_cameras != project.n_cameras:
-        raise _refuse(f"{what}: the ROM has {rom.n_cameras} cameras, this take "
+        raise refuse(f"{what}: the ROM has {rom.n_cameras} cameras, this take "
                       f"{project.n_cameras}")
     try:
         rp = RomParameters(**project.properties.section("Initialize From ROM Parameters"))
     except (TypeError, ValueError) as exc:
-        raise _refuse(f"{what}: {exc}") from None
+        raise refuse(f"{what}: {exc}") from None
     rf = rp.rom_frame_index
     if not 0 <= rf < rom.n_frames:
-        raise _refuse(f"{what}: ROM Frame Index {rf} is outside the ROM take (0-"
+        raise refuse(f"{what}: ROM Frame Index {rf} is outside the ROM take (0-"
                       f"{rom.n_frames - 1})")
     if not rom.calibration.solved[rf]:
-        raise _refuse(f"{what}: the ROM's cameras are not solved at frame {rf}")
+        raise refuse(f"{what}: the ROM's cameras are not solved at frame {rf}")
     tparams = _tracking_parameters(project, what)
     rpts = rom.points
     X = rpts.positions[rf].astype(np.float64)
@@ -563,7 +559,7 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
         keep &= rpts.kind == KIND_BRIM
     rows = np.flatnonzero(keep)
     if rows.size == 0:
-        raise _refuse(f"{what}: the ROM has no {'brim ' if brim_only else ''}points with a "
+        raise refuse(f"{what}: the ROM has no {'brim ' if brim_only else ''}points with a "
                       f"3D position at frame {rf}")
     intr = project.calibration.intrinsics
     if intr is None or intr.n_cameras != project.n_cameras:
@@ -571,12 +567,12 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
     dets = RaggedDetections(project.detections.offsets, project.detections.arrays["centre"],
                             project.detections.arrays["axes"], project.n_cameras)(f)
     if not any(len(d[0]) for d in dets):
-        raise _refuse(f"{what}: frame {f} has no detections (run Detect Blobs)")
+        raise refuse(f"{what}: frame {f} has no detections (run Detect Blobs)")
     res = initialize_from_rom(dets, X[rows], rpts.kind[rows], rom.calibration.R[rf],
                               rom.calibration.t[rf], intr, rp, tparams)
     n_found = int(np.isfinite(res.positions).all(-1).sum())
     if n_found == 0:
-        raise _refuse(f"{what}: no ROM point could be matched at frame {f} (try a ROM Frame "
+        raise refuse(f"{what}: no ROM point could be matched at frame {f} (try a ROM Frame "
                       "Index closer to this frame's pose, or larger ROM tracking distances)")
     labels = [rpts.labels[i] for i in rows]
     kind = rpts.kind[rows].copy()
