@@ -194,8 +194,8 @@ def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = Non
             report = api.evaluate(project, truth)
             eval_path = results / "evaluation.json"
             eval_path.write_text(json.dumps(report, indent=1), encoding="utf-8")
-            print(f"Evaluation:  {eval_path} (RMSE {report['rmse_mm']} mm, "
-                  f"coverage {report['coverage']})")
+            print(f"Evaluation:  {eval_path} (RMSE {report['rmse_mm']:.3f} mm, "
+                  f"coverage {report['coverage']:.3f}, {report['swaps']} identity swaps)")
         else:
             print(f"Truth:       {truth} (no 3D points to evaluate yet)")
     return 0
