@@ -547,3 +547,50 @@ def test_elastic_passes_parameter_is_validated():
     assert TrackingParameters().elastic_passes == 5
     with pytest.raises(ValueError, match="elastic_passes"):
         TrackingParameters(elastic_passes=0)
+
+
+def test_shadows_flags_lost_points_drifted_onto_tracked_markers():
+    """A lost point whose carried estimate sits on a tracked marker is a shadow; a lost
+    point in its own place, a tracked point and a brim point are not."""
+    from carapost.algorithms.tracking import _shadows, _spacing
+
+    X = scene_of("speech", 1).points3d[0].copy()
+    M = len(X)
+    spacing = _spacing(X)
+    lost = np.zeros(M, bool)
+    lost[[3, 7]] = True
+    X[3] = X[10] + [0.0, 0.2 * spacing, 0.0]  # drifted onto marker 10
+    face = np.ones(M, bool)
+    out = _shadows(X, lost, ~lost, face, spacing)
+    assert out.tolist() == [i == 3 for i in range(M)]
+    face[3] = False  # not a face point (brim): never a shadow
+    assert not _shadows(X, lost, ~lost, face, spacing).any()
+    # nothing tracked to lie on
+    assert not _shadows(X, lost, np.zeros(M, bool), np.ones(M, bool), spacing).any()
+
+
+def test_blocked_point_takes_no_blob_but_keeps_a_carried_estimate():
+    """match_frame(blocked=...) leaves the blocked point's blobs to the others while its
+    neighbour-carried prediction is still formed."""
+    from carapost.algorithms.tracking import FrameMatcher, _pack
+
+    scene = scene_of("speech", 2)
+    dets = synth_detections(scene, clutter=0, dropout=0.0)
+    M, B = len(scene.labels), len(scene.brim3d)
+    X0 = np.concatenate([scene.points3d[0], scene.brim3d])
+    kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
+    matcher = FrameMatcher(scene.intrinsics, kind, X0, TrackingParameters())
+    fr = _pack([(d[0], d[1]) for d in dets[1]], 4)
+    axes = np.full((M + B, 4, 2), 5.0)
+    p = int(np.flatnonzero(scene.visible[1].sum(-1) == 4)[0])
+    free = matcher.match_frame(fr, X0, scene.cam_R[0], scene.cam_t[0], axes)
+    assert (free["detection"][p] >= 0).all()
+    blocked = np.zeros(M + B, bool)
+    blocked[p] = True
+    res = matcher.match_frame(fr, X0, scene.cam_R[0], scene.cam_t[0], axes, blocked=blocked)
+    assert (res["detection"][p] == -1).all()
+    assert np.isnan(res["positions"][p]).all()
+    assert np.linalg.norm(res["X_elastic"][p] - scene.points3d[1, p]) < 1.0
+    # nobody else took the blocked point's blobs, and the others are unchanged
+    others = np.arange(M + B) != p
+    assert np.array_equal(res["detection"][others], free["detection"][others])

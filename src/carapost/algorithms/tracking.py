@@ -606,6 +606,8 @@ class FrameMatcher:
                         tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None,
         resolve_cameras: bool = True,
         ref: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+        blocked: NDArray[np.bool_] | None = None,
+        hold_unsupported: bool = False,
     ) -> dict[str, NDArray]:
         """Match, solve cameras, triangulate and clean one frame.
 
@@ -626,6 +628,15 @@ class FrameMatcher:
             Each face point's last multi-camera position and its neighbours' positions
             at that time: the elastic 3D prediction is X_ref plus how the neighbours
             moved since, which does not drift while a point is seen by one camera.
+        blocked : (P,) bool, optional
+            Face points that take no detection in this frame (their estimate is still
+            carried by their neighbours), e.g. a lost point whose estimate has drifted
+            onto a tracked marker: it would otherwise take that marker's blob.
+        hold_unsupported : bool
+            Hold points without elastic support (and no match yet) out of the elastic
+            passes until the supported matches have settled (frame-to-frame tracking;
+            see below). Off for a one-off match such as a ROM frame, where the search
+            around the given positions is the whole mechanism.
 
         Returns
         -------
@@ -704,10 +715,22 @@ class FrameMatcher:
             base_all[fi] = uvf
             size_ok = size_ok_all[:, f]
             rad = np.full((f.size, C), float(face_radius))
+            blk = (np.zeros(f.size, bool) if blocked is None
+                   else np.asarray(blocked, bool)[f])
+            rad[blk] = -1.0  # a negative radius has no candidates
             df = self.match_2d(fr, uvf, rad, size_ok, anchors_only=True, taken=taken,
                                nb_index=fi)
-            n_pass = p.elastic_passes if passes is None else passes
-            for it in range(max(int(n_pass), 1)):
+            n_pass = max(int(p.elastic_passes if passes is None else passes), 1)
+            # Points without matched neighbours (no elastic support) would search around
+            # their stale position and take the nearest blob, which in a region moving
+            # about one marker spacing per frame is often the next marker along the
+            # motion; the whole region then slips together and supports itself. They are
+            # held back while the supported matches spread inwards, and matched at the
+            # wide radius only once that has settled (then at most three more passes,
+            # which keeps the cost near that of the plain passes).
+            hold = bool(hold_unsupported)
+            released = n_pass + 2  # the pass after which the held points were let in
+            for it in range(n_pass + 2):
                 df_prev = df
                 m_all = np.zeros((Pf_all, C), bool)
                 m_all[fi] = df >= 0
@@ -716,12 +739,23 @@ class FrameMatcher:
                 pred_all, support = self.elastic_2d(base_all, uvm_all, m_all, self.face)
                 pred = pred_all[fi]
                 sup = support[fi]
-                rad = np.where(sup >= p.min_elastic_support, float(elastic_radius),
-                               float(face_radius))
+                weak = sup < p.min_elastic_support
+                rad_w = float(face_radius)
+                rad = np.where(weak, rad_w, float(elastic_radius))
+                if hold:  # weak points keep competing for what they already hold
+                    rad[weak & (df_prev < 0)] = -1.0
+                rad[blk] = -1.0
                 df = self.match_2d(fr, pred, rad, size_ok, taken=taken)
                 # matches spread inwards from the matched points pass by pass (a region
                 # moving faster than the search radius); stop once nothing changes
-                if it >= 1 and np.array_equal(df, df_prev):
+                settled = it >= 1 and np.array_equal(df, df_prev)
+                if hold and (settled or it + 2 >= n_pass):
+                    hold = False
+                    left = weak & ~blk[:, None] & np.isfinite(pred).all(-1) & (df < 0)
+                    if left.any():
+                        released = it
+                        continue
+                if settled or it >= released + 3:
                     break
             det[f] = df
             source[f] = np.where(df >= 0, SOURCE_BLOB, SOURCE_NONE)
@@ -729,7 +763,7 @@ class FrameMatcher:
             obs[f] = gather(df)
             if patch is not None:
                 missing = np.zeros((P, C), bool)
-                missing[f] = (df < 0) & np.isfinite(pred).all(-1)
+                missing[f] = (df < 0) & np.isfinite(pred).all(-1) & ~blk[:, None]
                 if missing.any():
                     ppred = np.full((P, C, 2), np.nan)
                     ppred[f] = pred
@@ -1162,9 +1196,12 @@ def track(
                     uv[pp, cc], score[pp, cc] = u, s
                 return uv, score
 
+        shadow = _shadows(X_pred, alive & ~last_seen, alive & last_seen,
+                          st["kind"] != KIND_BRIM, spacing)
         res = matcher.match_frame(
             fr, X_pred, Rc, tc, st["prev_axes"], reacquire=alive & ~last_seen,
             patch=patch_fn, resolve_cameras=resolve, ref=(st["X_ref"], NB_ref),
+            blocked=shadow, hold_unsupported=True,
         )
         Rc, tc = res["R"], res["t"]
         pos, X_el = res["positions"], res["X_elastic"]
@@ -1188,7 +1225,7 @@ def track(
             ds = np.asarray(ds, np.intp).reshape(-1, C)
             if len(Xs):
                 face_now = st["kind"] != KIND_BRIM
-                lost = np.flatnonzero(alive & ~got & ~restart & face_now
+                lost = np.flatnonzero(alive & ~got & ~restart & face_now & ~shadow
                                       & np.isfinite(X_el).all(-1))
                 gate = spacing / 3.0
                 take = np.full(len(Xs), -1, np.intp)
@@ -1308,6 +1345,25 @@ def track(
     return TrackResult(first, last, o["positions"], o["recon"], o["residual"], o["obs"],
                        o["source"], o["detection"], o["quality"], out_R[sl], out_t[sl], done,
                        cancelled, int(keep[P:].sum()))
+
+
+def _shadows(X: NDArray[np.float64], lost: NDArray[np.bool_], seen: NDArray[np.bool_],
+             face: NDArray[np.bool_], spacing: float) -> NDArray[np.bool_]:
+    """Lost face points whose carried estimate lies on a tracked face point.
+
+    Two markers are never closer than about the marker spacing, so a lost point's
+    neighbour-carried estimate (``X``, (P, 3) mm) within half the ``spacing`` of a point
+    tracked in the last frame has drifted onto that marker; matching it would take the
+    marker's blobs from its own point (the point then slips or is lost, and the lost one
+    takes its identity). Returns (P,) bool.
+    """
+    out = np.zeros(lost.shape, bool)
+    cand = np.flatnonzero(lost & face & np.isfinite(X).all(-1))
+    ref = np.flatnonzero(seen & face & np.isfinite(X).all(-1))
+    if cand.size and ref.size:
+        d, _ = cKDTree(X[ref]).query(X[cand])
+        out[cand] = d < 0.5 * spacing
+    return out
 
 
 def _spacing(X: NDArray[np.float64]) -> float:
