@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from carapost.synth.scoring import track_quality
+
 REFERENCE_FPS = 0.7
 
 
@@ -54,31 +56,6 @@ def synthetic_detections(scene, rng, noise: float = 0.15):
             per.append((cen[rng.permutation(len(cen))], np.full((len(cen), 2), 5.0)))
         out.append(per)
     return out
-
-
-def take_quality(truth, visible, positions):
-    """evaluate-style coverage, swaps, RMSE (mm), spurious points of ``positions``."""
-    from scipy.optimize import linear_sum_assignment
-
-    Y = positions.astype(np.float64)
-    Y = Y[:, np.isfinite(Y[..., 0]).any(0)]
-    d = np.linalg.norm(Y[:, :, None] - truth[:, None], axis=-1)  # (F, P, M)
-    cnt = np.isfinite(d).sum(0)
-    mean = np.where(cnt > 0, np.nansum(d, 0) / np.maximum(cnt, 1), 1e9)
-    r, c = linear_sum_assignment(mean)
-    ok = mean[r, c] <= 5.0
-    covered = np.zeros(truth.shape[:2], bool)
-    err = []
-    for i, m in zip(r[ok], c[ok], strict=True):
-        covered[:, m] = np.nan_to_num(d[:, i, m], nan=np.inf) <= 2.0
-        err.append(d[:, i, m][np.isfinite(d[:, i, m])])
-    seen = visible.sum(-1) >= 2
-    dn = np.nan_to_num(d, nan=np.inf)
-    hit = np.where(dn.min(2) <= 2.0, dn.argmin(2), -1)
-    swaps = sum(int(np.count_nonzero(np.diff(h[h >= 0]))) for h in hit.T)
-    e = np.concatenate(err) if err else np.zeros(0)
-    return (float(covered[seen].mean()), swaps, float(np.sqrt(np.mean(e**2))) if e.size
-            else None, int(Y.shape[1] - ok.sum()))
 
 
 def bench_takes(frames: int, cases: list[str]) -> None:
@@ -114,7 +91,7 @@ def bench_takes(frames: int, cases: list[str]) -> None:
                          spawn=make_spawner(scene.intrinsics, brim_model=scene.brim3d))
         seconds = time.perf_counter() - t0
         pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)
-        cov, swaps, rmse, spurious = take_quality(scene.points3d, scene.visible, pos)
+        cov, swaps, rmse, spurious = track_quality(scene.points3d, scene.visible, pos)
         common = {"case": case, "frames": frames, "found_points": res.n_new}
         emit("take_coverage", round(cov, 4), "fraction", **common)
         emit("take_swaps", swaps, "count", **common)

@@ -403,30 +403,11 @@ def test_patch_tracking_bridges_a_missing_blob():
 # Whole-take tracking with markers found on the way
 # ------------------------------------------------------------------------------------------
 def take_quality(scene, positions):
-    """Evaluate-style metrics over every marker seen by >= 2 cameras (points matched by
-    mean distance, one-to-one): coverage, swaps, RMSE (mm), spurious points."""
-    from scipy.optimize import linear_sum_assignment
+    """Evaluate-style coverage, swaps, RMSE (mm), spurious points over every marker seen
+    by >= 2 cameras."""
+    from carapost.synth.scoring import track_quality
 
-    X = scene.points3d
-    Y = positions.astype(np.float64)
-    Y = Y[:, np.isfinite(Y[..., 0]).any(0)]
-    d = np.linalg.norm(Y[:, :, None] - X[:, None], axis=-1)  # (F, P, M)
-    cnt = np.isfinite(d).sum(0)
-    mean = np.where(cnt > 0, np.nansum(d, 0) / np.maximum(cnt, 1), 1e9)
-    r, c = linear_sum_assignment(mean)
-    ok = mean[r, c] <= 5.0
-    covered = np.zeros(X.shape[:2], bool)
-    err = []
-    for i, m in zip(r[ok], c[ok], strict=True):
-        covered[:, m] = np.nan_to_num(d[:, i, m], nan=np.inf) <= 2.0
-        err.append(d[:, i, m][np.isfinite(d[:, i, m])])
-    seen = scene.visible.sum(-1) >= 2
-    dn = np.nan_to_num(d, nan=np.inf)
-    hit = np.where(dn.min(2) <= 2.0, dn.argmin(2), -1)
-    swaps = sum(int(np.count_nonzero(np.diff(h[h >= 0]))) for h in hit.T)
-    e = np.concatenate(err)
-    return (float(covered[seen].mean()), swaps, float(np.sqrt(np.mean(e**2))),
-            int(Y.shape[1] - ok.sum()))
+    return track_quality(scene.points3d, scene.visible, positions)
 
 
 def test_track_take_finds_markers_initialisation_missed():
