@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -94,6 +94,14 @@ class Init3DParameters:
         their accepted neighbours win over rivals far off it (our addition).
     max_range : float
         Candidates further than this from a camera (mm) are not markers of the face.
+    reach_steps : tuple of float
+        When growth stops, it resumes with the reach widened to these multiples of Max
+        Allowed Depth, for candidates that are unambiguous by ``reach_ambiguity_ratio``
+        (our addition: a cluster of markers seen by one caddy only, such as the side of the
+        nose in a dense set, can lie slightly further than Max Allowed Depth from every
+        accepted point; () disables it).
+    reach_ambiguity_ratio : float
+        Ambiguity ratio required while the reach is widened.
     """
 
     max_3d_distance_to_merge: float = 5.0
@@ -107,9 +115,11 @@ class Init3DParameters:
     bundle_adjust: bool = True
     min_auto_seeds: int = 3
     epipolar_noise_factor: float = 4.0
-    min_strict_epipolar_px: float = 0.3
+    min_strict_epipolar_px: float = 0.5
     surface_tiebreak: bool = True
     max_range: float = 600.0
+    reach_steps: tuple[float, ...] = (1.5, 2.0)
+    reach_ambiguity_ratio: float = 4.0
 
     def __post_init__(self) -> None:
         for name in ("max_3d_distance_to_merge", "max_allowed_depth",
@@ -120,6 +130,12 @@ class Init3DParameters:
         if not (np.isfinite(self.max_surface_distance) and self.max_surface_distance >= 0):
             raise ValueError("Init3DParameters.max_surface_distance must be >= 0, got "
                              f"{self.max_surface_distance}")
+        if not all(np.isfinite(k) and k >= 1.0 for k in self.reach_steps):
+            raise ValueError("Init3DParameters.reach_steps must be factors >= 1, got "
+                             f"{self.reach_steps}")
+        if not self.reach_ambiguity_ratio >= 1.0:
+            raise ValueError("Init3DParameters.reach_ambiguity_ratio must be >= 1, got "
+                             f"{self.reach_ambiguity_ratio}")
         if not self.ambiguity_ratio >= 1.0:
             raise ValueError(f"Init3DParameters.ambiguity_ratio must be >= 1, got "
                              f"{self.ambiguity_ratio}")
@@ -589,6 +605,17 @@ def initialize_3d(
                 if len(tr):
                     state.add(tr, X)
         _extend_to_cameras(state, dets_n, usable, R, t, focal, params)
+
+    # ---- beyond the reference: widen the reach for clean, isolated clusters ------------------
+    base = params
+    for k in params.reach_steps:
+        n_before = len(state.X)
+        params = replace(base, max_allowed_depth=k * base.max_allowed_depth,
+                         ambiguity_ratio=max(base.ambiguity_ratio, base.reach_ambiguity_ratio))
+        grow_caddies()
+        if params.cross_caddy and len(state.X) > n_before:
+            _extend_to_cameras(state, dets_n, usable, R, t, focal, params)
+    params = base
 
     _merge_close(state, params.max_3d_distance_to_merge)
 
