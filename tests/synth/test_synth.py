@@ -409,3 +409,28 @@ def test_rendered_centroids_match_truth_over_a_take():
     errs = errs[np.isfinite(errs)]
     assert errs.size > 500
     assert np.median(errs) < 0.2
+
+
+@pytest.mark.parametrize("variant", [1, 4])
+def test_rig_variants_are_other_consistent_head_rigs(variant):
+    base = build_scene(SynthConfig(frames=3, seed=2))
+    sc = build_scene(SynthConfig(frames=3, seed=2, variant=variant))
+    again = build_scene(SynthConfig(frames=3, seed=2, variant=variant))
+    np.testing.assert_array_equal(sc.uv, again.uv)  # deterministic
+    # another rig, brim layout and marker placement ...
+    c0, c1 = (camera_centres(s.cam_R[0], s.cam_t[0]) for s in (base, sc))
+    assert np.linalg.norm(c0 - c1, axis=1).max() > 2.0
+    assert not np.array_equal(sc.intrinsics.focal, base.intrinsics.focal)
+    assert len(sc.brim3d) != len(base.brim3d) or np.abs(sc.brim3d - base.brim3d).max() > 1.0
+    d = np.linalg.norm(sc.points3d[0] - base.points3d[0], axis=1)
+    assert 0.3 < np.median(d) < 5.0
+    assert np.all((sc.marker_radius_mm >= 1.0) & (sc.marker_radius_mm <= 2.5))
+    # ... that is still a consistent head rig seeing the face and the brim
+    uv, _ = project(sc.points3d, sc.cam_R, sc.cam_t, sc.intrinsics)
+    np.testing.assert_allclose(uv, sc.uv, atol=1e-9)
+    centres = camera_centres(sc.cam_R[0], sc.cam_t[0])
+    assert np.all(centres[:2, 0] > 20) and np.all(centres[2:, 0] < -20)
+    assert np.all(sc.visible[0].mean(axis=0) > 0.5)
+    assert np.all(sc.brim_visible[0].sum(axis=0) >= 8)
+    with pytest.raises(ValueError, match="variant"):
+        SynthConfig(variant=-1).validate()

@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="add a marker that merges with a neighbour in camera 0")
     p.add_argument("--out-of-sync", type=int, default=None, metavar="CAMERA",
                    help="this camera's video lags by one frame")
+    p.add_argument("--variant", type=int, default=0,
+                   help="0: the standard rig; N > 0: another rig, brim layout and marker "
+                        "placement drawn from N")
     p.add_argument("--take", default="synth", help="take name (file stem)")
     p.add_argument("--workers", type=int, default=2, help="processes rendering in parallel")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -64,7 +67,7 @@ def main_synth(argv: list[str]) -> int:
         size=args.size, fps=args.fps, n_cameras=args.cameras, noise=args.noise,
         blur=args.blur, motion_blur=args.motion_blur, highlights=args.highlights,
         merge_pair=args.merge_pair, out_of_sync_camera=args.out_of_sync, codec=args.codec,
-        timecode_start=args.timecode, take_name=args.take,
+        timecode_start=args.timecode, take_name=args.take, variant=args.variant,
     )
     try:
         config.validate()

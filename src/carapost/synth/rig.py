@@ -40,16 +40,30 @@ def brim_normal(p: NDArray[np.float64]) -> NDArray[np.float64]:
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def brim_model() -> tuple[NDArray[np.float64], list[str]]:
+def brim_model(rng: np.random.Generator | None = None
+               ) -> tuple[NDArray[np.float64], list[str]]:
     """The brim dots: positions (B, 3) in mm (helmet frame) and labels ``Brim01``...
 
     Two staggered rows; a few gaps make the pattern asymmetric so it can be identified.
+    With ``rng`` (a rig variant), the spacing, the rows' heights, the span and the gaps
+    are drawn at random: another brim layout on the same band.
     """
-    lower = np.arange(-42.0, 42.1, 7.0)
-    upper = np.arange(-38.5, 38.6, 7.0)
-    upper = upper[~np.isin(upper, [-24.5, 10.5])]
+    if rng is None:
+        step, half, v_rows, gaps = 7.0, 42.0, (7.0, 19.0), [-24.5, 10.5]
+    else:
+        step = float(rng.uniform(6.0, 8.5))
+        half = float(rng.uniform(34.0, BRIM_HALF_ANGLE_DEG - 3.0))
+        v_rows = (float(rng.uniform(5.0, 9.0)), float(rng.uniform(16.0, 21.0)))
+        n_upper = int(2 * ((half - step / 2) // step) + 1)
+        upper_all = (np.arange(n_upper) - (n_upper - 1) / 2) * step
+        gaps = list(rng.choice(upper_all, size=int(rng.integers(1, 4)), replace=False))
+    lower = np.arange(-half, half + 0.1, step)
+    lower -= lower.mean()
+    upper = np.arange(-(half - step / 2), half - step / 2 + 0.1, step)
+    upper -= upper.mean()
+    upper = upper[~np.isin(upper.round(6), np.round(gaps, 6))]
     alpha = np.concatenate([lower, upper])
-    v = np.concatenate([np.full(lower.size, 7.0), np.full(upper.size, 19.0)])
+    v = np.concatenate([np.full(lower.size, v_rows[0]), np.full(upper.size, v_rows[1])])
     pts = brim_point(alpha, v)
     return pts, [f"Brim{i + 1:02d}" for i in range(len(pts))]
 
@@ -70,12 +84,15 @@ def look_at(centre: NDArray[np.float64], target: NDArray[np.float64], roll_deg: 
     return R, -R @ centre
 
 
-def rig_cameras(n_cameras: int, size: tuple[int, int]
+def rig_cameras(n_cameras: int, size: tuple[int, int],
+                rng: np.random.Generator | None = None
                 ) -> tuple[CameraIntrinsics, NDArray[np.float64], NDArray[np.float64]]:
     """Nominal (unflexed) rig: intrinsics and extrinsics of ``n_cameras`` cameras.
 
     Cameras ``0 .. ceil(C/2)-1`` sit on the left caddy (actor's left, +x), the rest on the
     right one; within a caddy they are stacked 45 mm apart, all looking at the face.
+    With ``rng`` (a rig variant), every camera's position and aim move by a few mm, its
+    roll by a few degrees and its focal length by up to 10 %: another rig of the same kind.
 
     Returns
     -------
@@ -95,11 +112,17 @@ def rig_cameras(n_cameras: int, size: tuple[int, int]
         centre = np.array([sx * (64.0 - 4.0 * j), -42.0 - 45.0 * j, 232.0 - 8.0 * j])
         target = np.array([-sx * 8.0, 14.0 + 4.0 * j, 75.0])
         roll = (1.5 if left else -1.2) + 0.7 * j
+        f_scale = 1.0
+        if rng is not None:
+            centre = centre + rng.normal(0.0, 6.0, 3)
+            target = target + rng.normal(0.0, 6.0, 3)
+            roll += float(rng.normal(0.0, 3.0))
+            f_scale = float(rng.uniform(0.9, 1.1))
         R, t = look_at(centre, target, roll)
         Rs.append(R)
         ts.append(t)
         # slightly different lenses per camera, face filling most of the frame
-        focal.append(h * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
+        focal.append(f_scale * h * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
         pp.append([(w - 1) / 2.0 + 3.1 * ((i % 3) - 1) + 1.3,
                    (h - 1) / 2.0 - 2.2 * ((i % 2) - 0.5)])
         dc.append([pp[-1][0] - 1.7 + 0.9 * (i % 2), pp[-1][1] + 1.2 - 0.8 * (i % 3)])

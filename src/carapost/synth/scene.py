@@ -76,6 +76,12 @@ class SynthConfig:
         SMPTE timecode of frame 0, ``"HH:MM:SS:FF"``.
     take_name : str
         Stem of every file of the take.
+    variant : int
+        0: the standard rig, brim and marker layout. Any other value draws (from that
+        value, independently of ``seed``) another rig of the same kind: camera positions,
+        aims, rolls and focal lengths, the brim's dot layout and dot size, every marker's
+        place on the face (about 1.5 mm) and the marker sizes (within 1-2.5 mm radius).
+        Tests use it as a stand-in for takes of other rigs and renderers.
     """
 
     preset: str = "speech"
@@ -94,6 +100,7 @@ class SynthConfig:
     codec: str = "ffv1"
     timecode_start: str = "00:00:00:00"
     take_name: str = "synth"
+    variant: int = 0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad parameter."""
@@ -123,6 +130,8 @@ class SynthConfig:
         if not m or int(m.group(2)) > 59 or int(m.group(3)) > 59 or \
                 int(m.group(4)) >= max(1, int(np.ceil(self.fps))):
             raise ValueError(f"timecode_start must be HH:MM:SS:FF, got {self.timecode_start!r}")
+        if int(self.variant) < 0:
+            raise ValueError(f"variant must be >= 0, got {self.variant}")
         if not self.take_name or re.search(r"[\\/:*?\"<>|\s]", self.take_name):
             raise ValueError(f"take_name must be a plain file stem, got {self.take_name!r}")
 
@@ -361,11 +370,22 @@ def build_scene(config: SynthConfig) -> SynthScene:
     seeds = np.random.SeedSequence(int(config.seed)).spawn(4)
     rng_motion, rng_slip, rng_flex = (np.random.default_rng(s) for s in seeds[:3])
 
-    intr, R0, t0 = rig.rig_cameras(C, size)
+    rng_variant = (np.random.default_rng([int(config.variant), 7919]) if config.variant
+                   else None)
+    intr, R0, t0 = rig.rig_cameras(C, size, rng_variant)
     specs = face.marker_set(config.markers)
     phi = np.array([m.phi for m in specs])
     psi = np.array([m.psi for m in specs])
     radii = np.array([m.radius for m in specs])
+    brim3d, brim_labels = rig.brim_model(rng_variant)
+    brim_dot_radius = rig.BRIM_DOT_RADIUS
+    if rng_variant is not None:
+        # eyelid markers stay on the lid (the blink model depends on their place)
+        jitter = np.where(np.array([m.eyelid for m in specs]), 0.3, 1.0)
+        phi = phi + rng_variant.normal(0.0, 1.0, len(phi)) * jitter
+        psi = psi + rng_variant.normal(0.0, 1.0, len(psi)) * jitter
+        radii = np.clip(radii * rng_variant.uniform(0.75, 1.25), 1.0, 2.5)
+        brim_dot_radius = float(rng_variant.uniform(2.0, 3.0))
     labels = [m.label for m in specs]
     eyelid = np.array([m.eyelid for m in specs])
     merge = None
@@ -422,7 +442,6 @@ def build_scene(config: SynthConfig) -> SynthScene:
     blink_closed = act_seen[..., face.MODES.index("blink")] > BLINK_HIDE  # (F, C)
     visible &= ~(eyelid[None, :, None] & blink_closed[:, None, :])
 
-    brim3d, brim_labels = rig.brim_model()
     brim_n = rig.brim_normal(brim3d)
     B = len(brim3d)
     bp = np.broadcast_to(brim3d, (F, C, B, 3))
@@ -438,7 +457,7 @@ def build_scene(config: SynthConfig) -> SynthScene:
     return SynthScene(
         config=config, intrinsics=intr, cam_R=cam_R, cam_t=cam_t, points3d=points3d,
         marker_radius_mm=radii, marker_normals=normals, labels=labels, eyelid=eyelid,
-        brim3d=brim3d, brim_normals=brim_n, brim_radius_mm=np.full(B, rig.BRIM_DOT_RADIUS),
+        brim3d=brim3d, brim_normals=brim_n, brim_radius_mm=np.full(B, brim_dot_radius),
         brim_labels=brim_labels, visible=visible, uv=uv, brim_visible=brim_visible,
         brim_uv=brim_uv, activations=act_true, head_R=head_R, head_t=head_t,
         camera_lag=lag, merge_pair=merge, seen_points=np.ascontiguousarray(seen_points),
