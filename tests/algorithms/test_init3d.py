@@ -118,3 +118,42 @@ def test_bad_seeds_and_inputs_give_messages():
     assert not res.success and "no seed points" in res.message
     with pytest.raises(ValueError, match="max_allowed_depth"):
         Init3DParameters(max_allowed_depth=0.0)
+
+
+@pytest.mark.slow
+def test_rendered_dense_set_reaches_one_caddy_clusters():
+    """dense156 on rendered images: the markers on the side of the nose are seen by one
+    caddy only and lie a little further than Max Allowed Depth (16 mm) from every other
+    marker; widening the reach once growth stops finds them without a mismatch."""
+    from carapost.algorithms.blobs import BlobParameters, detect_blobs
+    from carapost.synth import SynthConfig, build_scene
+    from carapost.synth.render import render_frame
+
+    frame = 30
+    scene = build_scene(SynthConfig(markers="dense156", frames=frame + 1, seed=0))
+    dets, ident = [], []
+    for c in range(4):
+        d = detect_blobs(render_frame(scene, frame, c), BlobParameters()).centre
+        d = d.astype(np.float64)
+        cand = np.concatenate([scene.uv[frame, :, c], scene.brim_uv[frame, :, c]])
+        dist = np.linalg.norm(d[:, None] - np.where(np.isfinite(cand), cand, np.inf)[None],
+                              axis=-1)
+        k = dist.argmin(1)
+        M = scene.uv.shape[1]
+        ident.append(np.where(dist[np.arange(len(d)), k] > 1.5, -10**6,
+                              np.where(k < M, k, -1)))
+        dets.append(d)
+    # the brim dots are excluded (as Initialize 3D does once the brim is solved)
+    excl = [i == -1 for i in ident]
+    cov = {}
+    for steps in ((), (1.5, 2.0)):
+        res = initialize_3d(dets, scene.cam_R[frame], scene.cam_t[frame], scene.intrinsics,
+                            exclude_mask=excl,
+                            params=Init3DParameters(max_allowed_depth=16.0, reach_steps=steps))
+        assert res.success, res.message
+        coverage, mismatched, rmse, dup = _evaluate(res, scene, ident, frame)
+        assert mismatched == 0 and dup == 0
+        assert rmse <= 0.2
+        cov[steps] = coverage
+    assert cov[(1.5, 2.0)] >= 0.95
+    assert cov[(1.5, 2.0)] > cov[()]
