@@ -123,6 +123,27 @@ def test_auto_solve_from_rig_geometry_in_another_world_frame(seed):
     assert np.array_equal(res.matches[m], bidx[m])
 
 
+def test_auto_solve_ignores_a_false_detection_beside_a_hidden_dot():
+    # one camera sees only 8 dots; a clutter blob (a cut dot, a marker) sits 2 px from
+    # where a hidden dot projects, inside the match radius: it must not pull the camera
+    scene = _scene(seed=1)
+    dets, ident = synthetic_detections(scene, 1, np.random.default_rng(7))
+    c = 2
+    brim = np.flatnonzero(ident[c] < 0)
+    keep = np.ones(len(dets[c]), dtype=bool)
+    keep[brim[8:]] = False
+    hidden = -1 - ident[c][brim[8]]
+    false = scene.brim_uv[1, hidden, c] + np.array([1.6, -1.2])
+    dets[c] = np.vstack([dets[c][keep], false])
+    ident[c] = np.append(ident[c][keep], 10**6)
+    res = solve_brim_auto(dets, scene.brim3d, scene.intrinsics, scene.nominal_R,
+                          scene.nominal_t)
+    assert res.success, res.message
+    assert not np.any(res.matches[:, c] == len(dets[c]) - 1)
+    pos, rot = camera_errors(res.R, res.t, scene.cam_R[1], scene.cam_t[1])
+    assert pos.max() <= 0.2 and rot.max() <= 0.05, (pos, rot)
+
+
 def test_auto_solve_with_a_wrong_calibration_fails_cleanly():
     scene = _scene()
     dets, _ = synthetic_detections(scene, 0, np.random.default_rng(3))
