@@ -348,6 +348,13 @@ def _merge_partner(phi: NDArray, psi: NDArray, radii: NDArray, R0: NDArray, t0: 
     return i, phi[i] + best_dir[0] * dist, psi[i] + best_dir[1] * dist
 
 
+def _nearest_distance(points: NDArray) -> NDArray[np.float64]:
+    """Distance (mm) from each point to its nearest other point."""
+    d = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return d.min(1)
+
+
 def build_scene(config: SynthConfig) -> SynthScene:
     """Geometry, motion and truth of a synthetic take (no images).
 
@@ -382,8 +389,17 @@ def build_scene(config: SynthConfig) -> SynthScene:
     if rng_variant is not None:
         # eyelid markers stay on the lid (the blink model depends on their place)
         jitter = np.where(np.array([m.eyelid for m in specs]), 0.3, 1.0)
-        phi = phi + rng_variant.normal(0.0, 1.0, len(phi)) * jitter
-        psi = psi + rng_variant.normal(0.0, 1.0, len(psi)) * jitter
+        phi_j = phi + rng_variant.normal(0.0, 1.0, len(phi)) * jitter
+        psi_j = psi + rng_variant.normal(0.0, 1.0, len(psi)) * jitter
+        # a marker set keeps its spacing: a marker that the jitter brings much closer
+        # to a neighbour than it was stays where it was
+        d0 = _nearest_distance(face.surface_points(phi, psi))
+        for _ in range(3):
+            close = _nearest_distance(face.surface_points(phi_j, psi_j)) < 0.85 * d0
+            if not close.any():
+                break
+            phi_j[close], psi_j[close] = phi[close], psi[close]
+        phi, psi = phi_j, psi_j
         radii = np.clip(radii * rng_variant.uniform(0.75, 1.25), 1.0, 2.5)
         brim_dot_radius = float(rng_variant.uniform(2.0, 3.0))
     labels = [m.label for m in specs]
