@@ -47,7 +47,7 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
                    min_points: int = 6) -> tuple[list[str], NDArray[np.float64]]:
     """Triangulate a brim model from the take: points fixed relative to the cameras.
 
-    The XCP cameras (frame 0's) triangulate every marker seen by >= 3 cameras in a few
+    The XCP cameras (frame 0's) triangulate every marker seen by >= 3 cameras in 32
     frames spread through the take; the points that appear in all of them within
     ``max_spread_mm`` are on the rig (the face moves and slips, the brim does not).
 
@@ -70,7 +70,9 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
     ref = int(np.flatnonzero(cal.solved)[0]) if cal.solved.any() else 0
     R, t = cal.R[ref], cal.t[ref]
     if frames is None:
-        frames = np.unique(np.linspace(0, F - 1, min(F, 8)).round().astype(np.intp))
+        # 32 frames: the rig flex averages out (brim error 0.18 mm with 8 frames, 0.08 with
+        # 32 on a synthetic take; more frames gave nothing)
+        frames = np.unique(np.linspace(0, F - 1, min(F, 32)).round().astype(np.intp))
     clouds = []
     for f in frames:
         dets_n = []
