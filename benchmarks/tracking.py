@@ -7,7 +7,9 @@ Prints JSON lines:
 - ``tracking_fps``: frames per second of :func:`carapost.algorithms.tracking.track` over a
   synthetic speech take (4 cameras, 89 face markers + 23 brim dots, detections present:
   the truth projections plus noise, clutter and dropouts), median of ``--runs`` runs,
-  with ``reference_ratio`` = our fps / 0.7 fps (the reference guide's own log).
+  with ``reference_ratio`` = our fps / 0.7 fps (the reference guide's own log),
+  ``cpu_fps`` (the same over CPU time, for comparisons on a loaded machine) and the
+  ``load_average`` at the end.
 - ``tracking_coverage``, ``tracking_swaps``, ``tracking_rmse_mm``: a rendered speech take
   (standard markers) processed end to end by ``carapost.pipeline.process_take`` (blob
   detection, automatic brim solve, automatic Initialize 3D at frame 0, tracking) and
@@ -17,13 +19,15 @@ Prints JSON lines:
   (with :func:`make_spawner`) on truth-derived detections of each named case
   (``speech``, ``fast``, ``blink``, ``dense156``, ``sparse35``, ``back`` = speech
   initialised at its last frame), scored like ``evaluate`` (points matched one-to-one to
-  markers by mean distance). One 600-frame case takes 0.5-2 minutes.
+  markers by mean distance); ``take_fps`` also gives ``cpu_fps``. One 600-frame case
+  takes 0.5-2 minutes.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -39,6 +43,14 @@ REFERENCE_FPS = 0.7
 
 def emit(metric: str, value: float | int | None, unit: str, **extra: object) -> None:
     print(json.dumps({"metric": metric, "value": value, "unit": unit, **extra}), flush=True)
+
+
+def _load_average() -> float | None:
+    """1-minute load average (None where the platform has none)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
 
 
 def synthetic_detections(scene, rng, noise: float = 0.15):
@@ -85,11 +97,12 @@ def bench_takes(frames: int, cases: list[str]) -> None:
         X0[:M][scene.visible[start].sum(-1) < 2] = np.nan
         kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
         init = InitialState(X0, kind, axes=np.full((M + B, scene.n_cameras, 2), 5.0))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = track_take(dets.__getitem__, init, scene.cam_R[start], scene.cam_t[start],
                          scene.intrinsics, params, start=start, n_frames=frames,
                          spawn=make_spawner(scene.intrinsics, brim_model=scene.brim3d))
         seconds = time.perf_counter() - t0
+        cpu = time.process_time() - c0
         pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)
         cov, swaps, rmse, spurious = track_quality(scene.points3d, scene.visible, pos)
         common = {"case": case, "frames": frames, "found_points": res.n_new}
@@ -98,7 +111,7 @@ def bench_takes(frames: int, cases: list[str]) -> None:
         emit("take_rmse_mm", None if rmse is None else round(rmse, 3), "mm", **common)
         emit("take_spurious", spurious, "count", **common)
         emit("take_fps", round(2 * (frames - 1) / seconds, 1), "frames/s", **common,
-             note="both passes counted")
+             cpu_fps=round(2 * (frames - 1) / cpu, 1), note="both passes counted")
 
 
 def bench_speed(frames: int, runs: int) -> None:
@@ -110,16 +123,19 @@ def bench_speed(frames: int, runs: int) -> None:
     M, B = len(scene.labels), len(scene.brim3d)
     X0 = np.concatenate([scene.points3d[0], scene.brim3d])
     kind = np.r_[np.zeros(M, np.int8), np.ones(B, np.int8)]
-    rates = []
+    rates, cpu_rates = [], []
     for _ in range(runs):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = track(lambda f: dets[f], InitialState(X0, kind), scene.cam_R[0], scene.cam_t[0],
                     scene.intrinsics, TrackingParameters(), start=0, stop=frames - 1)
         rates.append(res.frames_done / (time.perf_counter() - t0))
+        cpu_rates.append(res.frames_done / (time.process_time() - c0))
     fps = statistics.median(rates)
+    # CPU-time rate: comparable between variants when other jobs load the machine
     emit("tracking_fps", round(fps, 1), "frames/s", cameras=scene.n_cameras, markers=M,
          brim=B, frames=frames - 1, runs=[round(r, 1) for r in rates],
-         reference_ratio=round(fps / REFERENCE_FPS, 1))
+         cpu_fps=round(statistics.median(cpu_rates), 1),
+         load_average=_load_average(), reference_ratio=round(fps / REFERENCE_FPS, 1))
 
 
 def bench_accuracy(frames: int, folder: Path) -> None:

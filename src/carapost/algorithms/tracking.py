@@ -6,12 +6,14 @@ For every point that has a 3D position in the start frame, and for every followi
 1. Predicts the point in the new frame: its last estimate plus a damped velocity, then
    corrected elastically by how its matched neighbours moved (the neighbours are the
    nearest points in 3D in the start frame, weighted by a Gaussian of that distance).
-2. Matches blob detections camera by camera. A first pass takes only unambiguous
-   matches (mutual nearest neighbours clearly closer than any alternative, within Face /
-   Brim Point Tracking Distance); those anchor the elastic prediction, and the following
-   passes match every point within Face Point Max Elastic Prediction Distance of its
-   elastic prediction (the full Face Point Tracking Distance where too few neighbours are
-   matched). Conflicts are resolved by an optimal assignment per camera
+2. Matches blob detections camera by camera. A first pass takes only matches its
+   neighbours agree on (candidate displacements within Face / Brim Point Tracking
+   Distance supported by the neighbours' candidates; points left out vote again over a
+   wider radius, so a region moving further than the search radius in one frame is
+   matched around the displacement its markers share); those anchor the elastic
+   prediction, and the following passes match every point within Face Point Max Elastic
+   Prediction Distance of its elastic prediction (the full Face Point Tracking Distance
+   where too few neighbours are matched). Conflicts are resolved by an optimal assignment per camera
    (:func:`scipy.optimize.linear_sum_assignment` with a "no match" option for each point
    costing as much as a match at the search radius), so one detection never feeds two
    points. A blob whose width or height changed by more than Blob Size Difference
@@ -23,9 +25,10 @@ For every point that has a 3D position in the start frame, and for every followi
    (:func:`carapost.algorithms.triangulation.triangulate`, outlier rejection on).
 4. Rejects bad matches: observations whose reprojection error exceeds Max Allowed 2D
    Projection Error, and points further than Max Allowed 3D Point Error from where their
-   neighbours predict them. A point left with one camera is placed on that camera's ray
-   at the neighbour-predicted depth when the ray passes within Single Sensor Tracking
-   Threshold of the prediction (Allow Single Sensor Tracking).
+   neighbours predict them (neighbours moving unlike the others left out). A point left
+   with one camera is placed on that camera's ray at the neighbour-predicted depth when
+   the ray passes within Single Sensor Tracking Threshold of the prediction (Allow Single
+   Sensor Tracking).
 
 A point that loses every camera keeps a predicted position carried along by its
 neighbours, so it is picked up again as soon as its blob reappears near that prediction
@@ -68,6 +71,23 @@ KIND_FACE, KIND_BRIM = 0, 1
 
 #: Infeasible assignment cost (anything far above the "no match" cost of 1).
 _BIG = 1e6
+
+#: Neighbours moving further than this share of the marker spacing from their median
+#: motion are left out of a point's 3D prediction (wrong blobs, not deformation: on the
+#: fast preset's truth the largest deviation is 0.6 spacing, the 99.9th percentile 0.4).
+_OUTLIER_SHARE = 0.75
+
+#: Candidate detections per point in the wide region vote (:meth:`FrameMatcher._wide_vote`).
+_WIDE_CANDIDATES = 12
+#: Largest tolerance (px) the wide vote uses for a neighbour's agreement (lookup bound).
+_WIDE_SIGMA_MAX = 12.0
+
+#: Share of a face point's total neighbour weight that counts as full elastic support
+#: when that total is below ``min_elastic_support`` (points on the edge of the set), as
+#: long as the share is at least ``_NEED_FLOOR`` (an isolated point or one with no
+#: neighbours keeps needing the full ``min_elastic_support``).
+_NEED_SHARE = 0.6
+_NEED_FLOOR = 0.3
 
 #: Detections of one frame: one ``(centre [N, 2], axes [N, 2] or None)`` per camera.
 FrameDetections = Sequence[tuple[NDArray[Any], NDArray[Any] | None]]
@@ -118,6 +138,13 @@ class TrackingParameters:
         Most elastic matching passes per frame (ours): each pass predicts the points not
         yet matched from the neighbours matched in the previous one, so a region moving
         faster than the search radius is picked up from its edges inwards.
+    consensus_radius_factor : float
+        Points the anchor pass leaves without an anchor vote, with their neighbours, over
+        candidate displacements up to this multiple of Face Point Tracking Distance
+        (ours; >= 1; 1 keeps the candidates within that distance): a region moving
+        further than the radius between two frames is matched as a whole around the
+        displacement its markers agree on (the elastic prediction of the reference
+        guide, found before any neighbour is matched).
     """
 
     patch_match_threshold: float = 0.8
@@ -138,6 +165,7 @@ class TrackingParameters:
     bundle_frames: bool = False
     max_patch_frames: int = 5
     elastic_passes: int = 5
+    consensus_radius_factor: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("face_point_tracking_distance", "face_point_max_elastic_prediction_distance",
@@ -157,6 +185,10 @@ class TrackingParameters:
         if int(self.elastic_passes) < 1:
             raise ValueError(f"TrackingParameters.elastic_passes must be >= 1, got "
                              f"{self.elastic_passes!r}")
+        v = self.consensus_radius_factor
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 1.0):
+            raise ValueError(f"TrackingParameters.consensus_radius_factor must be >= 1, got "
+                             f"{v!r}")
         if int(self.neighbours) < 1:
             raise ValueError(f"TrackingParameters.neighbours must be >= 1, got "
                              f"{self.neighbours!r}")
@@ -325,6 +357,33 @@ def _weighted_neighbour_mean(values: NDArray[np.float64], valid: NDArray[np.bool
     return mean.reshape((P,) + values.shape[1:]), support
 
 
+def _robust_mean(values: NDArray[np.float64], valid: NDArray[np.bool_],
+                 w: NDArray[np.float64], gate: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted mean over neighbours without the ones far from their median.
+
+    ``values`` (n, k, D) per neighbour (e.g. 3D motions), ``valid`` (n, k), weights ``w``
+    (n, k). Neighbours further than ``gate`` from the component-wise median of the valid
+    ones are left out (with three or more valid neighbours). Returns the mean (n, D), 0
+    where nothing is left, and the summed weight of the neighbours used (n,).
+    """
+    n, k, D = values.shape
+    cnt = valid.sum(1)
+    srt = np.sort(np.where(valid[..., None], values, np.inf), axis=1)
+    idx = np.broadcast_to((np.maximum(cnt, 1) - 1)[:, None, None] // 2, (n, 1, D))
+    med = np.take_along_axis(srt, idx, axis=1)  # (n, 1, D), lower median
+    dev2 = np.zeros((n, k))
+    for i in range(D):
+        dev2 += (values[..., i] - med[..., i]) ** 2
+    keep = valid & ((dev2 <= gate * gate) | (cnt < 3)[:, None])
+    wm = w * keep
+    support = wm.sum(1)
+    total = (wm[..., None] * np.where(keep[..., None], values, 0.0)).sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(support[:, None] > 0, total / support[:, None], 0.0)
+    return mean, support
+
+
 def resect_cameras(X: ArrayLike, uv: ArrayLike, R: ArrayLike, t: ArrayLike,
                    intr: CameraIntrinsics, *, iterations: int = 4, min_points: int = 6
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
@@ -389,6 +448,16 @@ def resect_cameras(X: ArrayLike, uv: ArrayLike, R: ArrayLike, t: ArrayLike,
         if np.abs(delta).max() < 1e-9:
             break
     return R, t, solved
+
+
+def _pair_distances(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distances between ``a`` (..., P, 2) and ``b`` (..., N, 2): (..., P, N).
+
+    Component by component: reducing a length-2 last axis is several times slower.
+    """
+    dx = a[..., :, None, 0] - b[..., None, :, 0]
+    dy = a[..., :, None, 1] - b[..., None, :, 1]
+    return np.sqrt(dx * dx + dy * dy)
 
 
 def _assign(cost: NDArray[np.float64]) -> NDArray[np.intp]:
@@ -481,6 +550,16 @@ class FrameMatcher:
         rest = np.asarray(rest, np.float64)
         nb, w = neighbour_graph(rest[self.face], params.neighbours)
         self.nb, self.w = nb, w  # indices into self.face (len(face) = padding)
+        # Support each face point needs from its neighbours: min_elastic_support, but at
+        # most a share of all the weight it has. A point on the edge of the marker set
+        # (temple, jaw line) has only far neighbours and may never reach the full value;
+        # without this it could be neither judged nor single-sensor placed nor picked up
+        # again after a single dropout.
+        share = _NEED_SHARE * w.sum(1)
+        self.need = np.where(share >= _NEED_FLOOR,
+                             np.minimum(params.min_elastic_support, share),
+                             params.min_elastic_support)
+        self.spacing = _spacing(rest[self.face])  # mm
         self.tri_params = TriangulationParameters(
             minimum_cameras=min(2, self.C), use_outlier_rejection=self.C > 2,
             maximum_cameras_to_drop=1,
@@ -496,32 +575,45 @@ class FrameMatcher:
         b = fr.axes[:, None, :, :]                        # (C, 1, N, 2)
         if thr >= 1.0:
             return np.ones(a.shape[:2] + (b.shape[2],), bool)
+        bad = np.zeros(a.shape[:2] + (b.shape[2],), bool)
         with np.errstate(invalid="ignore", divide="ignore"):
-            rel = np.abs(a - b) / np.maximum(a, b)
-        bad = (rel > thr).any(-1)
+            for i in range(2):  # per axis: much faster than reducing a length-2 last axis
+                ai, bi = a[..., i], b[..., i]
+                bad |= np.abs(ai - bi) > thr * np.maximum(ai, bi)
         return ~bad  # NaN comparisons are False: unknown sizes pass
 
     def match_2d(
         self, fr: _Frame, pred: NDArray[np.float64], radius: NDArray[np.float64],
         size_ok: NDArray[np.bool_], *, anchors_only: bool = False,
         taken: NDArray[np.bool_] | None = None, nb_index: NDArray[np.intp] | None = None,
+        wide_radius: float | None = None, wide_rows: NDArray[np.bool_] | None = None,
     ) -> NDArray[np.intp]:
         """Detection index per (point, camera) (-1 = none).
 
         pred (P, C, 2) predicted pixels (NaN = not predicted); radius (P, C) px;
         size_ok (C, P, N); taken (C, N) detections already used elsewhere; nb_index
-        (P,) rows of the points in the neighbour graph (for the anchor pass).
+        (P,) rows of the points in the neighbour graph (for the anchor pass);
+        wide_radius (px, anchor pass only): points left without an anchor then vote
+        over candidate displacements up to this far (:meth:`_wide_vote`), only those
+        of ``wide_rows`` (P, C) when given.
         """
         P, C = pred.shape[:2]
-        diff = pred.transpose(1, 0, 2)[:, :, None, :] - fr.centres[:, None, :, :]
-        D = np.sqrt((diff**2).sum(-1))  # (C, P, N)
+        D = _pair_distances(pred.transpose(1, 0, 2), fr.centres)  # (C, P, N)
         rad = radius.T[:, :, None]
         ok = (D <= rad) & size_ok
         if taken is not None:
             ok &= ~taken[:, None, :]
         out = np.full((P, C), -1, dtype=np.intp)
         if anchors_only:
-            return self._consensus(D, ok, pred, fr, nb_index)
+            out = self._consensus(D, ok, pred, fr, nb_index)
+            if wide_radius is not None and wide_radius > 0:
+                okw = (D <= wide_radius) & size_ok & (rad >= 0)
+                if wide_rows is not None:
+                    okw &= wide_rows.T[:, :, None]
+                if taken is not None:
+                    okw &= ~taken[:, None, :]
+                out = self._wide_vote(D, okw, pred, fr, nb_index, out, taken)
+            return out
         cost = np.where(ok, (D / np.maximum(rad, 1e-9)) ** 2, _BIG)
         for c in range(C):
             if fr.counts[c]:
@@ -562,8 +654,9 @@ class FrameMatcher:
         w = np.where(nbr < P, self.w[nb_index], 0.0)
         disp_pad = np.concatenate([disp, np.full((C, 1, K, 2), np.nan)], axis=1)
         nd = disp_pad[:, nbr]  # (C, P, k, K, 2)
-        diff = disp[:, :, None, :, None, :] - nd[:, :, :, None, :, :]  # (C,P,k,K,K,2)
-        dist2 = np.nan_to_num((diff**2).sum(-1), nan=np.inf).min(-1)  # (C, P, k, K)
+        dx = disp[:, :, None, :, None, 0] - nd[:, :, :, None, :, 0]  # (C, P, k, K, K)
+        dy = disp[:, :, None, :, None, 1] - nd[:, :, :, None, :, 1]
+        dist2 = np.nan_to_num(dx * dx + dy * dy, nan=np.inf).min(-1)  # (C, P, k, K)
         sigma2 = 2.0 * 3.0**2
         vote = (w[None, :, :, None] * np.exp(-dist2 / sigma2)).sum(2)  # (C, P, K)
         vote = np.where(valid, vote, -1.0)
@@ -581,6 +674,105 @@ class FrameMatcher:
                 _, first = np.unique(jbest[c, o], return_index=True)
                 keep = o[first]
                 out[keep, c] = jbest[c, keep]
+        return out
+
+    def _wide_vote(self, D: NDArray[np.float64], ok: NDArray[np.bool_],
+                   pred: NDArray[np.float64], fr: _Frame, nb_index: NDArray[np.intp] | None,
+                   out: NDArray[np.intp], taken: NDArray[np.bool_] | None
+                   ) -> NDArray[np.intp]:
+        """More anchors for points the consensus left out: a region vote on a wider radius.
+
+        A region that moves further than the search radius in one frame (a jaw opening
+        of 40-50 px between two frames with markers 32 px apart) gives the consensus no
+        candidate at the true displacement, while its edge markers, the ones the motion
+        uncovers or hides, find the neighbouring marker's blob where theirs was. Here
+        each point without an anchor considers the ``K`` nearest free detections within
+        ``ok`` (the wide radius) as candidate displacements ``h``. A neighbour supports
+        ``h`` when it is anchored with nearly that displacement, or, not being anchored
+        itself, has a free detection near its own prediction shifted by ``h``; the
+        tolerance grows with ``|h|`` because a large motion also deforms the region.
+        The best-supported candidate becomes an anchor under the consensus rule (support
+        of at least one full neighbour and 1.5 times the runner-up); a detection claimed
+        twice goes to the better-supported point. Static regions are unaffected: their
+        points are anchored already and hold their blobs, and a point whose own blob
+        dropped out gets no support for a jump onto clutter.
+
+        D (C, P, N) distances of the predictions ``pred`` (P, C, 2) to the detections;
+        ok (C, P, N) candidates within the wide radius (size test passed, not taken);
+        out (P, C) anchors so far (updated copy returned).
+        """
+        C, P, N = D.shape
+        if N == 0 or P == 0:
+            return out
+        out = out.copy()
+        if nb_index is None:
+            nb_index = np.arange(P)
+        row_of = np.full(len(self.face) + 1, P, dtype=np.intp)
+        row_of[nb_index] = np.arange(P)
+        nbr_all = row_of[self.nb[nb_index]]  # (P, k) rows (P = absent)
+        w_all = np.where(nbr_all < P, self.w[nb_index], 0.0)
+        need = np.maximum(self.need[nb_index], 1.0)
+        finite = np.isfinite(pred).all(-1)  # (P, C)
+        K = min(_WIDE_CANDIDATES, N)
+        for c in range(C):
+            n_c = int(fr.counts[c])
+            rows = np.flatnonzero((out[:, c] < 0) & finite[:, c] & ok[c].any(1))
+            if rows.size == 0 or n_c == 0:
+                continue
+            cen = fr.centres[c, :n_c]
+            anch = out[:, c]
+            free = np.ones(n_c, bool)
+            free[anch[anch >= 0]] = False
+            if taken is not None:
+                free &= ~taken[c, :n_c]
+            Dm = np.where(ok[c, rows, :n_c], D[c, rows, :n_c], np.inf)
+            kk = min(K, n_c)
+            cand = (np.argpartition(Dm, kk - 1, axis=1)[:, :kk] if n_c > kk
+                    else np.broadcast_to(np.arange(n_c), (rows.size, n_c)).copy())
+            valid = np.isfinite(np.take_along_axis(Dm, cand, axis=1))  # (U, K)
+            h = cen[cand] - pred[rows, c][:, None, :]  # (U, K, 2)
+            nbr = nbr_all[rows]  # (U, k)
+            w = w_all[rows]
+            pad_pred = np.concatenate([pred[:, c], np.full((1, 2), np.nan)])
+            pad_anch = np.r_[anch, -1]
+            un = pad_pred[nbr]  # (U, k, 2) neighbours' predictions
+            has = np.isfinite(un).all(-1) & (w > 0)
+            an = pad_anch[nbr]  # (U, k) neighbour's anchor or -1
+            a_disp = np.where((an >= 0)[..., None], fr.centres[c, np.maximum(an, 0)] - un,
+                              np.nan)  # (U, k, 2)
+            sig = np.clip(0.15 * np.linalg.norm(h, axis=-1), 3.0, _WIDE_SIGMA_MAX)
+            sig2 = 2.0 * sig**2  # (U, K)
+            # anchored neighbours: agreement of their displacement with h
+            dA = ((h[:, None, :, 0] - a_disp[:, :, None, 0]) ** 2
+                  + (h[:, None, :, 1] - a_disp[:, :, None, 1]) ** 2)  # (U, k, K)
+            sA = np.exp(-np.nan_to_num(dA, nan=np.inf) / sig2[:, None, :])
+            # free neighbours: a free detection where h takes them
+            look = has & (an < 0)
+            sF = np.zeros_like(sA)
+            if free.any() and look.any():
+                ui, ki = np.nonzero(look)
+                q = un[ui, ki][:, None, :] + h[ui]  # (L, K, 2)
+                dq, _ = cKDTree(cen[free]).query(q.reshape(-1, 2),
+                                                  distance_upper_bound=4.0 * _WIDE_SIGMA_MAX)
+                dq = dq.reshape(q.shape[:2])
+                sF[ui, ki] = np.exp(-np.where(np.isfinite(dq), dq, np.inf) ** 2
+                                    / sig2[ui])
+            vote = (w[..., None] * np.where((an >= 0)[..., None], sA, sF)
+                    * has[..., None]).sum(1)  # (U, K)
+            vote = np.where(valid, vote, -1.0)
+            order = np.argsort(-vote, axis=1)
+            best = np.take_along_axis(vote, order[:, :1], 1)[:, 0]
+            second = (np.take_along_axis(vote, order[:, 1:2], 1)[:, 0] if kk > 1
+                      else np.zeros(rows.size))
+            jbest = np.take_along_axis(cand, order[:, :1], 1)[:, 0]
+            good = (best >= need[rows]) & (best >= 1.5 * np.maximum(second, 0.0))
+            good &= free[jbest]
+            if good.any():
+                g = rows[good]
+                o = np.argsort(-best[good])
+                _, first = np.unique(jbest[good][o], return_index=True)
+                keep = o[first]
+                out[g[keep], c] = jbest[good][keep]
         return out
 
     def elastic_2d(self, base: NDArray[np.float64], matched_uv: NDArray[np.float64],
@@ -608,6 +800,8 @@ class FrameMatcher:
         ref: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
         blocked: NDArray[np.bool_] | None = None,
         hold_unsupported: bool = False,
+        wide_radius: float | None = None,
+        wide_rows: NDArray[np.bool_] | None = None,
     ) -> dict[str, NDArray]:
         """Match, solve cameras, triangulate and clean one frame.
 
@@ -637,6 +831,16 @@ class FrameMatcher:
             passes until the supported matches have settled (frame-to-frame tracking;
             see below). Off for a one-off match such as a ROM frame, where the search
             around the given positions is the whole mechanism.
+        wide_radius : float, optional
+            Face points the anchor pass leaves without an anchor vote over candidate
+            displacements up to this far (px) with their neighbours
+            (:meth:`_wide_vote`); None (default) keeps the anchor pass within
+            ``face_radius``. :func:`track` passes ``consensus_radius_factor`` times the
+            Face Point Tracking Distance.
+        wide_rows : (P, C) bool, optional
+            The point-cameras that may take part in that vote (:func:`track`: those with
+            a blob in the previous frame; a point not seen there is most often hidden,
+            and searching far for it costs time and risks a wrong blob).
 
         Returns
         -------
@@ -680,13 +884,32 @@ class FrameMatcher:
                 rad = np.full((b.size, C), brim_radius if it == 0 else
                               min(brim_radius, max(p.max_2d_projection_error, 3.0)))
                 db = self.match_2d(fr, uvb, rad, size_ok_all[:, b])
+                # a dot cut by the image border has its centre pulled inwards (1.4 px
+                # for a dot half outside): it would bend the camera, so it is not used
+                cc = np.broadcast_to(np.arange(C)[None, :], db.shape)
+                dd = np.maximum(db, 0)
+                xy = fr.centres[cc, dd]
+                reach = np.nan_to_num(fr.axes[cc, dd, 0], nan=0.0) + 1.0
+                size = intr.image_size[None, :, :]
+                cut = ((xy - reach[..., None] < -0.5) | (xy + reach[..., None] > size - 0.5)
+                       ).any(-1)
+                db[(db >= 0) & cut] = -1
                 ob = gather(db)
                 if resolve_cameras:
                     R, t, _ = resect_cameras(Xb, ob, R, t, intr)
                     # detach brim observations that disagree with the solved cameras
                     uvb, _ = project(Xb, R, t, intr)
                     err = np.linalg.norm(ob - uvb, axis=-1)
-                    bad = (db >= 0) & ~(err <= p.max_2d_projection_error)
+                    # brim dots fit to a few hundredths of a px: a blob beside a hidden
+                    # dot stands out against the camera's typical error long before it
+                    # exceeds Max Allowed 2D Projection Error (it moved a camera 4 mm)
+                    seen = db >= 0
+                    n_seen = np.maximum(seen.sum(0), 1)
+                    typical = np.sort(np.where(seen, err, np.inf), axis=0)[
+                        (n_seen - 1) // 2, np.arange(C)]
+                    lim = np.minimum(p.max_2d_projection_error,
+                                     np.maximum(1.0, 4.0 * typical))
+                    bad = seen & ~(err <= lim[None, :])
                     if bad.any():
                         db[bad] = -1
                         ob = gather(db)
@@ -709,8 +932,11 @@ class FrameMatcher:
             base_all = np.full((Pf_all, C, 2), np.nan)
             uvf, depth = project(X_pred[f], R, t, intr)
             w_, h_ = intr.image_size[:, 0], intr.image_size[:, 1]
-            inside = ((depth > 0) & (uvf[..., 0] > -0.5) & (uvf[..., 0] < w_ - 0.5)
-                      & (uvf[..., 1] > -0.5) & (uvf[..., 1] < h_ - 0.5))
+            # a margin of one search radius: a marker at the image border whose estimate
+            # projects just outside can still be pulled in by its neighbours' motion
+            mg = float(face_radius) + 0.5
+            inside = ((depth > 0) & (uvf[..., 0] > -mg) & (uvf[..., 0] < w_ + mg)
+                      & (uvf[..., 1] > -mg) & (uvf[..., 1] < h_ + mg))
             uvf = np.where(inside[..., None], uvf, np.nan)
             base_all[fi] = uvf
             size_ok = size_ok_all[:, f]
@@ -719,7 +945,8 @@ class FrameMatcher:
                    else np.asarray(blocked, bool)[f])
             rad[blk] = -1.0  # a negative radius has no candidates
             df = self.match_2d(fr, uvf, rad, size_ok, anchors_only=True, taken=taken,
-                               nb_index=fi)
+                               nb_index=fi, wide_radius=wide_radius,
+                               wide_rows=None if wide_rows is None else wide_rows[f])
             n_pass = max(int(p.elastic_passes if passes is None else passes), 1)
             # Points without matched neighbours (no elastic support) would search around
             # their stale position and take the nearest blob, which in a region moving
@@ -739,7 +966,7 @@ class FrameMatcher:
                 pred_all, support = self.elastic_2d(base_all, uvm_all, m_all, self.face)
                 pred = pred_all[fi]
                 sup = support[fi]
-                weak = sup < p.min_elastic_support
+                weak = sup < self.need[fi, None]
                 rad_w = float(face_radius)
                 rad = np.where(weak, rad_w, float(elastic_radius))
                 if hold:  # weak points keep competing for what they already hold
@@ -818,28 +1045,31 @@ class FrameMatcher:
         fi = np.searchsorted(self.face, f)
         okX = np.zeros(Pf_all, bool)
         okX[fi] = np.isfinite(X).all(-1)
-        disp = np.zeros((Pf_all, 3))
-        disp[fi] = np.where(okX[fi, None], X - X_pred[f], 0.0)
-        corr, support = _weighted_neighbour_mean(disp, okX, self.nb, self.w)
-        Xel = X_pred[f] + corr[fi]
-        sup = support[fi]
+        # A neighbour solved from a wrong blob pair (not yet rejected) can be tens of mm
+        # off; its motion must not drag the prediction of every point around it, so
+        # neighbours moving unlike the others are left out (_robust_mean).
+        gate = _OUTLIER_SHARE * self.spacing
+        disp = np.full((Pf_all + 1, 3), np.nan)
+        disp[fi] = np.where(okX[fi, None], X - X_pred[f], np.nan)
+        dn = disp[self.nb[fi]]  # (n, k, 3)
+        corr, sup = _robust_mean(dn, np.isfinite(dn[..., 0]), self.w[fi], gate)
+        Xel = X_pred[f] + corr
         if ref is not None:
             X_ref, NB_ref = ref
             Xnow = np.full((Pf_all + 1, 3), np.nan)
             Xnow[fi] = X
             moved = Xnow[self.nb[fi]] - NB_ref[fi]  # (n, k, 3)
             m = np.isfinite(moved).all(-1) & np.isfinite(X_ref[f]).all(-1)[:, None]
-            wm = self.w[fi] * m
-            sup_r = wm.sum(1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                Xr = X_ref[f] + (wm[..., None] * np.nan_to_num(moved)).sum(1) / sup_r[:, None]
-            use = sup_r >= self.params.min_elastic_support
+            mv, sup_r = _robust_mean(moved, m, self.w[fi], gate)
+            Xr = X_ref[f] + mv
+            use = sup_r >= self.need[fi]
             Xel = np.where(use[:, None], Xr, Xel)
             sup = np.where(use, sup_r, sup)
         Xel_out[f] = Xel
         n_obs = np.isfinite(obs[f]).all(-1).sum(1)
         err3 = np.linalg.norm(X - Xel, axis=-1)
-        judged = np.isfinite(X).all(-1) & (sup >= self.params.min_elastic_support)
+        need = self.need[fi]
+        judged = np.isfinite(X).all(-1) & (sup >= need)
         # how well neighbours predict points in this frame (mm); single-sensor depth is
         # only as good as that
         typical = float(np.median(err3[judged])) if judged.any() else np.inf
@@ -872,7 +1102,11 @@ class FrameMatcher:
                         X[suspect[still]] = np.nan
                     err3[suspect] = np.linalg.norm(X[suspect] - Xel[suspect], axis=-1)
                     n_obs = np.isfinite(obs[f]).all(-1).sum(1)
-            bad = judged & np.isfinite(X).all(-1) & (err3 > max_3d)
+            # below full support the prediction is less sure, so the limit widens in
+            # proportion (a point on the edge of the set is still checked)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                widen = np.where(sup > 0, np.maximum(need / sup, 1.0), np.inf)
+            bad = np.isfinite(X).all(-1) & (err3 > max_3d * widen)
             if bad.any():
                 detach(f[bad], np.ones((int(bad.sum()), C), bool))
                 X[bad] = np.nan
@@ -880,7 +1114,7 @@ class FrameMatcher:
         # a lost point is picked up again only from >= 2 cameras and where its neighbours
         # say it should be (a whole region lost at once waits for its edges to return)
         if reacquire is not None:
-            lone = reacquire[f] & ((n_obs < 2) | (sup < self.params.min_elastic_support))
+            lone = reacquire[f] & ((n_obs < 2) | (sup < need))
             if lone.any():
                 detach(f[lone], np.ones((int(lone.sum()), C), bool))
                 X[lone] = np.nan
@@ -917,7 +1151,7 @@ class FrameMatcher:
                 s = np.einsum("ni,ni->n", target - origin, d)
                 Xs = origin + s[:, None] * d
                 dist = np.linalg.norm(Xs - target, axis=-1)
-                keep = (sup[rows] >= self.params.min_elastic_support) & \
+                keep = (sup[rows] >= need[rows]) & \
                     (dist <= p.single_sensor_tracking_threshold) & (s > 0) & \
                     (typical <= p.single_sensor_tracking_threshold)
                 positions[f[rows[keep]]] = Xs[keep]
@@ -1202,6 +1436,8 @@ def track(
             fr, X_pred, Rc, tc, st["prev_axes"], reacquire=alive & ~last_seen,
             patch=patch_fn, resolve_cameras=resolve, ref=(st["X_ref"], NB_ref),
             blocked=shadow, hold_unsupported=True,
+            wide_radius=params.consensus_radius_factor * params.face_point_tracking_distance,
+            wide_rows=np.isfinite(st["prev_obs"]).all(-1),
         )
         Rc, tc = res["R"], res["t"]
         pos, X_el = res["positions"], res["X_elastic"]
