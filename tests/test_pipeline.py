@@ -46,6 +46,15 @@ def test_bad_arguments_are_refused_before_work(tmp_path, kw, match):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["take"]
 
 
+def test_output_that_is_a_folder_is_refused_before_work(tmp_path):
+    take = tiny_take(tmp_path / "take")
+    (tmp_path / "out.cara").mkdir()
+    with pytest.raises(CaraFileError, match="is a folder"):
+        process_take(take, output=tmp_path / "out.cara")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.cara", "take"]
+    assert list((tmp_path / "out.cara").iterdir()) == []
+
+
 def test_bad_brim_csv_is_refused(tmp_path):
     take = tiny_take(tmp_path / "take")
     brim = tmp_path / "brim.csv"

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from carapost.commands.stack import Command, CommandError, CommandStack, Journal
 from carapost.io import cara
+from carapost.io.atomic import check_output_path
 from carapost.io.errors import CaraFileError
 from carapost.io.take_import import import_take as _import_take
 from carapost.io.take_import import read_brim_csv
@@ -38,6 +39,7 @@ from carapost.model.project import (
     Project,
 )
 from carapost.pipeline import process_take
+from carapost.synth.scoring import MATCH_GATE_MM, score_tracks
 
 log = logging.getLogger("carapost.api")
 
@@ -258,11 +260,7 @@ def _unique_labels(labels: list[str]) -> list[str]:
 
 
 def _check_output(path: str | Path, suffixes: tuple[str, ...]) -> Path:
-    path = Path(path)
-    if path.is_dir():
-        raise CaraFileError(path, "is a folder, not a file name")
-    if not path.parent.is_dir() and str(path.parent):
-        raise CaraFileError(path, f"the folder {path.parent} does not exist")
+    path = check_output_path(path)
     if path.suffix.lower() not in suffixes:
         raise ValueError(f"{path}: the file name must end in {' or '.join(suffixes)}")
     return path
@@ -464,12 +462,6 @@ def export_xcp(project: Project, path: str | Path, *, frame: int | None = None) 
 # Evaluation against ground truth
 # ----------------------------------------------------------------------------------------
 
-#: Largest mean distance (mm) at which a point is matched to a truth marker.
-MATCH_GATE_MM = 5.0
-#: Distance (mm) within which a point "is at" a marker (coverage, identity swaps).
-HIT_MM = 2.0
-
-
 def _load_truth(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise CaraFileError(path, "no such file")
@@ -489,38 +481,6 @@ def _load_truth(path: Path) -> dict[str, Any]:
     if len(data["labels"]) != X.shape[1]:
         raise CaraFileError(path, "labels and points3d disagree on the number of markers")
     return data
-
-
-def _pair_distances(
-    A: NDArray[np.float64], B: NDArray[np.float64], chunk: int = 256
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int32], NDArray[np.float64]]:
-    """Distances between every point of A [F,P,3] and B [F,M,3] over frames.
-
-    Returns the sum of distances [P,M] and the count of frames [P,M] where both exist,
-    and per frame the nearest marker of each point [F,P] (-1 if none) and its distance.
-    """
-    F, P, _ = A.shape
-    M = B.shape[1]
-    total = np.zeros((P, M))
-    count = np.zeros((P, M), dtype=np.int64)
-    nearest = np.full((F, P), -1, dtype=np.int32)
-    nearest_d = np.full((F, P), np.inf)
-    for s in range(0, F, chunk):
-        a, b = A[s:s + chunk], B[s:s + chunk]
-        va, vb = ~np.isnan(a[..., 0]), ~np.isnan(b[..., 0])
-        a0, b0 = np.where(va[..., None], a, 0.0), np.where(vb[..., None], b, 0.0)
-        d2 = ((a0 * a0).sum(-1)[:, :, None] + (b0 * b0).sum(-1)[:, None, :]
-              - 2.0 * np.einsum("fpi,fmi->fpm", a0, b0))
-        d = np.sqrt(np.maximum(d2, 0.0))
-        both = va[:, :, None] & vb[:, None, :]
-        d = np.where(both, d, np.inf)
-        total += np.where(both, d, 0.0).sum(axis=0)
-        count += both.sum(axis=0)
-        if M:
-            nearest[s:s + chunk] = np.argmin(d, axis=2)
-            nearest_d[s:s + chunk] = np.min(d, axis=2)
-    nearest[~np.isfinite(nearest_d)] = -1
-    return total, count, nearest, nearest_d
 
 
 def evaluate(project_or_path: Project | str | Path, truth_path: str | Path) -> dict[str, Any]:
@@ -560,10 +520,9 @@ def evaluate(project_or_path: Project | str | Path, truth_path: str | Path) -> d
     Matching: a point whose label equals a truth label is matched to that marker when
     their mean distance is within `MATCH_GATE_MM`; the rest are matched one-to-one by
     the Hungarian method on the mean 3D distance over the frames where both exist,
-    keeping pairs within the same gate. Frames beyond the shorter of the two are ignored.
+    keeping pairs within the same gate (`carapost.synth.scoring.score_tracks`, which the
+    tests and benchmarks also use). Frames beyond the shorter of the two are ignored.
     """
-    from scipy.optimize import linear_sum_assignment
-
     if isinstance(project_or_path, Project):
         project = project_or_path
     else:
@@ -583,63 +542,20 @@ def evaluate(project_or_path: Project | str | Path, truth_path: str | Path) -> d
     face, Y = face[has_data], Y[:, has_data]
     P = len(face)
 
-    total, count, nearest, nearest_d = _pair_distances(Y, X)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(count > 0, total / np.maximum(count, 1), np.inf)
-
-    # Label matches first, then Hungarian on the rest.
-    match = np.full(P, -1, dtype=np.int64)
-    label_index = {lab: m for m, lab in enumerate(t_labels)}
-    for i, col in enumerate(face):
-        m = label_index.get(project.points.labels[col])
-        if m is not None and mean[i, m] <= MATCH_GATE_MM and m not in match:
-            match[i] = m
-    free_p = np.flatnonzero(match < 0)
-    free_m = np.setdiff1d(np.arange(M), match[match >= 0])
-    if free_p.size and free_m.size:
-        cost = mean[np.ix_(free_p, free_m)]
-        big = 1e9
-        rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
-        ok = cost[rows, cols] <= MATCH_GATE_MM
-        match[free_p[rows[ok]]] = free_m[cols[ok]]
-    matched = np.flatnonzero(match >= 0)
-
-    # 3D error of the matched pairs.
-    per_marker: dict[str, float] = {}
-    sq_sum, n_sq = 0.0, 0
-    covered = np.zeros((F, M), dtype=bool)
-    for i in matched:
-        m = int(match[i])
-        d = np.linalg.norm(Y[:, i] - X[:, m], axis=-1)
-        ok = ~np.isnan(d)
-        if ok.any():
-            per_marker[t_labels[m]] = float(np.sqrt(np.mean(d[ok] ** 2)))
-            sq_sum += float(np.sum(d[ok] ** 2))
-            n_sq += int(ok.sum())
-        covered[:, m] = ok & (np.nan_to_num(d, nan=np.inf) <= HIT_MM)
-
     vis = truth.get("visible")
     if vis is not None:
         vis = np.asarray(vis).astype(bool)
         if vis.ndim != 3 or vis.shape[0] < F or vis.shape[1] != M:
             raise CaraFileError(Path(truth_path), f"visible must be [F, {M}, C], got "
                                 f"{list(vis.shape)}")
-        seen = vis[:F].sum(axis=-1) >= 2
-    else:
-        seen = np.ones((F, M), dtype=bool)
-    seen &= ~np.isnan(X[..., 0])
-    coverage = float(covered[seen].mean()) if seen.any() else None
-
-    # Identity swaps: changes of the nearest marker within HIT_MM along each point's track.
-    hit = np.where(nearest_d <= HIT_MM, nearest, -1)
-    swaps = 0
-    swapped: list[str] = []
-    for i in range(P):
-        ids = hit[:, i][hit[:, i] >= 0]
-        n = int(np.count_nonzero(np.diff(ids))) if ids.size > 1 else 0
-        if n:
-            swaps += n
-            swapped.append(project.point_label(int(face[i])))
+        vis = vis[:F]
+    label_index = {lab: m for m, lab in enumerate(t_labels)}
+    preferred = np.array([label_index.get(project.points.labels[col], -1) for col in face],
+                         dtype=np.int64)
+    score = score_tracks(Y, X, vis, preferred)
+    match = score.match
+    matched = np.flatnonzero(match >= 0)
+    swapped = [project.point_label(int(face[i])) for i in np.flatnonzero(score.swaps)]
 
     # 2D reprojection: observations of matched points vs the truth uv of their marker.
     reproj = None
@@ -656,10 +572,10 @@ def evaluate(project_or_path: Project | str | Path, truth_path: str | Path) -> d
                 reproj = float(np.sqrt(np.mean(d2[ok])))
 
     return {
-        "rmse_mm": float(np.sqrt(sq_sum / n_sq)) if n_sq else None,
-        "per_marker_rmse_mm": per_marker,
-        "coverage": coverage,
-        "swaps": swaps,
+        "rmse_mm": score.rmse,
+        "per_marker_rmse_mm": {t_labels[m]: v for m, v in score.marker_rmse.items()},
+        "coverage": score.coverage,
+        "swaps": int(score.swaps.sum()),
         "spurious_points": int(P - matched.size),
         "reprojection_rms_px": reproj,
         "n_points": int(P),

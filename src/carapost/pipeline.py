@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.io.atomic import check_output_path
 from carapost.io.errors import CaraFileError
 from carapost.model.project import KIND_BRIM, KIND_FACE, Project
 
@@ -37,9 +38,7 @@ def _check_output(path: str | Path, suffix: str) -> Path:
     p = Path(path)
     if p.suffix.lower() != suffix:
         raise CaraFileError(p, f"the output must be a {suffix} file")
-    if not p.parent.is_dir():
-        raise CaraFileError(p, f"the folder {p.parent} does not exist")
-    return p
+    return check_output_path(p)
 
 
 def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,

@@ -8,6 +8,7 @@ import pytest
 from carapost.algorithms.camera import (
     CameraIntrinsics,
     camera_centres,
+    cross_matrix,
     distort_pixels,
     matrix_to_quaternion,
     pixel_rays,
@@ -107,3 +108,11 @@ def test_per_frame_broadcasting(rng: np.random.Generator) -> None:
     assert uv.shape == (F, 7, 2, 2)
     uv1, _ = project(X[1], R[1], t[1], intr)
     np.testing.assert_allclose(uv[1], uv1)
+
+
+def test_cross_matrix_is_the_cross_product():
+    rng = np.random.default_rng(3)
+    v, u = rng.normal(size=(2, 4, 5, 3))
+    np.testing.assert_allclose(cross_matrix(v) @ u[..., None], np.cross(v, u)[..., None],
+                               atol=1e-12)
+    assert cross_matrix(v[0, 0]).shape == (3, 3)

@@ -10,7 +10,7 @@ import c3d as pyc3d
 import ezc3d
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import carapost.io.c3d as c3dmod
@@ -332,6 +332,7 @@ def test_failed_write_leaves_old_file_and_no_temp(tmp_path, rng, monkeypatch):
     seed=st.integers(0, 2**32 - 1),
     res_max=st.sampled_from([0.2, 1.0, 3.0, 40.0]),
 )
+@example(n_frames=5, n_points=11, n_cams=1, seed=132259, res_max=0.2)  # a halfway residual
 def test_round_trip_property(tmp_path, n_frames, n_points, n_cams, seed, res_max):
     rng = np.random.default_rng(seed)
     pos = rng.normal(0, 200, (n_frames, n_points, 3))
@@ -353,7 +354,12 @@ def test_round_trip_property(tmp_path, n_frames, n_points, n_cams, seed, res_max
     np.testing.assert_array_equal(d.positions[valid], pos[valid].astype(np.float32))
     q = abs(d.scale)
     assert 255 * q >= res[valid].max(initial=0) - 1e-9
-    expect = np.maximum(np.rint(res / q), 1) * q  # a measured sample never reads as processed
+    # the writer quantises with the nominal quantum (0.001, 0.002, ...); the file stores it
+    # as a float32, so a residual halfway between two steps must be rounded with the former
+    q_nominal = choose_residual_scale(float(res[valid].max(initial=0)))
+    assert q == pytest.approx(q_nominal, rel=1e-6)
+    # a measured sample never reads as processed
+    expect = np.maximum(np.rint(res / q_nominal), 1) * q
     np.testing.assert_allclose(d.residuals[valid], expect[valid], rtol=1e-5)
     np.testing.assert_array_equal(
         d.camera_mask[..., : min(7, n_cams)], (mask & valid[..., None])[..., :7]

@@ -120,6 +120,19 @@ def test_failed_save_leaves_original_untouched(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.cara", "videos"]
 
 
+def test_save_into_missing_folder_or_onto_a_folder_is_refused(
+    rng: np.random.Generator, tmp_path: Path
+) -> None:
+    project = _full_project(rng, tmp_path)
+    with pytest.raises(CaraFileError, match="does not exist"):
+        save_project(project, tmp_path / "no" / "shot.cara")
+    (tmp_path / "dir.cara").mkdir()
+    with pytest.raises(CaraFileError, match="is a folder"):
+        save_project(project, tmp_path / "dir.cara")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.cara", "videos"]
+    assert list((tmp_path / "dir.cara").iterdir()) == []
+
+
 @pytest.mark.parametrize(
     "damage, message",
     [

@@ -493,3 +493,29 @@ def test_context_menu_switches_view_type(make_window, demo, qtbot):
     assert "Fit To Window" in own and "Start Measurement" in own and "Pixel Report" in own
     menu.deleteLater()
     QApplication.processEvents()
+
+
+@pytest.mark.parametrize("spec, option, title", [("sensor:1", "errors", "Errors"),
+                                                 ("3d", "rays", "Rays")])
+def test_context_menu_display_options(make_window, demo, qtbot, spec, option, title):
+    """The 2D and 3D views' right-click options toggle the shared display options, and
+    Point Labels: All sets the project property through the undoable command path."""
+    p, frames = demo
+    w = make_window(p, frames)
+    box = w.workspace.containers[0]
+    box.set_spec(spec)
+    opts = box.view.ctx.options
+    before = getattr(opts, option)
+    menu = box.build_menu()
+    acts = {a.text(): a for a in menu.actions()}
+    assert acts[title].isChecked() == before
+    acts[title].trigger()
+    assert getattr(opts, option) == (not before)
+    assert not p.properties["point_labels_all"]
+    assert not acts["Point Labels: All"].isChecked()
+    acts["Point Labels: All"].trigger()
+    assert p.properties["point_labels_all"]
+    w.stack.undo()
+    assert not p.properties["point_labels_all"]
+    menu.deleteLater()
+    QApplication.processEvents()

@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 from carapost.algorithms.camera import (
     CameraIntrinsics,
     camera_centres,
+    cross_matrix,
     matrix_to_rodrigues,
     pixels_to_normalised,
     project,
@@ -228,16 +229,6 @@ def _fail(C: int, B: int, message: str) -> BrimSolveResult:
     )
 
 
-def _skew(v: NDArray) -> NDArray[np.float64]:
-    """Cross-product matrices of vectors ``(..., 3)`` -> ``(..., 3, 3)``."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([
-        np.stack([z, -v[..., 2], v[..., 1]], -1),
-        np.stack([v[..., 2], z, -v[..., 0]], -1),
-        np.stack([-v[..., 1], v[..., 0], z], -1),
-    ], -2)
-
-
 # ------------------------------------------------------------------------------------------
 # Pose refinement, vectorised over cameras
 # ------------------------------------------------------------------------------------------
@@ -310,7 +301,7 @@ def refine_poses(
         Jp *= f[:, None, None, None]
         # p = exp(w) R X + t: dp/dw = -[R X]x, dp/dt = I
         RX = p - t[:, None, :]
-        J = np.concatenate([-Jp @ _skew(RX), Jp], axis=-1)  # (C, B, 2, 6)
+        J = np.concatenate([-Jp @ cross_matrix(RX), Jp], axis=-1)  # (C, B, 2, 6)
         JtJ = np.einsum("cbki,cb,cbkj->cij", J, w, J)
         Jtr = np.einsum("cbki,cb,cbk->ci", J, w, r)
         JtJ[~ok] = np.eye(6)
@@ -413,6 +404,21 @@ def _obs_from_matches(matches: NDArray, dets_n: list[NDArray]) -> NDArray[np.flo
     return xn
 
 
+def _keep_fixed(matches: NDArray[np.intp], fixed: NDArray | None) -> NDArray[np.intp]:
+    """Impose the ``fixed`` (hand) matches >= 0 on ``matches`` (B, C), in place.
+
+    A hand match wins; the detection it uses cannot serve another dot.
+    """
+    if fixed is None:
+        return matches
+    keep = fixed >= 0
+    for c in range(matches.shape[1]):
+        taken = np.isin(matches[:, c], fixed[keep[:, c], c])
+        matches[taken & ~keep[:, c], c] = -1
+    matches[keep] = fixed[keep]
+    return matches
+
+
 def _match_and_refine(model: NDArray, dets: list[NDArray], dets_n: list[NDArray],
                       R: NDArray, t: NDArray, intr: CameraIntrinsics,
                       params: BrimSolveParameters, solved: NDArray[np.bool_],
@@ -425,14 +431,7 @@ def _match_and_refine(model: NDArray, dets: list[NDArray], dets_n: list[NDArray]
     for k in range(max(1, int(params.match_rounds))):
         # the first round searches wider: the initial pose may be a few px off
         r = radius * (2.0 if k == 0 else 1.0)
-        matches = _match_all(model, dets, R, t, intr, params, solved, r)
-        if fixed is not None:
-            keep = fixed >= 0
-            # a hand match wins; the detection it uses cannot serve another dot
-            for c in range(len(dets)):
-                taken = np.isin(matches[:, c], fixed[keep[:, c], c])
-                matches[taken & ~keep[:, c], c] = -1
-            matches[keep] = fixed[keep]
+        matches = _keep_fixed(_match_all(model, dets, R, t, intr, params, solved, r), fixed)
         enough = (matches >= 0).sum(0) >= params.min_matches
         use = solved & enough
         xn = _obs_from_matches(matches, dets_n)
@@ -441,13 +440,7 @@ def _match_and_refine(model: NDArray, dets: list[NDArray], dets_n: list[NDArray]
                                              iterations=params.refine_iterations)
         R[use], t[use], rms[use] = R_new[use], t_new[use], rms_new[use]
     # final matching with the refined poses, then a last refinement without Huber
-    matches = _match_all(model, dets, R, t, intr, params, solved, radius)
-    if fixed is not None:
-        keep = fixed >= 0
-        for c in range(len(dets)):
-            taken = np.isin(matches[:, c], fixed[keep[:, c], c])
-            matches[taken & ~keep[:, c], c] = -1
-        matches[keep] = fixed[keep]
+    matches = _keep_fixed(_match_all(model, dets, R, t, intr, params, solved, radius), fixed)
     # a dot that is hidden can still find a face marker or clutter within the match
     # radius; its residual stands out after the refinement, so it is unmatched and the
     # camera refined again (one such match in a camera seeing 9 dots moved it by 2.5 mm)
@@ -734,7 +727,7 @@ def _fundamental(Ra: NDArray, ta: NDArray, Rb: NDArray, tb: NDArray) -> NDArray[
     """Essential matrix E with ``xb^T E xa = 0`` in normalised coordinates."""
     Rr = Rb @ Ra.T
     tr = tb - Rr @ ta
-    return _skew(tr) @ Rr
+    return cross_matrix(tr) @ Rr
 
 
 def symmetric_epipolar_distance(xa: NDArray, xb: NDArray, E: NDArray, fa: float, fb: float

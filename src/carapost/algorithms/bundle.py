@@ -39,21 +39,16 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from carapost.algorithms.camera import CameraIntrinsics, camera_centres, rodrigues_to_matrix
+from carapost.algorithms.camera import (
+    CameraIntrinsics,
+    camera_centres,
+    cross_matrix,
+    rodrigues_to_matrix,
+)
 
 # --------------------------------------------------------------------------------------
 # Rotation helpers
 # --------------------------------------------------------------------------------------
-
-
-def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``[v]x`` for ``v [..., 3]`` -> ``[..., 3, 3]``."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([
-        np.stack([z, -v[..., 2], v[..., 1]], -1),
-        np.stack([v[..., 2], z, -v[..., 0]], -1),
-        np.stack([-v[..., 1], v[..., 0], z], -1),
-    ], -2)
 
 
 def left_jacobian(w: ArrayLike) -> NDArray[np.float64]:
@@ -69,7 +64,7 @@ def left_jacobian(w: ArrayLike) -> NDArray[np.float64]:
     # (1 - cos t) / t^2 and (t - sin t) / t^3 with their series near 0.
     a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / ths**3)
-    W = _skew(w)
+    W = cross_matrix(w)
     return np.eye(3) + a[..., None, None] * W + b[..., None, None] * (W @ W)
 
 
@@ -247,7 +242,7 @@ class _FrameProblem:
         A = self.jinv @ Kc[:, :2, :2] @ dpi  # d r / d P, [No, 2, 3]
         k = self.n_cam_par
         dense = np.empty((No, 2, k + 3))
-        dense[:, :, 0:3] = -A @ _skew(RX) @ left_jacobian(cam[self.ci, :3])
+        dense[:, :, 0:3] = -A @ cross_matrix(RX) @ left_jacobian(cam[self.ci, :3])
         dense[:, :, 3:6] = A
         if self.intrinsics:
             a = Kc[:, 0, 0] / Kc[:, 1, 1]
@@ -641,7 +636,7 @@ def _bal_jacobian(cameras: NDArray[np.float64], points: NDArray[np.float64],
                                    + 2 * drho[:, None, None] * p[:, :, None] * p[:, None, :])
     A = dproj_dp @ dp_dP
     J = np.empty((No, 2, 12))
-    J[:, :, 0:3] = -A @ _skew(RX) @ left_jacobian(cam[:, :3])
+    J[:, :, 0:3] = -A @ cross_matrix(RX) @ left_jacobian(cam[:, :3])
     J[:, :, 3:6] = A
     J[:, :, 6] = rho[:, None] * p
     J[:, :, 7] = (f * s)[:, None] * p

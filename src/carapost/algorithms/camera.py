@@ -398,3 +398,14 @@ def matrix_to_rodrigues(R: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrices -> rotation vectors, shape (..., 3, 3) -> (..., 3)."""
     R = np.asarray(R, dtype=np.float64)
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def cross_matrix(v: ArrayLike) -> NDArray[np.float64]:
+    """Cross-product matrices ``[v]x`` (``[v]x u = v x u``), shape (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([
+        np.stack([z, -v[..., 2], v[..., 1]], -1),
+        np.stack([v[..., 2], z, -v[..., 0]], -1),
+        np.stack([-v[..., 1], v[..., 0], z], -1),
+    ], -2)

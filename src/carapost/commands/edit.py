@@ -96,6 +96,18 @@ def _check_detections(project: Project, detections: Iterable[Sequence[int]]) -> 
     return sorted(set(out))
 
 
+def _points_and_detections(
+    project: Project,
+    point_ids: Iterable[int] | None,
+    detections: Iterable[Sequence[int]] | None,
+) -> tuple[list[int], list[tuple]]:
+    """Sorted unique point ids and checked detections to act on (None: the selection's)."""
+    sel = project.selection
+    ids = sorted(set(sel.points if point_ids is None else point_ids))
+    dets = _check_detections(project, sel.detections if detections is None else detections)
+    return ids, dets
+
+
 # ----------------------------------------------------------------------------------------
 # Points
 # ----------------------------------------------------------------------------------------
@@ -129,11 +141,7 @@ class DeleteSelected(Command):
         detections: Iterable[Sequence[int]] | None = None,
     ):
         super().__init__()
-        sel = project.selection
-        self.point_ids = sorted(sel.points if point_ids is None else set(point_ids))
-        self.detections = _check_detections(
-            project, sel.detections if detections is None else detections
-        )
+        self.point_ids, self.detections = _points_and_detections(project, point_ids, detections)
         if not self.point_ids and not self.detections:
             raise CommandError("Delete Selected: nothing is selected")
 
@@ -236,11 +244,7 @@ class Merge(Command):
         detections: Iterable[Sequence[int]] | None = None,
     ):
         super().__init__()
-        sel = project.selection
-        self.point_ids = sorted(set(sel.points if point_ids is None else point_ids))
-        self.detections = _check_detections(
-            project, sel.detections if detections is None else detections
-        )
+        self.point_ids, self.detections = _points_and_detections(project, point_ids, detections)
         _columns(project, self.point_ids)
         if len(self.point_ids) + len(self.detections) < 2:
             raise CommandError("Merge: select at least two points or detections")

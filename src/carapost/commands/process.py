@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.camera import CameraIntrinsics
 from carapost.commands.edit import ReplaceDetections
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import (
@@ -65,11 +66,16 @@ def _check_frame(project: Project, frame: int, what: str) -> int:
     return f
 
 
-def _intrinsics(project: Project, what: str):
+def require_intrinsics(project: Project, what: str,
+                       remedy: str = "import an XCP file for the intrinsics",
+                       ) -> CameraIntrinsics:
+    """The project's camera intrinsics; refuses ``what`` when there are none for this take.
+
+    ``remedy`` completes the message "the project has no camera calibration (...)".
+    """
     intr = project.calibration.intrinsics
     if intr is None:
-        raise refuse(f"{what}: the project has no camera calibration (import an XCP file "
-                      "for the intrinsics)")
+        raise refuse(f"{what}: the project has no camera calibration ({remedy})")
     if intr.n_cameras != project.n_cameras:
         raise refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
                       f"{project.n_cameras}")
@@ -93,18 +99,23 @@ def _brim(project: Project, frame: int, what: str) -> tuple[NDArray[np.intp], ND
     return cols, model
 
 
-def _set_cameras(journal: Journal, project: Project, frame: int, R: NDArray, t: NDArray
-                 ) -> None:
+def set_cameras(journal: Journal, project: Project, frames: int | slice, R: NDArray,
+                t: NDArray) -> None:
+    """Set (undoably) the solved cameras of one frame or of a block of frames.
+
+    ``R`` and ``t`` are ``(C, 3, 3)`` and ``(C, 3)`` for one frame, ``(n, C, 3, 3)`` and
+    ``(n, C, 3)`` for a slice of ``n`` frames; those frames become solved.
+    """
     cal = project.calibration
-    old = (cal.R[frame].copy(), cal.t[frame].copy(), bool(cal.solved[frame]))
+    old = (cal.R[frames].copy(), cal.t[frames].copy(), np.copy(cal.solved[frames]))
 
     def undo() -> None:
-        cal.R[frame], cal.t[frame], cal.solved[frame] = old
+        cal.R[frames], cal.t[frames], cal.solved[frames] = old
 
     journal.call(undo, "cameras", nbytes=old[0].nbytes + old[1].nbytes)
-    cal.R[frame] = R
-    cal.t[frame] = t
-    cal.solved[frame] = True
+    cal.R[frames] = R
+    cal.t[frames] = t
+    cal.solved[frames] = True
 
 
 def _ray_residual(X: NDArray, obs: NDArray, R: NDArray, t: NDArray, intr) -> NDArray:
@@ -285,7 +296,7 @@ class _ApplyBrimSolve(Command):
         f = self.frame
         cols = project.points.index_of(self.ids)
         journal.point_block(slice(f, f + 1), cols, _POS + _OBS)
-        _set_cameras(journal, project, f, self.R, self.t)
+        set_cameras(journal, project, f, self.R, self.t)
         det = self.matches
         _write_frame(project, f, cols, self.model, det, self.residual,
                      _frame_detections(project, f))
@@ -312,7 +323,7 @@ class SolveBrimManual(_ApplyBrimSolve):
 
         what = "Solve Calibration Brim [Manual]"
         f = _check_frame(project, project.current_frame if frame is None else frame, what)
-        intr = _intrinsics(project, what)
+        intr = require_intrinsics(project, what)
         cols, model = _brim(project, f, what)
         if correspondences is None:
             det = project.points.detection[f, cols]  # (B, C)
@@ -338,7 +349,7 @@ class SolveBrimAuto(_ApplyBrimSolve):
 
         what = "Solve Calibration Brim [Automatic]"
         f = _check_frame(project, project.current_frame if frame is None else frame, what)
-        intr = _intrinsics(project, what)
+        intr = require_intrinsics(project, what)
         cols, model = _brim(project, f, what)
         cal = project.calibration
         if not cal.solved.any():
@@ -377,7 +388,7 @@ class Initialize3D(Command):
 
         what = "Initialize 3D"
         f = _check_frame(project, project.current_frame if frame is None else frame, what)
-        intr = _intrinsics(project, what)
+        intr = require_intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:
             raise refuse(f"{what}: the cameras of frame {f} are not solved (Solve "
@@ -451,7 +462,7 @@ class Initialize3D(Command):
         new_cols = journal.append_points(len(res.points) - n_old, kind=KIND_FACE)
         cols = np.concatenate([old_cols, new_cols]).astype(np.intp)
         if self.cameras_changed:
-            _set_cameras(journal, project, f, res.R, res.t)
+            set_cameras(journal, project, f, res.R, res.t)
         _write_frame(project, f, cols, res.points, res.detections, self.residual,
                      _frame_detections(project, f))
 
@@ -468,7 +479,7 @@ class BundleCurrentFrame(Command):
 
         what = "Bundle Current Frame [Unconstrained]"
         f = _check_frame(project, project.current_frame if frame is None else frame, what)
-        intr = _intrinsics(project, what)
+        intr = require_intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:
             raise refuse(f"{what}: the cameras of frame {f} are not solved")
@@ -513,7 +524,7 @@ class BundleCurrentFrame(Command):
     def apply(self, project: Project, journal: Journal) -> None:
         f = self.frame
         pts = project.points
-        _set_cameras(journal, project, f, self.R, self.t)
+        set_cameras(journal, project, f, self.R, self.t)
         if len(self.ids):
             cols = pts.index_of(self.ids)
             journal.point_block(slice(f, f + 1), cols, _POS)

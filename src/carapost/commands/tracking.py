@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.rom import RomParameters, initialize_from_rom
 from carapost.algorithms.tracking import (
     InitialState,
@@ -33,7 +34,7 @@ from carapost.algorithms.tracking import (
     track,
     track_take,
 )
-from carapost.commands.process import refuse
+from carapost.commands.process import refuse, require_intrinsics, set_cameras
 from carapost.commands.stack import Command, Journal
 from carapost.model.project import (
     KIND_BRIM,
@@ -62,15 +63,8 @@ __all__ = [
 ]
 
 
-def _intrinsics(project: Project, what: str) -> Any:
-    intr = project.calibration.intrinsics
-    if intr is None:
-        raise refuse(f"{what}: the project has no camera calibration (import an XCP file "
-                      "or initialise from a ROM)")
-    if intr.n_cameras != project.n_cameras:
-        raise refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
-                      f"{project.n_cameras}")
-    return intr
+def _intrinsics(project: Project, what: str) -> CameraIntrinsics:
+    return require_intrinsics(project, what, "import an XCP file or initialise from a ROM")
 
 
 def _tracking_parameters(project: Project, what: str, **overrides: Any) -> TrackingParameters:
@@ -81,18 +75,20 @@ def _tracking_parameters(project: Project, what: str, **overrides: Any) -> Track
         raise refuse(f"{what}: {exc}") from None
 
 
-def _set_camera_block(journal: Journal, project: Project, frames: slice, R: NDArray,
-                      t: NDArray) -> None:
-    cal = project.calibration
-    old = (cal.R[frames].copy(), cal.t[frames].copy(), cal.solved[frames].copy())
+def _write_point_block(journal: Journal, project: Project, frames: slice, cols: NDArray,
+                       value: Callable[[str], NDArray]) -> None:
+    """Write the tracked arrays of points ``cols`` over ``frames`` as one undoable block.
 
-    def undo() -> None:
-        cal.R[frames], cal.t[frames], cal.solved[frames] = old
-
-    journal.call(undo, "cameras", nbytes=old[0].nbytes + old[1].nbytes)
-    cal.R[frames] = R
-    cal.t[frames] = t
-    cal.solved[frames] = True
+    ``value(name)`` gives each array of `_ARRAYS` for the block (broadcast to
+    ``[frames, cols, ...]``); the keyframe flags there are cleared.
+    """
+    pts = project.points
+    journal.point_block(frames, cols, _ARRAYS + ("keyframe",))
+    for name in _ARRAYS:
+        sub = pts.arrays[name][frames]
+        sub[:, cols] = value(name)
+    sub = pts.keyframe[frames]
+    sub[:, cols] = False
 
 
 # ------------------------------------------------------------------------------------------
@@ -279,15 +275,9 @@ class TrackResultCommand(Command):
         if res.last < res.first:
             return
         fr = slice(res.first, res.last + 1)
-        pts = project.points
-        cols = pts.index_of(comp.point_ids)
-        journal.point_block(fr, cols, _ARRAYS + ("keyframe",))
-        for name in _ARRAYS:
-            sub = pts.arrays[name][fr]
-            sub[:, cols] = getattr(res, name)
-        sub = pts.keyframe[fr]
-        sub[:, cols] = False
-        _set_camera_block(journal, project, fr, res.R, res.t)
+        cols = project.points.index_of(comp.point_ids)
+        _write_point_block(journal, project, fr, cols, lambda name: getattr(res, name))
+        set_cameras(journal, project, fr, res.R, res.t)
 
     def memory(self) -> int:
         """Bytes held (saved slices plus the result kept for redo)."""
@@ -447,21 +437,20 @@ class TrackTakeCommand(Command):
         cols = np.concatenate([old, new]).astype(np.intp)
         frames = np.arange(res.first, res.last + 1)
         fr = slice(res.first, res.last + 1)
-        journal.point_block(fr, cols, _ARRAYS + ("keyframe",))
         keep_start = frames == comp.start
-        for name in _ARRAYS:
-            sub = pts.arrays[name][fr]
-            cur = sub[:, cols]
+
+        def value(name: str) -> NDArray:
+            cur = pts.arrays[name][fr][:, cols]
             val = np.asarray(getattr(res, name)).astype(cur.dtype)
             # the initialised frame of the existing points stays as initialised
             val[keep_start, : old.size] = cur[keep_start, : old.size]
-            sub[:, cols] = val
-        sub = pts.keyframe[fr]
-        sub[:, cols] = False
+            return val
+
+        _write_point_block(journal, project, fr, cols, value)
         cal = project.calibration
         Rn, tn = res.R.copy(), res.t.copy()
         Rn[keep_start], tn[keep_start] = cal.R[comp.start], cal.t[comp.start]
-        _set_camera_block(journal, project, fr, Rn, tn)
+        set_cameras(journal, project, fr, Rn, tn)
 
     def memory(self) -> int:
         """Bytes held (saved slices plus the result kept for redo)."""
@@ -637,11 +626,9 @@ class RomResultCommand(Command):
             bcols = cols[brim_rows]
             journal.point_block(slice(None), bcols, ("positions",))
             pts.positions[:, bcols] = res.structure[brim_rows].astype(np.float32)[None]
-        journal.point_block(slice(f, f + 1), cols, _ARRAYS + ("keyframe",))
-        for name in _ARRAYS:
-            pts.arrays[name][f, cols] = getattr(res, name)
-        pts.keyframe[f, cols] = False
-        _set_camera_block(journal, project, slice(f, f + 1), res.R[None], res.t[None])
+        _write_point_block(journal, project, slice(f, f + 1), cols,
+                           lambda name: getattr(res, name))
+        set_cameras(journal, project, f, res.R, res.t)
         if not comp.brim_only:
             ids = pts.ids[cols]
             new_sticks = [Stick(int(ids[a]), int(ids[b]), tuple(col))

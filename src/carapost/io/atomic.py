@@ -33,6 +33,22 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+def check_output_path(path: str | os.PathLike[str]) -> Path:
+    """Check that a file can be written at ``path``, before any work is done for it.
+
+    Raises
+    ------
+    CaraFileError
+        When ``path`` is a folder or its folder does not exist.
+    """
+    target = Path(path)
+    if target.is_dir():
+        raise CaraFileError(target, "is a folder, not a file name")
+    if not target.parent.is_dir():
+        raise CaraFileError(target, f"the folder {target.parent} does not exist")
+    return target
+
+
 @contextmanager
 def atomic_output(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
     """Open a temporary binary file beside ``path``; on success it replaces ``path``.
@@ -50,12 +66,8 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
     >>> target.read_bytes()
     b'data'
     """
-    target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    if target.is_dir():
-        raise CaraFileError(target, "is a folder, not a file name")
-    if not folder.is_dir():
-        raise CaraFileError(target, f"the folder {folder} does not exist")
+    target = check_output_path(path)
+    folder = target.parent
     tmp = folder / f".{target.name}.{secrets.token_hex(6)}.part"
     try:
         # os.open with 0o666 honours the umask (mkstemp would make the file 0600)

@@ -180,8 +180,7 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         name: {"dtype": str(a.dtype), "shape": list(a.shape)} for name, a in arrays.items()
     }
 
-    if not path.parent.is_dir():
-        raise CaraFileError(path, f"the folder {path.parent} does not exist")
+    # atomic_output refuses a missing folder (CaraFileError) before writing anything
     with atomic_output(path) as fh, zipfile.ZipFile(
         fh, "w", zipfile.ZIP_STORED, allowZip64=True
     ) as zf:

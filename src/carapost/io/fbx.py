@@ -200,20 +200,28 @@ class _Scene:
     def op(self, child: int, parent: int, prop: str) -> None:
         self.connections.add("C", _s("OP"), _l(child), _l(parent), _s(prop))
 
-    def null(self, name: str, parent: int, translation: Sequence[float] = (0, 0, 0)) -> tuple:
-        aid, attr = self.obj("NodeAttribute", name, "NodeAttribute", "Null")
-        attr.add("TypeFlags", _s("Null"))
-        mid, model = self.obj("Model", name, "Model", "Null")
+    def model(self, name: str, sub: str, attr_id: int, parent: int,
+              translation: Sequence[float], rotation: Sequence[float] | None = None) -> tuple:
+        """A ``Model`` node of type ``sub`` (with its NodeAttribute ``attr_id``) under
+        ``parent``, at ``translation`` (and XYZ Euler ``rotation``, deg): (id, Properties70)."""
+        mid, model = self.obj("Model", name, "Model", sub)
         model.add("Version", _i(232))
         props = _props70(model)
         _p(props, "Lcl Translation", "Lcl Translation", "", "A", *map(_d, translation))
+        if rotation is not None:
+            _p(props, "Lcl Rotation", "Lcl Rotation", "", "A", *map(_d, rotation))
         _p(props, "DefaultAttributeIndex", "int", "Integer", "", _i(0))
         _p(props, "InheritType", "enum", "", "", _i(1))
         model.add("Shading", _c(1))
         model.add("Culling", _s("CullingOff"))
-        self.oo(aid, mid)
+        self.oo(attr_id, mid)
         self.oo(mid, parent)
         return mid, props
+
+    def null(self, name: str, parent: int, translation: Sequence[float] = (0, 0, 0)) -> tuple:
+        aid, attr = self.obj("NodeAttribute", name, "NodeAttribute", "Null")
+        attr.add("TypeFlags", _s("Null"))
+        return self.model(name, "Null", aid, parent, translation)
 
 
 class _Curves:
@@ -644,19 +652,9 @@ def _add_cameras(sc: _Scene, curves: _Curves, cams: dict, parent: int, axis: np.
         attr.add("Up", _d(0), _d(1), _d(0))
         attr.add("LookAt", _d(1), _d(0), _d(0))
         first = frames[0] if len(frames) else 0
-        mid, model = sc.obj("Model", name, "Model", "Camera")
-        model.add("Version", _i(232))
-        mp = _props70(model)
         p0 = pos[first, c] if len(frames) else np.zeros(3)
         e0 = euler[first, c] if len(frames) else np.zeros(3)
-        _p(mp, "Lcl Translation", "Lcl Translation", "", "A", *map(_d, p0))
-        _p(mp, "Lcl Rotation", "Lcl Rotation", "", "A", *map(_d, e0))
-        _p(mp, "DefaultAttributeIndex", "int", "Integer", "", _i(0))
-        _p(mp, "InheritType", "enum", "", "", _i(1))
-        model.add("Shading", _c(1))
-        model.add("Culling", _s("CullingOff"))
-        sc.oo(aid, mid)
-        sc.oo(mid, parent)
+        mid, _ = sc.model(name, "Camera", aid, parent, p0, e0)
         if len(frames) == 0:
             continue
         keys, src = _hold_keys(ok[:, c])

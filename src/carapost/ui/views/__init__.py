@@ -44,6 +44,36 @@ class BaseView(QWidget):
     def add_menu_items(self, menu: QMenu) -> None:
         """Add this view's own right-click items."""
 
+    def add_option_items(self, menu: QMenu, titles: tuple[tuple[str, str], ...]) -> None:
+        """Add the checkable display options and Point Labels: All to a right-click menu.
+
+        Parameters
+        ----------
+        menu : QMenu
+        titles : tuple of (str, str)
+            ``(ViewContext.options attribute, menu title)`` of each option, in menu order.
+        """
+        opts = self.ctx.options
+        for key, title in titles:
+            act = menu.addAction(title)
+            act.setCheckable(True)
+            act.setChecked(getattr(opts, key))
+            act.toggled.connect(lambda on, k=key: self._set_option(k, on))
+        act = menu.addAction("Point Labels: All")
+        act.setCheckable(True)
+        act.setChecked(bool(self.ctx.project.properties["point_labels_all"]))
+        act.toggled.connect(self._set_labels_all)
+
+    def _set_option(self, key: str, on: bool) -> None:
+        setattr(self.ctx.options, key, on)
+        self.ctx.notify_options()
+
+    def _set_labels_all(self, on: bool) -> None:
+        # a property of the project: through the window's command path (undoable)
+        win = self.window()
+        if hasattr(win, "set_properties"):
+            win.set_properties({"point_labels_all": on})
+
     def center_selection(self, frame: bool = False) -> None:
         """Center (or frame, when ``frame``) the selected points in this view."""
 

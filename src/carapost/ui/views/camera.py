@@ -681,26 +681,7 @@ class CameraView(BaseView):
         menu.addAction("Center Selection", lambda: self.center_selection(False))
         menu.addAction("Frame Selection", lambda: self.center_selection(True))
         menu.addSeparator()
-        opts = self.ctx.options
-        for key, title in OPTION_TITLES_2D:
-            act = menu.addAction(title)
-            act.setCheckable(True)
-            act.setChecked(getattr(opts, key))
-            act.toggled.connect(lambda on, k=key: self._set_option(k, on))
-        act = menu.addAction("Point Labels: All")
-        act.setCheckable(True)
-        act.setChecked(bool(self.ctx.project.properties["point_labels_all"]))
-        act.toggled.connect(self._set_labels_all)
-
-    def _set_option(self, key: str, on: bool) -> None:
-        setattr(self.ctx.options, key, on)
-        self.ctx.notify_options()
-
-    def _set_labels_all(self, on: bool) -> None:
-        # a property of the project: through the window's command path
-        win = self.window()
-        if hasattr(win, "set_properties"):
-            win.set_properties({"point_labels_all": on})
+        self.add_option_items(menu, OPTION_TITLES_2D)
 
     def resizeEvent(self, ev) -> None:  # noqa: N802 - Qt API
         super().resizeEvent(ev)

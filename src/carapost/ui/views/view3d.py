@@ -311,25 +311,9 @@ class View3D(BaseView):
                 points ^= {int(p.points.ids[k])}
         p.set_selection(points=points)
 
-    def _set_option(self, key: str, on: bool) -> None:
-        setattr(self.ctx.options, key, on)
-        self.ctx.notify_options()
-
     def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
         menu.addAction("Fit to Points", self.fit)
         menu.addAction("Center Selection", lambda: self.center_selection(False))
         menu.addAction("Frame Selection", lambda: self.center_selection(True))
         menu.addSeparator()
-        opts = self.ctx.options
-        for key, title in OPTION_TITLES_3D:
-            act = menu.addAction(title)
-            act.setCheckable(True)
-            act.setChecked(getattr(opts, key))
-            act.toggled.connect(lambda on, k=key: self._set_option(k, on))
-        act = menu.addAction("Point Labels :All")
-        act.setCheckable(True)
-        act.setChecked(bool(self.ctx.project.properties["point_labels_all"]))
-        win = self.window()
-        if hasattr(win, "set_properties"):
-            act.toggled.connect(lambda on: [win.set_properties({"point_labels_all": on})]
-                                and None)
+        self.add_option_items(menu, OPTION_TITLES_3D)
