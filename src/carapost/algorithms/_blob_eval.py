@@ -55,9 +55,10 @@ class FaceScore(_Tally):
     """Accumulated detection accuracy over synthetic face images."""
 
     def add(self, s: SynthImage, det: BlobDetections, params: BlobParameters) -> None:
-        """Score one image: recall over markers in the radius range that are unoccluded
-        (not merged with another, not washed out); a detection is false when it is not
-        on any marker (merged pairs and out-of-range markers are neither)."""
+        """Score one image: recall over markers whose major axis (``2 x`` the truth
+        semi-major axis) is in the radius range and that are unoccluded (not merged with
+        another, not washed out); a detection is false when it is not on any marker
+        (merged pairs and out-of-range markers are neither)."""
         self.images += 1
         for colour, lo, hi, on in ((0, params.black_min_radius, params.black_max_radius,
                                     params.find_black_blobs),
@@ -70,8 +71,8 @@ class FaceScore(_Tally):
             self.detections += len(ds)
             d2t, t2d = match_to_truth(det.centre[ds].astype(np.float64), s.centre[ts],
                                       s.axes[ts, 1])
-            need = ((s.axes[ts, 0] >= lo) & (s.axes[ts, 0] <= hi) & ~s.merged[ts]
-                    & s.visible[ts])
+            major = 2 * s.axes[ts, 0]  # Min / Max Radius bound the full major axis
+            need = (major >= lo) & (major <= hi) & ~s.merged[ts] & s.visible[ts]
             self.expected += int(need.sum())
             hit = need & (t2d >= 0)
             self.found += int(hit.sum())
@@ -82,8 +83,8 @@ class FaceScore(_Tally):
             if len(un):
                 dist, idx = cKDTree(s.centre).query(det.centre[un].astype(np.float64))
                 excused = (dist < 2.5 * s.axes[idx, 0]) & (
-                    s.merged[idx] | ~s.visible[idx] | (s.axes[idx, 0] < lo)
-                    | (s.axes[idx, 0] > hi) | (s.colour[idx] != colour))
+                    s.merged[idx] | ~s.visible[idx] | (2 * s.axes[idx, 0] < lo)
+                    | (2 * s.axes[idx, 0] > hi) | (s.colour[idx] != colour))
                 for j in un[~excused]:
                     x, y = det.centre[j]
                     reg = s.region_map[int(np.clip(round(y), 0, s.region_map.shape[0] - 1)),
@@ -123,6 +124,8 @@ def circlegrid_photo(path: Path, pattern: tuple[int, int], flags: int,
                      params: BlobParameters | None = None) -> dict:
     """Compare our centres with ``cv2.findCirclesGrid`` on one real dot-grid photo.
 
+    ``params`` default: Min Radius 4 px, Max Radius 100 px (major-axis length).
+
     Returns a dict with ``expected`` (dots in the pattern), ``matched`` (grid positions
     with one of our detections within 30 % of the grid spacing), ``rms_ours`` and
     ``rms_opencv`` (RMS residual in px against a homography fitted from the ideal grid
@@ -136,7 +139,9 @@ def circlegrid_photo(path: Path, pattern: tuple[int, int], flags: int,
         raise RuntimeError(f"cv2.findCirclesGrid failed on {path}")
     cv_centres = cv_centres.reshape(-1, 2).astype(np.float64)
     ideal = _ideal_grid(pattern, flags)
-    det = detect_blobs(img, params or BlobParameters(black_min_radius=2.0))
+    # The dots of the 14x13 plate photos are ~60 px across, beyond the default Max
+    # Radius of 50 px (the longest axis): this evaluation searches up to 100 px.
+    det = detect_blobs(img, params or BlobParameters(black_max_radius=100.0))
     h_cv, _ = cv2.findHomography(ideal, cv_centres, 0)
     grid = cv2.perspectiveTransform(ideal[None], h_cv)[0]
     spacing = np.median(np.linalg.norm(np.diff(cv_centres, axis=0), axis=1))
@@ -335,8 +340,9 @@ def synth_view(scene, frame: int, camera: int, *, regions: bool = True) -> Synth
 class SynthScore(_Tally):
     """Blob detection accuracy accumulated over ``carapost.synth`` views (black markers).
 
-    A truth blob *counts* for recall when its projected semi-major axis is inside the
-    radius range, it does not touch another disc and it is not cut by the image border.
+    A truth blob *counts* for recall when its projected major axis (twice the
+    semi-major axis, the guide's meaning of Min / Max Radius) is inside the radius
+    range, it does not touch another disc and it is not cut by the image border.
     A detection matches a truth blob within ``clip(0.5 * minor, 1, 3)`` px of its centre
     (plus half the motion-blur streak). Unmatched detections are false unless they lie on
     a truth blob that does not count (too small or large, touching, cut); false ones are
@@ -353,7 +359,8 @@ class SynthScore(_Tally):
         self.detections += len(ds)
         tol = np.clip(0.5 * v.axes[:, 1], 1.0, 3.0) + v.spread
         d2t, t2d = _match(det.centre[ds].astype(np.float64), v.centre, tol)
-        need = (v.axes[:, 0] >= lo) & (v.axes[:, 0] <= hi) & ~v.touching & ~v.cut
+        major = 2 * v.axes[:, 0]  # Min / Max Radius bound the full major axis
+        need = (major >= lo) & (major <= hi) & ~v.touching & ~v.cut
         self.expected += int(need.sum())
         hit = need & (t2d >= 0)
         self.found += int(hit.sum())

@@ -304,15 +304,18 @@ SPECS: tuple[PropertySpec, ...] = (
        help="Sticks can be picked in the 2D and 3D views."),
     # --- Blob Parameters --------------------------------------------------------------
     _p(BLOB, "white_min_radius", "White Min Radius", float, 4.0, 0.5, 500.0, unit="px",
-       help="Smallest long-axis radius of an ellipse accepted as a white blob; lower finds "
-            "tiny blobs but also noise." + _OURS_RANGE),
+       help="Smallest length of the longest axis of the ellipse (measured across the blob, "
+            "as the measuring tool shows it) accepted as a white blob; lower finds tiny "
+            "blobs but also noise." + _OURS_RANGE),
     _p(BLOB, "white_max_radius", "White Max Radius", float, 50.0, 0.5, 500.0, unit="px",
-       help="Largest long-axis radius of an ellipse accepted as a white blob; larger is "
-            "slower and admits clutter." + _OURS_RANGE),
+       help="Largest length of the longest axis of the ellipse (measured across the blob) "
+            "accepted as a white blob; larger is slower and admits clutter." + _OURS_RANGE),
     _p(BLOB, "black_min_radius", "Black Min Radius", float, 4.0, 0.5, 500.0, unit="px",
-       help="Smallest long-axis radius of an ellipse accepted as a black blob." + _OURS_RANGE),
+       help="Smallest length of the longest axis of the ellipse (measured across the blob, "
+            "as the measuring tool shows it) accepted as a black blob." + _OURS_RANGE),
     _p(BLOB, "black_max_radius", "Black Max Radius", float, 50.0, 0.5, 500.0, unit="px",
-       help="Largest long-axis radius of an ellipse accepted as a black blob." + _OURS_RANGE),
+       help="Largest length of the longest axis of the ellipse (measured across the blob) "
+            "accepted as a black blob." + _OURS_RANGE),
     _p(BLOB, "find_black_blobs", "Find Black Blobs", bool, True,
        help="Look for dark markers on lighter skin."),
     _p(BLOB, "find_white_blobs", "Find White Blobs", bool, False,
