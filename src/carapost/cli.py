@@ -196,6 +196,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("carapost: cancelled", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of our output went away (`carapost evaluate ... | head`): not an
+        # error of ours; point stdout at devnull so the interpreter's flush stays quiet
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":
