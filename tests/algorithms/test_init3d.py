@@ -130,7 +130,9 @@ def test_rendered_dense_set_reaches_one_caddy_clusters():
     from carapost.synth.render import render_frame
 
     frame = 30
-    scene = build_scene(SynthConfig(markers="dense156", frames=frame + 1, seed=0))
+    # seed 2: without the reach steps coverage is 0.931 here (seed 0 with the current
+    # detector finds a bridging marker and needs no reach step)
+    scene = build_scene(SynthConfig(markers="dense156", frames=frame + 1, seed=2))
     dets, ident = [], []
     for c in range(4):
         d = detect_blobs(render_frame(scene, frame, c), BlobParameters()).centre
