@@ -645,13 +645,7 @@ class FrameMatcher:
         ci = np.arange(C)[:, None, None]
         disp = fr.centres[ci, cand] - pred.transpose(1, 0, 2)[:, :, None, :]  # (C, P, K, 2)
         disp = np.where(valid[..., None], disp, np.nan)
-        if nb_index is None:
-            nb_index = np.arange(P)
-        # neighbours of each point among the rows present here
-        row_of = np.full(len(self.face) + 1, P, dtype=np.intp)
-        row_of[nb_index] = np.arange(P)
-        nbr = row_of[self.nb[nb_index]]  # (P, k) rows (P = absent)
-        w = np.where(nbr < P, self.w[nb_index], 0.0)
+        nb_index, nbr, w = self._neighbour_rows(nb_index, P)
         disp_pad = np.concatenate([disp, np.full((C, 1, K, 2), np.nan)], axis=1)
         nd = disp_pad[:, nbr]  # (C, P, k, K, 2)
         dx = disp[:, :, None, :, None, 0] - nd[:, :, :, None, :, 0]  # (C, P, k, K, K)
@@ -675,6 +669,18 @@ class FrameMatcher:
                 keep = o[first]
                 out[keep, c] = jbest[c, keep]
         return out
+
+    def _neighbour_rows(self, nb_index: NDArray[np.intp] | None, P: int
+                        ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+        """Face-point indices of the ``P`` rows at hand (all when None), each row's
+        neighbours as rows (``P`` where the neighbour is not among them) and their
+        weights (0 for absent neighbours)."""
+        if nb_index is None:
+            nb_index = np.arange(P)
+        row_of = np.full(len(self.face) + 1, P, dtype=np.intp)
+        row_of[nb_index] = np.arange(P)
+        nbr = row_of[self.nb[nb_index]]  # (P, k)
+        return nb_index, nbr, np.where(nbr < P, self.w[nb_index], 0.0)
 
     def _wide_vote(self, D: NDArray[np.float64], ok: NDArray[np.bool_],
                    pred: NDArray[np.float64], fr: _Frame, nb_index: NDArray[np.intp] | None,
@@ -705,12 +711,7 @@ class FrameMatcher:
         if N == 0 or P == 0:
             return out
         out = out.copy()
-        if nb_index is None:
-            nb_index = np.arange(P)
-        row_of = np.full(len(self.face) + 1, P, dtype=np.intp)
-        row_of[nb_index] = np.arange(P)
-        nbr_all = row_of[self.nb[nb_index]]  # (P, k) rows (P = absent)
-        w_all = np.where(nbr_all < P, self.w[nb_index], 0.0)
+        nb_index, nbr_all, w_all = self._neighbour_rows(nb_index, P)
         need = np.maximum(self.need[nb_index], 1.0)
         finite = np.isfinite(pred).all(-1)  # (P, C)
         K = min(_WIDE_CANDIDATES, N)
