@@ -404,16 +404,8 @@ def test_marker_touching_a_large_dark_feature_is_found(rng):
     # region is too large for the marker's level; cutting it again at a stricter
     # contrast separates the marker (a split seed).
     found = 0
-    for gap in (0.0, 0.5, 1.0):
-        img = np.full((120, 160), 170.0)
-        x0, y0, cov = _ellipse_coverage(70.0, 60.0, 22.0, 12.0, 0.0)
-        _paint(img, x0, y0, cov, 45.0)
-        truth = np.array([(70.0 + 22 + 5.0 + gap, 60.3), (70.4, 60 - 12 - 4.5 - gap)])
-        for cx, cy in truth:
-            x0, y0, cov = _ellipse_coverage(cx, cy, 5.0, 4.2, 0.4)
-            _paint(img, x0, y0, cov, 25.0)
-        img = np.clip(np.rint(img + rng.standard_normal(img.shape) * 1.5), 0, 255)
-        det = detect_blobs(img.astype(np.uint8), BlobParameters())
+    for img, truth in _markers_by_a_nostril(rng):
+        det = detect_blobs(img, BlobParameters())
         _, dist = _match(det.centre, truth)
         found += int(np.sum(dist < 0.5))
     assert found >= 5

@@ -59,8 +59,10 @@ def refuse(message: str) -> CommandError:
     return CommandError(message)
 
 
-def _check_frame(project: Project, frame: int, what: str) -> int:
-    f = int(frame)
+def check_frame(project: Project, frame: int | None, what: str) -> int:
+    """The frame index ``frame`` (the current frame when None), refused with a logged
+    message when it is outside the take."""
+    f = project.current_frame if frame is None else int(frame)
     if not 0 <= f < project.n_frames:
         raise refuse(f"{what}: frame {f} is outside the take (0-{project.n_frames - 1})")
     return f
@@ -186,7 +188,7 @@ class DetectBlobs(ReplaceDetections):
         if get_image is None:
             raise refuse(f"{what}: no image source (the take has no camera videos)")
         a, b = frames if frames is not None else (project.current_frame,) * 2
-        a, b = _check_frame(project, a, what), _check_frame(project, b, what)
+        a, b = check_frame(project, a, what), check_frame(project, b, what)
         if a > b:
             a, b = b, a
         cams = (project.processing_cameras() if cameras is None
@@ -322,7 +324,7 @@ class SolveBrimManual(_ApplyBrimSolve):
         from carapost.algorithms.brim import solve_brim_manual
 
         what = "Solve Calibration Brim [Manual]"
-        f = _check_frame(project, project.current_frame if frame is None else frame, what)
+        f = check_frame(project, frame, what)
         intr = require_intrinsics(project, what)
         cols, model = _brim(project, f, what)
         if correspondences is None:
@@ -348,7 +350,7 @@ class SolveBrimAuto(_ApplyBrimSolve):
         from carapost.algorithms.brim import solve_brim_auto
 
         what = "Solve Calibration Brim [Automatic]"
-        f = _check_frame(project, project.current_frame if frame is None else frame, what)
+        f = check_frame(project, frame, what)
         intr = require_intrinsics(project, what)
         cols, model = _brim(project, f, what)
         cal = project.calibration
@@ -387,7 +389,7 @@ class Initialize3D(Command):
         from carapost.algorithms.init3d import Init3DParameters, initialize_3d
 
         what = "Initialize 3D"
-        f = _check_frame(project, project.current_frame if frame is None else frame, what)
+        f = check_frame(project, frame, what)
         intr = require_intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:
@@ -478,7 +480,7 @@ class BundleCurrentFrame(Command):
         from carapost.algorithms.bundle import bundle_frame
 
         what = "Bundle Current Frame [Unconstrained]"
-        f = _check_frame(project, project.current_frame if frame is None else frame, what)
+        f = check_frame(project, frame, what)
         intr = require_intrinsics(project, what)
         cal = project.calibration
         if not cal.solved[f]:

@@ -34,7 +34,7 @@ from carapost.algorithms.tracking import (
     track,
     track_take,
 )
-from carapost.commands.process import refuse, require_intrinsics, set_cameras
+from carapost.commands.process import check_frame, refuse, require_intrinsics, set_cameras
 from carapost.commands.stack import Command, Journal
 from carapost.model.project import (
     KIND_BRIM,
@@ -197,9 +197,7 @@ def compute_tracking(
     intr = _intrinsics(project, what)
     params = _tracking_parameters(project, what)
     pts = project.points
-    start = project.current_frame if frame is None else int(frame)
-    if not 0 <= start < project.n_frames:
-        raise refuse(f"{what}: frame {start} is outside the take")
+    start = check_frame(project, frame, what)
     a, b = project.active_range
     if single_frame:
         stop = start + direction
@@ -357,9 +355,7 @@ def compute_take_tracking(
     intr = _intrinsics(project, what)
     params = _tracking_parameters(project, what)
     pts = project.points
-    start = project.current_frame if frame is None else int(frame)
-    if not 0 <= start < project.n_frames:
-        raise refuse(f"{what}: frame {start} is outside the take")
+    start = check_frame(project, frame, what)
     cal = project.calibration
     if not cal.solved[start]:
         raise refuse(f"{what}: the cameras of frame {start} are not solved (Solve "
@@ -524,9 +520,7 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
     if project.rom is None or project.rom.project is None:
         raise refuse(f"{what}: no ROM is loaded (File > Load ROM first)")
     rom: Project = project.rom.project
-    f = project.current_frame if frame is None else int(frame)
-    if not 0 <= f < project.n_frames:
-        raise refuse(f"{what}: frame {f} is outside the take")
+    f = check_frame(project, frame, what)
     if rom.n_cameras != project.n_cameras:
         raise refuse(f"{what}: the ROM has {rom.n_cameras} cameras, this take "
                       f"{project.n_cameras}")
