@@ -27,7 +27,7 @@ from carapost.algorithms.tracking import (
     track,
 )
 from carapost.commands.stack import CommandError, CommandStack
-from carapost.model.project import RECON_TRIANGULATED, new_project
+from carapost.model.project import RECON_SINGLE_SENSOR, RECON_TRIANGULATED, new_project
 from carapost.synth import SynthConfig, build_scene
 
 
@@ -169,6 +169,58 @@ def test_blink_eyelids_reacquired_and_never_wrong():
                 n_blinks += 1
                 assert np.isfinite(d[k:k + 3, p]).any(), (scene.labels[p], k + 1)
     assert n_blinks >= 1
+
+
+@pytest.mark.parametrize("single_sensor", [True, False])
+def test_lost_point_revived_by_one_camera_only_with_single_sensor(single_sensor):
+    """A marker lost in every camera that comes back in one camera only (the other
+    camera of its caddy cut off by the image edge, say) is placed again by single sensor
+    tracking, on its own blob, as if it had never been lost; never when that is off."""
+    scene = scene_of("speech", 60)
+    base = synth_detections(scene, dropout=0.0)
+    # a marker in the middle of the set, seen by every camera throughout
+    everywhere = np.flatnonzero(scene.visible.all(axis=(0, 2)))
+    centre = scene.points3d[0, everywhere].mean(0)
+    m = int(everywhere[np.argmin(np.linalg.norm(scene.points3d[0, everywhere] - centre,
+                                                axis=1))])
+    one_cam = range(25, 60)
+
+    def without_marker(frames, keep_camera):
+        dets = copy.deepcopy(base)
+        for f in frames:
+            for c in range(scene.n_cameras):
+                if c != keep_camera:
+                    cen, axes, ids = dets[f][c]
+                    keep = ids != m
+                    dets[f][c] = (cen[keep], axes[keep], ids[keep])
+        return dets
+
+    params = TrackingParameters(allow_single_sensor_tracking=single_sensor)
+    # lost in every camera for frames 20-24, then seen by camera 0 only
+    dets = without_marker(range(20, 25), -1)
+    dets[25:] = without_marker(one_cam, 0)[25:]
+    res, init = run_tracker(scene, dets, start=0, stop=59, params=params)
+    assert init[m]
+    rows = np.arange(res.first, res.last + 1)
+    later = np.isin(rows, one_cam)
+    pos = res.positions[:, m].astype(np.float64)
+    placed = later & np.isfinite(pos).all(-1)
+    if not single_sensor:
+        assert not placed.any()
+        return
+    # the same take without the gap: camera 0 alone carries the point from frame 25
+    control, _ = run_tracker(scene, without_marker(one_cam, 0), start=0, stop=59,
+                             params=params)
+    placed_control = later & np.isfinite(control.positions[:, m]).all(-1)
+    assert placed_control.sum() >= 10
+    assert (placed == placed_control)[later].mean() >= 0.9
+    assert np.all(res.recon[placed, m] == RECON_SINGLE_SENSOR)
+    err = np.linalg.norm(pos[placed] - scene.points3d[rows[placed], m], axis=-1)
+    assert err.max() < 1.0
+    det = res.detection[placed, m]
+    assert np.all(det[:, 1:] < 0)
+    ids = np.array([dets[f][0][2][d] for f, d in zip(rows[placed], det[:, 0], strict=True)])
+    assert np.all(ids == m)
 
 
 def test_resect_cameras_recovers_perturbed_pose(rng):

@@ -32,7 +32,8 @@ For every point that has a 3D position in the start frame, and for every followi
 
 A point that loses every camera keeps a predicted position carried along by its
 neighbours, so it is picked up again as soon as its blob reappears near that prediction
-(markers coming back after a blink) - but only from two cameras agreeing in 3D.
+(markers coming back after a blink) - from two cameras agreeing in 3D, or from one whose
+ray passes within Single Sensor Tracking Threshold of the prediction.
 
 Everything is vectorised per frame over points x cameras; there is no Python loop per
 point-frame except for patch tracking of the few point-cameras that found no blob.
@@ -815,7 +816,8 @@ class FrameMatcher:
         face_radius, brim_radius, elastic_radius, max_3d : overrides of the parameters.
         passes : most elastic matching passes after the anchor pass (default
             ``params.elastic_passes``; stops early once the matches no longer change).
-        reacquire : (P,) points that were lost: accepted only from >= 2 cameras.
+        reacquire : (P,) points that were lost: accepted only from >= 2 cameras, or
+            from one by single sensor tracking.
         patch : callable(missing (P, C) bool, pred (P, C, 2)) -> (uv (P, C, 2), score)
             patch tracking fallback for point-cameras without a blob.
         resolve_cameras : re-solve cameras from the brim points.
@@ -1112,10 +1114,15 @@ class FrameMatcher:
                 detach(f[bad], np.ones((int(bad.sum()), C), bool))
                 X[bad] = np.nan
                 n_obs[bad] = 0
-        # a lost point is picked up again only from >= 2 cameras and where its neighbours
-        # say it should be (a whole region lost at once waits for its edges to return)
+        # a lost point is picked up again only where its neighbours say it should be (a
+        # whole region lost at once waits for its edges to return), from >= 2 cameras, or
+        # from one when single sensor tracking may place it (same test as below: its ray
+        # within the threshold of the prediction). Without the latter, a marker seen by
+        # one camera for a while (the chin row cut by the image edge in the other) stayed
+        # lost after its first dropout: rendered speech 600 coverage 0.9888 -> 0.9920.
         if reacquire is not None:
-            lone = reacquire[f] & ((n_obs < 2) | (sup < need))
+            few = (n_obs < 1) if p.allow_single_sensor_tracking else (n_obs < 2)
+            lone = reacquire[f] & (few | (sup < need))
             if lone.any():
                 detach(f[lone], np.ones((int(lone.sum()), C), bool))
                 X[lone] = np.nan
