@@ -1,6 +1,7 @@
 """Tracking benchmark: speed of the tracker and accuracy of the headless pipeline.
 
     python benchmarks/tracking.py [--frames 600] [--runs 3] [--skip-accuracy]
+        [--accuracy-frames 300] [--accuracy-seeds 1,2] [--takes speech,fast,...] [--rom]
 
 Prints JSON lines:
 
@@ -13,7 +14,11 @@ Prints JSON lines:
 - ``tracking_coverage``, ``tracking_swaps``, ``tracking_rmse_mm``: a rendered speech take
   (standard markers) processed end to end by ``carapost.pipeline.process_take`` (blob
   detection, automatic brim solve, automatic Initialize 3D at frame 0, tracking) and
-  scored with ``carapost.api.evaluate`` against its truth.
+  scored with ``carapost.api.evaluate`` against its truth (one take per seed of
+  ``--accuracy-seeds``).
+- with ``--rom``: ``rom_recovered``, ``rom_mismatches``, ``rom_track_coverage`` and
+  ``rom_track_swaps`` of Initialize from ROM end to end on rendered takes (see
+  :func:`bench_rom`).
 - with ``--takes speech,fast,...``: ``take_coverage``, ``take_swaps``, ``take_rmse_mm``,
   ``take_spurious`` and ``take_fps`` of :func:`carapost.algorithms.tracking.track_take`
   (with :func:`make_spawner`) on truth-derived detections of each named case
@@ -138,25 +143,90 @@ def bench_speed(frames: int, runs: int) -> None:
          load_average=_load_average(), reference_ratio=round(fps / REFERENCE_FPS, 1))
 
 
-def bench_accuracy(frames: int, folder: Path) -> None:
+def bench_accuracy(frames: int, folder: Path, seed: int = 1) -> None:
     from carapost.api import evaluate
     from carapost.pipeline import process_take
     from carapost.synth import SynthConfig, generate_take
 
-    take = folder / f"speech{frames}"
+    take = folder / (f"speech{frames}" if seed == 1 else f"speech{frames}s{seed}")
     if not (take / "truth.npz").is_file():
-        generate_take(take, SynthConfig(preset="speech", frames=frames, seed=1,
+        generate_take(take, SynthConfig(preset="speech", frames=frames, seed=seed,
                                         take_name="speech"))
-    out = folder / f"speech{frames}.cara"
+    out = take.with_suffix(".cara")
     t0 = time.perf_counter()
     info = process_take(take, output=out)
     seconds = time.perf_counter() - t0
     ev = evaluate(out, take / "truth.npz")
-    common = {"preset": "speech", "frames": frames, "pipeline_seconds": round(seconds, 1),
-              "stage_seconds": info["seconds"], "initialised": info["initialised"]}
+    common = {"preset": "speech", "seed": seed, "frames": frames,
+              "pipeline_seconds": round(seconds, 1), "stage_seconds": info["seconds"],
+              "initialised": info["initialised"]}
     emit("tracking_coverage", round(ev["coverage"], 4), "fraction", **common)
-    emit("tracking_swaps", ev["swaps"], "count", spurious_points=ev["spurious_points"])
-    emit("tracking_rmse_mm", None if ev["rmse_mm"] is None else round(ev["rmse_mm"], 3), "mm")
+    emit("tracking_swaps", ev["swaps"], "count", seed=seed,
+         spurious_points=ev["spurious_points"])
+    emit("tracking_rmse_mm", None if ev["rmse_mm"] is None else round(ev["rmse_mm"], 3), "mm",
+         seed=seed)
+
+
+def bench_rom(folder: Path) -> None:
+    """Initialize from ROM end to end on rendered takes.
+
+    A rom take (rom preset, seed 5, 120 frames) is processed and its points are labelled
+    from its truth (what the artist does once per actor); a speech take of the same
+    actor and marker set (seed 1, 150 frames) is then processed with ``rom=``. Reported:
+    of the markers seen by >= 2 cameras at frame 0, the fraction with a point carrying
+    their label within 2 mm (``rom_recovered``), labelled points further than 2 mm from
+    their marker (``rom_mismatches``), and the tracked take's coverage and swaps.
+    """
+    from carapost.api import evaluate, open_project, save_project
+    from carapost.model.project import KIND_FACE
+    from carapost.pipeline import process_take
+    from carapost.synth import SynthConfig, generate_take
+    from carapost.synth.scoring import score_tracks
+
+    rom = folder / "rom120"
+    take = folder / "speech150"
+    for path, cfg in ((rom, SynthConfig(preset="rom", frames=120, seed=5, take_name="rom")),
+                      (take, SynthConfig(preset="speech", frames=150, seed=1,
+                                         take_name="speech"))):
+        if not (path / "truth.npz").is_file():
+            generate_take(path, cfg)
+    rom_cara = folder / "rom120.cara"
+    process_take(rom, output=rom_cara)
+    project = open_project(rom_cara)
+    truth = np.load(rom / "truth.npz")
+    face = np.flatnonzero(project.points.kind == KIND_FACE)
+    match = score_tracks(project.points.positions[:, face].astype(np.float64),
+                         truth["points3d"], truth["visible"].astype(bool)).match
+    for col, m in zip(face, match, strict=True):
+        if m >= 0:
+            project.points.labels[col] = str(truth["labels"][m])
+    save_project(project, rom_cara)
+    out = folder / "speech150_from_rom.cara"
+    t0 = time.perf_counter()
+    info = process_take(take, output=out, rom=rom_cara)
+    seconds = time.perf_counter() - t0
+    result = open_project(out)
+    truth = np.load(take / "truth.npz")
+    labels = [str(x) for x in truth["labels"]]
+    seen = truth["visible"][0].sum(-1) >= 2
+    right, wrong = set(), 0
+    for col in np.flatnonzero(result.points.kind == KIND_FACE):
+        lab, X = result.points.labels[col], result.points.positions[0, col]
+        if lab in labels and np.isfinite(X).all():
+            m = labels.index(lab)
+            if np.linalg.norm(X - truth["points3d"][0, m]) <= 2.0:
+                right.add(m)
+            else:
+                wrong += 1
+    ev = evaluate(out, take / "truth.npz")
+    common = {"rom": "rom preset seed 5, 120 frames", "take": "speech seed 1, 150 frames",
+              "rom_labelled": int((match >= 0).sum()), "pipeline_seconds": round(seconds, 1),
+              "initialised": info["initialised"]}
+    emit("rom_recovered", round(len(right & set(np.flatnonzero(seen))) / int(seen.sum()), 4),
+         "fraction", **common)
+    emit("rom_mismatches", wrong, "count")
+    emit("rom_track_coverage", round(ev["coverage"], 4), "fraction")
+    emit("rom_track_swaps", ev["swaps"], "count", spurious_points=ev["spurious_points"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,6 +236,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="frames of the rendered take (600 for the full acceptance run)")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--accuracy-seeds", default="1",
+                    help="comma-separated seeds of the rendered speech takes (default 1)")
+    ap.add_argument("--rom", action="store_true",
+                    help="also Initialize from ROM end to end on rendered takes")
     ap.add_argument("--takes", default="",
                     help="comma-separated track_take cases: speech,fast,blink,dense156,"
                          "sparse35,back (truth-derived detections, --frames frames)")
@@ -177,7 +251,11 @@ def main(argv: list[str] | None = None) -> int:
         bench_takes(args.frames, [c.strip() for c in args.takes.split(",") if c.strip()])
     if not args.skip_accuracy:
         args.cache.mkdir(parents=True, exist_ok=True)
-        bench_accuracy(args.accuracy_frames, args.cache)
+        for seed in (int(x) for x in args.accuracy_seeds.split(",") if x.strip()):
+            bench_accuracy(args.accuracy_frames, args.cache, seed)
+    if args.rom:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        bench_rom(args.cache)
     return 0
 
 
