@@ -1,6 +1,6 @@
 """Blob detection benchmark: speed, accuracy on carapost.synth takes, real dot-grid photos.
 
-Run from the repository root: ``python benchmarks/blobs.py`` (about 3 minutes on 2
+Run from the repository root: ``python benchmarks/blobs.py`` (about 1.5 minutes on 2
 cores). Prints one JSON object per line: {"metric": ..., "value": ..., "unit": ...}.
 
 Face images come from ``carapost.synth`` (1280x720, 4 cameras, standard set: 89 face

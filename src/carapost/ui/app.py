@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import threading
 from pathlib import Path
 
 from PySide6.QtGui import QColor, QPalette
@@ -62,6 +63,21 @@ def open_path(window, path: str) -> bool:
     return True
 
 
+def _warm_up_detector() -> None:
+    """Load the blob detector's compiled kernels (compiled once after installation,
+    ~3 s; then loaded from numba's cache in a fraction of a second) off the GUI thread,
+    so the first Blob Preview or Detect Blobs does not wait for them."""
+    def work() -> None:
+        try:
+            from carapost.algorithms.blobs import warm_up
+
+            warm_up()
+        except Exception:  # the detector reports real problems when it is used
+            log.debug("blob detector warm-up failed", exc_info=True)
+
+    threading.Thread(target=work, name="carapost-warm-up", daemon=True).start()
+
+
 def run_gui(path: str | None = None) -> int:
     """Open the main window (on ``path`` if given) and run until it closes.
 
@@ -75,6 +91,7 @@ def run_gui(path: str | None = None) -> int:
     app = application()
     window = MainWindow()
     window.show()
+    _warm_up_detector()
     if path:
         if not Path(path).exists():
             window.report_error("Open", f"{path}: no such file")
