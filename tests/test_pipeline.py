@@ -72,15 +72,20 @@ def test_take_without_xcp_or_rom_is_refused(tmp_path):
 
 
 @pytest.mark.slow
-def test_pipeline_on_rendered_speech_take(tmp_path):
-    from carapost.api import evaluate
+@pytest.mark.parametrize("patch_tracking", [False, True])
+def test_pipeline_on_rendered_speech_take(tmp_path, patch_tracking):
+    from carapost.api import evaluate, open_project
+    from carapost.model.project import SOURCE_PATCH
     from carapost.synth import SynthConfig, generate_take
 
     take = tmp_path / "take"
     generate_take(take, SynthConfig(preset="speech", frames=40, seed=1, take_name="speech"))
     out = tmp_path / "speech.cara"
-    info = process_take(take, output=out, c3d=tmp_path / "speech.c3d")
+    info = process_take(take, output=out, c3d=tmp_path / "speech.c3d",
+                        patch_tracking=patch_tracking)
     assert out.is_file() and (tmp_path / "speech.c3d").is_file()
+    patched = int((open_project(out).points.source == SOURCE_PATCH).sum())
+    assert (patched > 0) == patch_tracking
     assert info["initialised"] > 50
     ev = evaluate(out, take / "truth.npz")
     assert ev["swaps"] == 0

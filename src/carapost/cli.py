@@ -95,6 +95,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
         brim=args.brim,
         c3d=args.c3d,
         fbx=args.fbx,
+        patch_tracking=args.patch_tracking,
     )
     for key, value in result.items():
         print(f"{key}: {value}")
@@ -139,6 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", required=True, help="project file to write")
     sp.add_argument("--c3d", help="also export C3D here")
     sp.add_argument("--fbx", help="also export FBX here")
+    sp.add_argument("--patch-tracking", action="store_true",
+                    help="patch track point-cameras without a blob (more coverage, about "
+                         "8x slower: every image is decoded again while tracking)")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")

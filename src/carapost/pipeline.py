@@ -121,6 +121,7 @@ def process_take(
     c3d: str | Path | None = None,
     fbx: str | Path | None = None,
     progress: Callable[[int, int], bool] | None = None,
+    patch_tracking: bool = False,
 ) -> dict[str, Any]:
     """Process a take headlessly: import, detect, solve, initialise, track, save, export.
 
@@ -140,6 +141,11 @@ def process_take(
     progress : callable, optional
         ``progress(done, total)`` over the detection and tracking frames; False cancels
         (raises ``RuntimeError``, nothing written).
+    patch_tracking : bool
+        Give the tracker the images, so a point-camera without a blob is patch tracked
+        (Patch Match Size / Threshold). Off by default: every image is decoded again
+        while tracking, both passes, which makes the whole run about 8x slower for
+        +0.2 % coverage on the rendered speech takes (docs/benchmarks.md).
 
     Returns
     -------
@@ -282,7 +288,8 @@ def process_take(
         project.set_active_range((0, F - 1))
         if F > 1:
             try:
-                cmd = TrackTakeCommand(project, 0, progress=stage_progress(F, total))
+                cmd = TrackTakeCommand(project, 0, progress=stage_progress(F, total),
+                                       get_image=frames.get if patch_tracking else None)
             except CommandError as exc:
                 raise ValueError(f"tracking: {exc}") from None
             if cmd.computation.cancelled:

@@ -705,3 +705,34 @@ def test_blocked_point_takes_no_blob_but_keeps_a_carried_estimate():
     # nobody else took the blocked point's blobs, and the others are unchanged
     others = np.arange(M + B) != p
     assert np.array_equal(res["detection"][others], free["detection"][others])
+
+
+def test_track_take_with_images_detects_frames_without_detections_and_undoes():
+    """Track Take given the images detects the frames that have no detections (step 5 of
+    the guide's tracking), stores what it found with the points that use it, as one
+    undoable step."""
+    from carapost.commands.tracking import TrackTakeCommand
+    from carapost.synth import render_frame
+
+    scene = scene_of("speech", 16)
+    prj = synth_project(scene, synth_detections(scene, clutter=0, dropout=0.0))
+    empty = {"centre": np.zeros((0, 2)), "axes": np.zeros((0, 2)), "angle": np.zeros(0),
+             "colour": np.zeros(0, np.int8), "score": np.zeros(0)}
+    blank = [(f, c) for f in range(8, 11) for c in range(scene.n_cameras)]
+    prj.detections.replace_images(blank, [empty] * len(blank))
+    stack = CommandStack(prj)
+    before = snapshot(prj)
+    stack.push(TrackTakeCommand(prj, 0, get_image=lambda f, c: render_frame(scene, f, c)))
+    counts = prj.detections.counts()
+    assert (counts[8:11] > 20).all()
+    pts = prj.points
+    for f in range(8, 11):
+        used = np.argwhere(pts.detection[f] >= 0)
+        assert len(used) > 100
+        for p, c in used:  # every observation is the centre of the stored detection it names
+            cen = prj.detections.centres(f, int(c))[pts.detection[f, p, c]]
+            np.testing.assert_allclose(pts.obs[f, p, c], cen, atol=1e-3)
+    face = np.flatnonzero(pts.kind != KIND_BRIM)
+    assert np.isfinite(pts.positions[8:11, face, 0]).mean() > 0.9
+    stack.undo()
+    assert snapshot(prj) == before

@@ -1,8 +1,9 @@
 """The Process menu end to end in the real window on a rendered synthetic take.
 
 Import the take's files, Detect Blobs [Active Range], Solve Calibration Brim, Initialize
-3D, Track Forwards [Sequence], each on the worker thread and each one undo entry, then
-check the tracked points against the take's ground truth.
+3D, Track Forwards [Sequence] (which detects the frames Detect Blobs left out), each on
+the worker thread and each one undo entry, then check the tracked points against the
+take's ground truth.
 """
 
 from __future__ import annotations
@@ -26,8 +27,12 @@ def test_detect_solve_initialise_track_from_the_menus(make_window, qtbot, synth_
     assert (project.points.kind == KIND_BRIM).sum() > 10  # the take's brim model
     w = make_window(project)
     w.last_error = None
+    F = project.n_frames
+    project.set_active_range((0, F - 3))  # the last two frames are left to the tracker
     _run(qtbot, w, w.detect_blobs, "range")
-    assert project.detections.counts().min() > 20
+    assert project.detections.counts()[:F - 2].min() > 20
+    assert project.detections.counts()[F - 2:].max() == 0
+    project.set_active_range((0, F - 1))
     _run(qtbot, w, w.run_process, "solve_brim")
     assert project.calibration.solved[0]
     _run(qtbot, w, w.run_process, "initialize_3d")
@@ -36,6 +41,8 @@ def test_detect_solve_initialise_track_from_the_menus(make_window, qtbot, synth_
     _run(qtbot, w, w.run_process, "track_forwards_sequence")
     tracked = np.isfinite(project.points.positions[:, face, 0])
     assert tracked[-1].mean() > 0.8  # still tracked at the last frame
+    # the tracker had the take's images: it detected the frames that had no detections
+    assert project.detections.counts()[F - 2:].min() > 20
 
     # every tracked point sits on one truth marker
     truth = np.load(synth_take.parent / "truth.npz")

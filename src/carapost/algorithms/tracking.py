@@ -1731,6 +1731,7 @@ def track_take(
     progress: Callable[[int, int], bool] | None = None,
     min_frames: int = 10,
     merge_mm: float = 1.0,
+    get_image: Callable[[int, int], NDArray[Any]] | None = None,
 ) -> TrackResult:
     """Track a whole take from one initialised frame, finding missed markers on the way.
 
@@ -1751,6 +1752,8 @@ def track_take(
     ----------
     detections, initial, R, t, intr, params, spawn, spawn_interval, resolve_cameras
         As for :func:`track`.
+    get_image : callable, optional
+        ``get_image(frame, camera)`` -> grey image: patch tracking in both passes.
     start : int
         Frame holding ``initial``.
     n_frames : int
@@ -1808,7 +1811,7 @@ def track_take(
     if start != end1:
         fwd = track(detections, initial, R, t, intr, params, start=start, stop=end1,
                     resolve_cameras=resolve_cameras, progress=prog(0), spawn=spawn,
-                    spawn_interval=spawn_interval)
+                    spawn_interval=spawn_interval, get_image=get_image)
         P1 = P + fwd.n_new
         cancelled = fwd.cancelled
         done += fwd.frames_done
@@ -1842,7 +1845,7 @@ def track_take(
     bwd = track(detections, init_b, Rall[last], tall[last], intr, params, start=last,
                 stop=end2, resolve_cameras=resolve_cameras, progress=prog(abs(end1 - start)),
                 spawn=spawn if 0 < start < L else None, spawn_interval=spawn_interval,
-                guide=guide)
+                guide=guide, get_image=get_image)
     done += bwd.frames_done
     P2 = P1 + bwd.n_new
     B = empty(P2)

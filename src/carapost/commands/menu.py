@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from carapost.commands.process import (
     BundleCurrentFrame,
@@ -23,6 +24,8 @@ from carapost.commands.stack import Command, CommandError
 from carapost.model.project import KIND_BRIM, Project
 
 ProgressFn = Callable[[int, int], bool] | None
+#: ``get_image(frame, camera) -> grey image`` for the commands that can use images.
+ImageFn = Callable[[int, int], NDArray] | None
 
 
 def initialize_brim_v20(project: Project, progress: ProgressFn = None) -> Command:
@@ -69,31 +72,41 @@ def _selected_ids(project: Project) -> list[int] | None:
     return ids or None
 
 
-def _track(project: Project, direction: int, single: bool, progress: ProgressFn) -> Command:
+def _track(project: Project, direction: int, single: bool, progress: ProgressFn,
+           get_image: ImageFn) -> Command:
     from carapost.commands.tracking import TrackCommand
 
     return TrackCommand(project, direction, single_frame=single,
-                        point_ids=_selected_ids(project), progress=progress)
+                        point_ids=_selected_ids(project), progress=progress,
+                        get_image=get_image)
 
 
-def track_forwards_sequence(project: Project, progress: ProgressFn = None) -> Command:
-    """Process > Track Forwards [Sequence]: over the active range from the current frame."""
-    return _track(project, +1, False, progress)
+def track_forwards_sequence(project: Project, progress: ProgressFn = None,
+                            get_image: ImageFn = None) -> Command:
+    """Process > Track Forwards [Sequence]: over the active range from the current frame.
+
+    With ``get_image(frame, camera)`` (the window passes its take's images), point-cameras
+    without a blob are patch tracked and frames without detections are detected first.
+    """
+    return _track(project, +1, False, progress, get_image)
 
 
-def track_backwards_sequence(project: Project, progress: ProgressFn = None) -> Command:
+def track_backwards_sequence(project: Project, progress: ProgressFn = None,
+                             get_image: ImageFn = None) -> Command:
     """Process > Track Backwards [Sequence]."""
-    return _track(project, -1, False, progress)
+    return _track(project, -1, False, progress, get_image)
 
 
-def track_forwards_frame(project: Project, progress: ProgressFn = None) -> Command:
+def track_forwards_frame(project: Project, progress: ProgressFn = None,
+                         get_image: ImageFn = None) -> Command:
     """Process > Track Forwards [Single Frame] (Ctrl+W)."""
-    return _track(project, +1, True, progress)
+    return _track(project, +1, True, progress, get_image)
 
 
-def track_backwards_frame(project: Project, progress: ProgressFn = None) -> Command:
+def track_backwards_frame(project: Project, progress: ProgressFn = None,
+                          get_image: ImageFn = None) -> Command:
     """Process > Track Backwards [Single Frame]."""
-    return _track(project, -1, True, progress)
+    return _track(project, -1, True, progress, get_image)
 
 
 def _from_rom(project: Project, brim_only: bool) -> Command:

@@ -314,12 +314,17 @@ class TakeTrackComputation:
     start : int
         The initialised frame (its rows of the existing points are not overwritten).
     description : str
+    detected_images : list of (frame, camera)
+    detected_tables : list of dict
+        Detections found on the fly for frames that had none.
     """
 
     result: TrackResult
     point_ids: list[int]
     start: int
     description: str = "Track Take"
+    detected_images: list[tuple[int, int]] = field(default_factory=list)
+    detected_tables: list[dict[str, NDArray]] = field(default_factory=list)
 
     @property
     def cancelled(self) -> bool:
@@ -334,6 +339,7 @@ def compute_take_tracking(
     find_markers: bool = True,
     spawn_interval: int = 1,
     progress: Callable[[int, int], bool] | None = None,
+    get_image: Callable[[int, int], NDArray] | None = None,
 ) -> TakeTrackComputation:
     """Track every point over the whole take from one frame, finding missed markers.
 
@@ -343,6 +349,8 @@ def compute_take_tracking(
     then over the whole take the other way guided by the first pass, so each marker is
     tracked from its first appearance; points are then split where they hop to another
     marker and pieces of one marker joined. Thread-safe: reads copies, changes nothing.
+    With ``get_image(frame, camera)``, point-cameras without a blob are patch tracked and
+    frames without detections are detected on the fly (as in :class:`TrackCommand`).
 
     Raises
     ------
@@ -386,15 +394,18 @@ def compute_take_tracking(
         bm = X0[brim][np.isfinite(X0[brim]).all(-1)] if has_brim else None
         caddies = tuple((i, i + 1) for i in range(0, intr.n_cameras - 1, 2))
         spawn = make_spawner(intr, caddies, ip, brim_model=bm)
-    source = _detection_source(project, None, {})
+    found: dict[tuple[int, int], dict[str, NDArray]] = {}
+    source = _detection_source(project, get_image, found)
     R = cal.R[start].copy() if has_brim else cal.R.copy()
     t = cal.t[start].copy() if has_brim else cal.t.copy()
     result = track_take(source, InitialState(X0, kind, obs0, axes0), R, t, intr, params,
                         start=start, n_frames=project.n_frames, spawn=spawn,
                         spawn_interval=spawn_interval, resolve_cameras=has_brim,
-                        progress=progress)
+                        progress=progress, get_image=get_image)
+    images = sorted(found)
     return TakeTrackComputation(result, [int(i) for i in pts.ids], start,
-                                f"{what} [from frame {start}]")
+                                f"{what} [from frame {start}]", images,
+                                [found[k] for k in images])
 
 
 class TrackTakeCommand(Command):
@@ -410,20 +421,28 @@ class TrackTakeCommand(Command):
     progress : callable, optional
     find_markers : bool
         Find markers Initialize 3D missed (default True).
+    get_image : callable, optional
+        ``get_image(frame, camera)`` -> grey image: patch tracking, and blob detection of
+        frames that have none.
     """
 
     def __init__(self, project: Project, frame: int | None = None, *,
                  computation: TakeTrackComputation | None = None,
                  progress: Callable[[int, int], bool] | None = None,
-                 find_markers: bool = True):
+                 find_markers: bool = True,
+                 get_image: Callable[[int, int], NDArray] | None = None):
         super().__init__()
         self.computation = computation or compute_take_tracking(
-            project, frame, progress=progress, find_markers=find_markers)
+            project, frame, progress=progress, find_markers=find_markers,
+            get_image=get_image)
         self.description = self.computation.description
 
     def apply(self, project: Project, journal: Journal) -> None:
         comp = self.computation
         res = comp.result
+        if comp.detected_images:
+            journal.detections(comp.detected_images)
+            project.detections.replace_images(comp.detected_images, comp.detected_tables)
         if res.last < res.first:
             return
         pts = project.points

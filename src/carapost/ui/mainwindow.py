@@ -789,11 +789,30 @@ class MainWindow(QMainWindow):
             if spec.arg == hook and spec.title:
                 title = spec.title
 
+        wants_images = "get_image" in inspect.signature(fn).parameters
+        source = self.ctx.frames.worker_copy() if wants_images and \
+            self.ctx.frames.has_images else None
+
+        def job(progress: Callable[[int, int], bool]) -> Any:
+            if source is None:
+                return fn(project, progress=progress)
+
+            def get_image(frame: int, camera: int) -> Any:
+                img = source.image(frame, camera)
+                if img is None:
+                    raise ValueError(f"no image for frame {frame}, camera {camera}")
+                return img
+            try:  # tracking: patch tracking, and detection of frames that have none
+                return fn(project, progress=progress, get_image=get_image)
+            finally:
+                if source is not self.ctx.frames:
+                    source.close()
+
         def done(result: Any, cancelled: bool) -> None:
             if isinstance(result, Command):
                 self.push(result)
 
-        self.runner.start(title, lambda progress: fn(project, progress=progress), done)
+        self.runner.start(title, job, done)
 
     def load_rom(self) -> None:
         """Process > Load ROM (the ROM project is read and checked by the command)."""
