@@ -4,21 +4,19 @@ Renders views of ``carapost.synth`` takes (all marker sets and motion presets, n
 optical and motion blur, highlights, merged pair) plus images of the detector's own
 renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
 every blob candidate with its features, labels it true when it lies on a
-truth marker centre (one candidate per marker and seed kind), and fits three small
-neural networks (one hidden layer of ``MODEL_HIDDEN`` tanh units, log-loss with an L2
-penalty, L-BFGS): one for candidates from ordinary seeds, one for candidates from seeds
-found by splitting an over-size region, one for candidates from the optional
-centre-surround peak seeds (the ``split`` feature: 0, 1, 2; peak seeds are switched on
-while collecting, whatever ``blobs.PEAK_SEEDS`` says). Besides carapost.synth views and
-the detector's own renderer, the training images include markers touching a
-nostril-like dark feature and printed dot grids (calibration targets). The weights go to
+truth marker centre, and fits two small neural networks (one hidden layer of
+``MODEL_HIDDEN`` tanh units, log-loss with an L2 penalty, L-BFGS): one for candidates
+from ordinary seeds, one for candidates from seeds found by splitting an over-size
+region (the ``split`` feature). Besides carapost.synth views and the detector's own
+renderer, the training images include markers touching a nostril-like dark feature and
+printed dot grids (calibration targets). The weights go to
 ``src/carapost/resources/blob_model.json``. A held-out set of images
 gives the reliability table (predicted probability vs observed fraction of true
 candidates) printed here and drawn to ``docs/blob-reliability.png``.
 
 Run from the repository root::
 
-    python scripts/train_blob_model.py            # ~4-6 minutes
+    python scripts/train_blob_model.py            # ~6 minutes on 2 cores
 """
 
 from __future__ import annotations
@@ -31,7 +29,6 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 
-from carapost.algorithms import blobs
 from carapost.algorithms._blob_eval import _match, synth_scene, synth_view
 from carapost.algorithms._blob_synth import (
     _ellipse_coverage,
@@ -161,25 +158,11 @@ def _dot_grid_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
             np.array(minors))
 
 
-def _per_kind(c, match) -> np.ndarray:
-    """Labels of candidates ``c`` from ``match(centres) -> d2t``, matched one kind of
-    seed at a time (ordinary, split, peak): each network learns whether a candidate of
-    its kind lies on a blob, whatever the other kinds found there (a peak candidate
-    closer to a marker must not make the ordinary candidate of that marker a negative).
-    """
-    kind = np.rint(c.features[:, -1])
-    out = np.zeros(len(c.centre), bool)
-    for k in range(len(MODEL_KINDS)):
-        sel = np.flatnonzero(kind == k)
-        if sel.size:
-            out[sel] = match(c.centre[sel]) >= 0
-    return out
-
-
 def _label(c, centre: np.ndarray, minor: np.ndarray, spread: np.ndarray) -> np.ndarray:
-    """True for candidates on a truth blob centre (one candidate per blob and kind)."""
+    """True for candidates on a truth blob centre (one candidate per blob)."""
     tol = np.clip(0.5 * minor, 1.0, 3.0) + spread
-    return _per_kind(c, lambda xy: _match(xy, centre, tol)[0])
+    d2t, _ = _match(c.centre, centre, tol)
+    return d2t >= 0
 
 
 def collect(n_scenes: int, seed: int, views: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -189,17 +172,6 @@ def collect(n_scenes: int, seed: int, views: int = 6) -> tuple[np.ndarray, np.nd
     plus one image of the detector's own renderer per two scenes for white markers and
     dark exposure (carapost.synth draws only dark markers at normal exposure).
     """
-    # Peak seeds are an option of the detector (off by default); their network is
-    # trained all the same, so switching them on needs no retraining.
-    peak_seeds, blobs.PEAK_SEEDS = blobs.PEAK_SEEDS, True
-    try:
-        return _collect(n_scenes, seed, views)
-    finally:
-        blobs.PEAK_SEEDS = peak_seeds
-
-
-def _collect(n_scenes: int, seed: int, views: int) -> tuple[np.ndarray, np.ndarray]:
-    """The body of :func:`collect`."""
     rng = np.random.default_rng(seed)
     feats, labels = [], []
     for i in range(n_scenes):
@@ -226,9 +198,9 @@ def _collect(n_scenes: int, seed: int, views: int) -> tuple[np.ndarray, np.ndarr
         for pol in (BLACK, WHITE):
             c = blob_candidates(s.image, pol, *TRAIN_RANGE)
             truth = s.colour == pol
+            d2t, _ = match_to_truth(c.centre, s.centre[truth], s.axes[truth, 1])
             feats.append(c.features)
-            ct, mt = s.centre[truth], s.axes[truth, 1]
-            labels.append(_per_kind(c, lambda xy, ct=ct, mt=mt: match_to_truth(xy, ct, mt)[0]))
+            labels.append(d2t >= 0)
     return np.vstack(feats), np.concatenate(labels)
 
 
@@ -346,8 +318,8 @@ def main() -> None:
     models = {}
     p = np.zeros(len(y_te))
     for k, kind in enumerate(MODEL_KINDS):
-        tr = np.rint(x_tr[:, -1]) == k
-        te = np.rint(x_te[:, -1]) == k
+        tr = (x_tr[:, -1] > 0.5) == bool(k)
+        te = (x_te[:, -1] > 0.5) == bool(k)
         n_in = MODEL_INPUTS[kind]
         f_tr = x_tr[tr][:, :n_in]
         mean = f_tr.mean(axis=0)
@@ -373,12 +345,11 @@ def main() -> None:
         acc = p >= th
         print(f"threshold {th}: recall {np.mean(acc[y_te]):.4f}, "
               f"precision {np.mean(y_te[acc]):.4f}")
-    for k, kind in enumerate(MODEL_KINDS[1:], 1):
-        sp = np.rint(x_te[:, -1]) == k
-        if sp.any():
-            acc = p[sp] >= 0.4
-            print(f"{kind} candidates at 0.4: recall {np.mean(acc[y_te[sp]]):.4f}, "
-                  f"precision {np.mean(y_te[sp][acc]) if acc.any() else float('nan'):.4f}")
+    sp = x_te[:, -1] > 0.5
+    if sp.any():
+        acc = p[sp] >= 0.4
+        print(f"split candidates at 0.4: recall {np.mean(acc[y_te[sp]]):.4f}, "
+              f"precision {np.mean(y_te[sp][acc]) if acc.any() else float('nan'):.4f}")
     if not args.no_write:
         model = {
             "features": list(FEATURE_NAMES),

@@ -17,10 +17,7 @@ candidates; there is no Python loop per pixel or blob:
    all outlines at once. Regions too large for the full-resolution level (a marker
    joined to a nostril, a crease or the dark image border) are cut again at stricter
    fractions of their local peak contrast; compact parts of the right size become
-   *split* seeds. Optionally (``PEAK_SEEDS``, off by default), inside those regions and
-   inside regions that fill their outline ellipse poorly, local maxima of the contrast
-   minus its 7x7 mean become *peak* seeds (a thin marker on a lip line of its own
-   contrast, a marker at the end of a shadow).
+   *split* seeds.
 3. Refinement at the blob's own scale: per seed, a plane fitted (twice, the second time
    without ring pixels far above the first plane) to a ring of pixels around the seed
    ellipse is the local background, which removes shading gradients; each pixel's
@@ -36,7 +33,7 @@ candidates; there is no Python loop per pixel or blob:
    relative to the surround, how well the coverage fills its ellipse, ring roughness,
    symmetry, axis ratio, how much of the ring is as dark as the blob, how far the ring
    plane sits above the surround) gives the probability that the candidate is a blob
-   centre; split and peak seeds have models of their own. It was fitted on synthetic images
+   centre; split seeds have a model of their own. It was fitted on synthetic images
    with known truth by ``scripts/train_blob_model.py`` (weights in
    ``carapost/resources/blob_model.json``). Candidates whose major axis (the full
    length of the longest ellipse axis, ``2 a``) is outside the radius range, or whose
@@ -99,13 +96,10 @@ FEATURE_NAMES = (
     "axis_ratio",
     "ring_fill",
     "pedestal",
-    "peak_rel",
-    "peak_along",
     "split",
 )
-#: Features measured by the refinement (the last three, ``peak_rel``, ``peak_along`` and
-#: ``split``, come from the seed).
-_N_REFINED = len(FEATURE_NAMES) - 3
+#: Features measured by the refinement (the last one, ``split``, comes from the seed).
+_N_REFINED = len(FEATURE_NAMES) - 1
 
 
 @dataclass(frozen=True)
@@ -225,13 +219,13 @@ class Candidates(NamedTuple):
 # --------------------------------------------------------------------------- model
 
 
-#: The models of ``blob_model.json``: candidates from ordinary seeds, from seeds found by
-#: splitting an over-size region and from centre-surround peak seeds (indexed by the
-#: ``split`` feature: 0, 1, 2), with the number of leading FEATURE_NAMES each one uses.
-#: ``peak_rel`` and ``peak_along`` are measured at the seed and exist for peak seeds only
-#: (0 for the others).
-MODEL_KINDS = ("seed", "split", "peak")
-MODEL_INPUTS = {"seed": 9, "split": 9, "peak": 11}
+#: The two models of ``blob_model.json``: candidates from ordinary seeds and candidates
+#: from seeds found by splitting an over-size region (indexed by the ``split`` feature),
+#: with the number of leading FEATURE_NAMES each one uses. ``pedestal`` (a blob on a
+#: darker plateau, such as a pupil in its iris) only matters for split seeds: an ordinary
+#: seed's region already ends where its surround begins.
+MODEL_KINDS = ("seed", "split")
+MODEL_INPUTS = {"seed": 9, "split": 9}
 
 
 #: Hidden units of each network (one tanh layer).
@@ -286,9 +280,9 @@ def blob_probability(features: np.ndarray) -> np.ndarray:
 
     A small network (one hidden layer, trained on log-loss with an L2 penalty strong
     enough that it carries over to images unlike its synthetic training images, such as
-    photos of printed dot grids). Candidates from split seeds (``split`` feature 1) and
-    from peak seeds (2) have networks of their own: they are rarer, and a dark feature
-    next to them changes what their other features mean.
+    photos of printed dot grids). Candidates from split seeds (``split`` feature 1) have
+    a network of their own: they are rarer, and a dark feature next to them changes what
+    their other features mean.
 
     Parameters
     ----------
@@ -299,7 +293,7 @@ def blob_probability(features: np.ndarray) -> np.ndarray:
     ndarray [N] float64 in 0-1
     """
     features = np.asarray(features, np.float64)
-    kind = np.clip(np.rint(features[:, -1]), 0, len(MODEL_KINDS) - 1).astype(np.int64)
+    kind = (features[:, -1] > 0.5).astype(np.int64)
     z = np.zeros(len(features))
     for k, net in enumerate(_model()):
         sel = kind == k
@@ -430,27 +424,6 @@ PART_GROW = -1
 SPLIT_RAW = 2
 #: Noise sigma (grey levels) up to which SPLIT_RAW = 3 cuts on the unsmoothed contrast.
 SPLIT_RAW_MAX_NOISE = 3.0
-#: Centre-surround peak seeds (eighth round, see _peak_seeds): inside over-size regions
-#: whose bounding box is at most PEAK_MAX_EXT px and regions filling less than PEAK_FILL
-#: of their outline ellipse, peaks of top_s minus its PEAK_BOX x PEAK_BOX mean of at
-#: least PEAK_FLOOR x the noise, PEAK_MIN grey levels and PEAK_REL of the contrast, at
-#: least PEAK_MIN_DIST px from other seeds; seed ellipse semi-minor axis PEAK_B px. Off
-#: by default: with it, recall on carapost.synth is 0.989 (0.986 without), but the
-#: markers it adds on lip lines are refined 0.3-0.5 px off centre (the crease inside the
-#: support counts as coverage), which puts one acceptance frame's centre p95 above
-#: 0.25 px. The model has its network (``peak``), so switching it on needs no retraining.
-PEAK_SEEDS = False
-PEAK_MAX_EXT = 200
-PEAK_FILL = 0.9
-PEAK_BOX = 7
-PEAK_FLOOR = 2.0
-PEAK_MIN = 7.0
-PEAK_REL = 0.17
-PEAK_MIN_DIST = 2.0
-PEAK_B = 2.0
-#: Smallest weaker curvature of a peak (Sobel second derivative / 4) relative to its
-#: contrast.
-PEAK_ALONG = 0.012
 
 
 def _background(d_small: np.ndarray, radius: float, shape: tuple[int, int],
@@ -564,7 +537,7 @@ def _level_seeds(d: np.ndarray, bg: np.ndarray, sigma: float, a_lo: float, a_hi:
     cand = cv2.bitwise_and(half, cv2.compare(top_s, floor, cv2.CMP_GE))
     contours, _ = cv2.findContours(cand, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
-        return (*(np.zeros(0) for _ in range(7)), [], np.zeros((0, 2)))
+        return (*(np.zeros(0) for _ in range(7)), [])
     cx, cy, a, b, th, _area, ext, _nv = _contour_ellipses(contours)
     # The outline runs through the centres of the region's border pixels, half a pixel
     # inside the region's edge.
@@ -573,7 +546,6 @@ def _level_seeds(d: np.ndarray, bg: np.ndarray, sigma: float, a_lo: float, a_hi:
     ok &= (ext >= 1.2 * a_lo - 2) & (ext <= 2.4 * a_hi + 6)
     seeds = (cx[ok], cy[ok], a[ok], b[ok], th[ok], np.zeros(int(ok.sum())))
     parts = [None] * int(ok.sum())
-    pfeat = np.zeros((0, 2))
     if SPLIT_SEEDS and fine:
         big = np.flatnonzero((a > a_hi) | (ext > 2.4 * a_hi + 6))
         if big.size:
@@ -586,185 +558,12 @@ def _level_seeds(d: np.ndarray, bg: np.ndarray, sigma: float, a_lo: float, a_hi:
                                               a_lo, a_hi)
             seeds = tuple(np.concatenate([p, q]) for p, q in zip(seeds, extra, strict=True))
             parts.extend(outlines)
-    if PEAK_SEEDS and fine:
-        # Regions too large for the level, or filling their outline ellipse poorly
-        # (a marker with a shadow attached): centre-surround peaks inside them.
-        fill = _area / np.maximum(math.pi * (a - 0.5) * (b - 0.5), 1e-6)
-        big = (a > a_hi) | (ext > 2.4 * a_hi + 6)
-        pick = np.flatnonzero((big & (ext <= PEAK_MAX_EXT)) | (ok & (fill < PEAK_FILL)))
-        *extra, pfeat = _peak_seeds(top_s, cand, [contours[i] for i in pick], seeds[0],
-                                    seeds[1], sigma)
-        seeds = tuple(np.concatenate([p, q]) for p, q in zip(seeds, extra, strict=True))
-        parts.extend([None] * extra[0].size)
-    # Features of the peak seeds (peak_rel, peak_along; 0 for the other seeds).
-    pfeat = np.vstack([np.zeros((seeds[0].size - len(pfeat), 2)), pfeat])
     # Surround level (the opening) under each seed centre: a blob sitting on a darker
     # pedestal (a pupil in its iris) has its ring plane well above it.
     h, w = d.shape
     sx = np.clip(np.rint(seeds[0]).astype(np.int64), 0, w - 1)
     sy = np.clip(np.rint(seeds[1]).astype(np.int64), 0, h - 1)
-    return (*seeds, bg[sy, sx].astype(np.float64), parts, pfeat)
-
-
-@numba.njit(cache=True, nogil=True)
-def _centre_surround_peaks(t, region, cand, boxes, half, floor, rel):  # pragma: no cover - jit
-    """Pixels (x, y) [m, 2] inside ``boxes`` [n, 4] (x0, y0, x1, y1 inclusive) where
-    ``region`` and ``cand`` are set and ``r = t - mean of the (2 half + 1)^2 square``
-    (borders reflected as in ``cv2.blur``) is a 5x5 local maximum, at least ``floor``
-    and at least ``rel * t`` (compiled; only the boxes are visited)."""
-    h, w = t.shape
-    k = 2 * half + 1
-    inv = 1.0 / (k * k)
-    out = np.empty((0, 2), np.int64)
-    buf = []
-    for bi in range(boxes.shape[0]):
-        x0, y0 = max(boxes[bi, 0] - 2, 0), max(boxes[bi, 1] - 2, 0)
-        x1, y1 = min(boxes[bi, 2] + 3, w), min(boxes[bi, 3] + 3, h)
-        bw, bh = x1 - x0, y1 - y0
-        # Running horizontal sums of rows y0 - half .. y1 + half (reflected), then
-        # running vertical sums.
-        hs = np.empty((bh + 2 * half, bw))
-        for j in range(bh + 2 * half):
-            yy = y0 - half + j
-            if yy < 0:
-                yy = -yy
-            elif yy >= h:
-                yy = 2 * h - 2 - yy
-            acc = 0.0
-            for d in range(-half, half + 1):
-                xx = x0 + d
-                acc += t[yy, -xx if xx < 0 else (2 * w - 2 - xx if xx >= w else xx)]
-            hs[j, 0] = acc
-            for i in range(1, bw):
-                xa, xr = x0 + i + half, x0 + i - half - 1
-                acc += t[yy, 2 * w - 2 - xa if xa >= w else xa]
-                acc -= t[yy, -xr if xr < 0 else xr]
-                hs[j, i] = acc
-        r = np.empty((bh, bw))
-        for i in range(bw):
-            acc = 0.0
-            for d in range(k):
-                acc += hs[d, i]
-            r[0, i] = t[y0, x0 + i] - acc * inv
-            for j in range(1, bh):
-                acc += hs[j + k - 1, i] - hs[j - 1, i]
-                r[j, i] = t[y0 + j, x0 + i] - acc * inv
-        for j in range(bh):
-            yy = y0 + j
-            if yy < boxes[bi, 1] or yy > boxes[bi, 3]:
-                continue
-            for i in range(bw):
-                xx = x0 + i
-                if xx < boxes[bi, 0] or xx > boxes[bi, 2]:
-                    continue
-                v = r[j, i]
-                if region[yy, xx] == 0 or cand[yy, xx] == 0 or v < floor or v < rel * t[yy, xx]:
-                    continue
-                peak = True
-                for dj in range(-2, 3):
-                    jj = j + dj
-                    if jj < 0 or jj >= bh:
-                        continue
-                    for di in range(-2, 3):
-                        ii = i + di
-                        if 0 <= ii < bw and r[jj, ii] > v:
-                            peak = False
-                    if not peak:
-                        break
-                if peak:
-                    buf.append((xx, yy))
-    if len(buf):
-        out = np.empty((len(buf), 2), np.int64)
-        for q in range(len(buf)):
-            out[q, 0] = buf[q][0]
-            out[q, 1] = buf[q][1]
-    return out
-
-
-def _peak_seeds(top_s: np.ndarray, cand: np.ndarray, contours, sx: np.ndarray,
-                sy: np.ndarray, sigma: float) -> tuple[np.ndarray, ...]:
-    """Seeds at centre-surround peaks inside merged regions (``PEAK_SEEDS``).
-
-    A thin marker lying on a crease or a lip line of about its own contrast, or one at
-    the end of a dark shadow, shares its half-contrast region with that structure, and
-    no fraction of the local peak separates the two (the marker's core is a 1-2 px wide
-    line). Its darkness still stands out from the mean of the 7x7 square around it (a
-    line of the same contrast fills only ~3/7 of that square), so the local maxima of
-    ``top_s - mean_7x7(top_s)`` inside the ``contours`` (over-size regions and regions
-    that fill their outline ellipse poorly) that reach ``PEAK_FLOOR`` x the noise,
-    ``PEAK_MIN`` grey levels and ``PEAK_REL`` of the pixel's own contrast are seeds
-    (flag 2, scored by a network of their own), unless an ordinary or split seed lies
-    within ``PEAK_MIN_DIST`` px. Their seed ellipse has semi-minor axis ``PEAK_B`` and
-    is elongated and turned like the Hessian of ``top_s`` there (refinement then
-    measures the blob). Only the regions' own bounding boxes are visited, by the
-    compiled :func:`_centre_surround_peaks`.
-
-    Returns centre x, y, semi-axes a, b, angle and flag 2 (full-res px, rad), [n] each,
-    and the features ``peak_rel``, ``peak_along`` [n, 2].
-    """
-    z = np.zeros(0)
-    if not contours:
-        return z, z, z, z, z, z, np.zeros((0, 2))
-    h, w = top_s.shape
-    region = np.zeros_like(cand)
-    cv2.drawContours(region, contours, -1, 255, -1)
-    lens = np.fromiter(map(len, contours), np.int64, len(contours))
-    start = np.concatenate([[0], np.cumsum(lens)[:-1]])
-    pts = np.concatenate(contours).reshape(-1, 2)
-    boxes = np.column_stack([np.minimum.reduceat(pts, start), np.maximum.reduceat(pts, start)])
-    found = _centre_surround_peaks(top_s, region, cand, boxes.astype(np.int64), PEAK_BOX // 2,
-                                   max(PEAK_MIN, PEAK_FLOOR * sigma), PEAK_REL)
-    if not len(found):
-        return z, z, z, z, z, z, np.zeros((0, 2))
-    from scipy.spatial import cKDTree
-
-    p = found
-    xy = p.astype(np.float64)
-    keep = np.ones(len(xy), bool)
-    if len(xy) > 1:  # one seed per plateau
-        pairs = cKDTree(xy).query_pairs(PEAK_MIN_DIST, output_type="ndarray")
-        if len(pairs):
-            keep[pairs.max(axis=1)] = False
-    if sx.size:
-        dist, _ = cKDTree(np.column_stack([sx, sy])).query(xy)
-        keep &= dist > PEAK_MIN_DIST
-    p, xy = p[keep], xy[keep]
-    n = len(xy)
-    # Hessian (3x3 Sobel second derivatives) of top_s at the peaks only.
-    xs = [np.clip(p[:, 0] + k, 0, w - 1) for k in (-1, 0, 1)]
-    ys = [np.clip(p[:, 1] + k, 0, h - 1) for k in (-1, 0, 1)]
-    g = np.array([[top_s[ys[j], xs[i]] for i in range(3)] for j in range(3)], np.float64)
-    row = g[0] + 2 * g[1] + g[2]  # vertical smoothing [1, 2, 1] of each column
-    col = g[:, 0] + 2 * g[:, 1] + g[:, 2]
-    dxx = row[0] - 2 * row[1] + row[2]
-    dyy = col[0] - 2 * col[1] + col[2]
-    dxy = g[0, 0] - g[0, 2] - g[2, 0] + g[2, 2]
-    tr = 0.5 * (dxx + dyy)
-    root = np.sqrt(0.25 * (dxx - dyy) ** 2 + dxy * dxy)
-    across = np.maximum(root - tr, 1e-3)  # the stronger downward curvature
-    along = np.maximum(-(tr + root), 1e-3)  # the weaker one (~0 along a line)
-    # A peak that does not curve down along its weaker direction is a piece of a line
-    # (a crease or an edge of uneven darkness), not a blob on it.
-    t0 = np.maximum(g[1, 1], 1.0)
-    sel = along >= PEAK_ALONG * 4 * t0
-    p, xy, g, along, across, dxx, dyy, dxy, t0 = (
-        v[..., sel] if v.ndim == 3 else v[sel]
-        for v in (p, xy, g, along, across, dxx, dyy, dxy, t0))
-    n = len(xy)
-    b = np.full(n, PEAK_B)
-    a = np.clip(PEAK_B * np.sqrt(across / along), PEAK_B, 3 * PEAK_B)
-    th = 0.5 * np.arctan2(2 * dxy, dxx - dyy)  # direction of the weaker curvature
-    # Features for the score: the centre-surround response and the weaker curvature
-    # (how much the peak stands out along a line through it), both relative to the
-    # contrast at the peak.
-    half = PEAK_BOX // 2
-    off = np.arange(-half, half + 1)
-    bx = np.clip(p[:, None, 0] + off, 0, w - 1)  # border clipped, not reflected
-    by = np.clip(p[:, None, 1] + off, 0, h - 1)
-    box = top_s[by[:, :, None], bx[:, None, :]].reshape(n, off.size ** 2).mean(axis=1)
-    feat = np.column_stack([np.clip((g[1, 1] - box) / t0, -1, 1),
-                            np.clip(along / (4 * t0), 0, 2)])
-    return xy[:, 0], xy[:, 1], a, b, th, np.full(n, 2.0), feat
+    return (*seeds, bg[sy, sx].astype(np.float64), parts)
 
 
 def _split_regions(sources, cand: np.ndarray, contours, a_lo: float, a_hi: float
@@ -1340,7 +1139,7 @@ def blob_candidates(
             return pyramid[f]
         return cv2.max(pyramid[f], cv2.compare(raws[f], SATURATED, cv2.CMP_GE))
 
-    seeds, parts, pfeats = [], [], []
+    seeds, parts = [], []
     for f, lo, hi in levels:
         dl = pyramid[f]
         r = hi / f
@@ -1348,9 +1147,8 @@ def blob_candidates(
             bg = _background(surround_source(2 * f), r, dl.shape, 2)
         else:
             bg = _background(surround_source(f), r, dl.shape, 1)
-        sx, sy, sa, sb, st, sp, sbg, sparts, spf = _level_seeds(
+        sx, sy, sa, sb, st, sp, sbg, sparts = _level_seeds(
             dl, bg, max(0.7, sigma / f), max(lo / f, 1.0), r, fine=f == 1)
-        pfeats.append(spf)
         # Split parts exist on the full-resolution level only (their outlines are in
         # full-res pixels and the parts are refined there: semi-major axis <= 11.5).
         parts.extend(sparts)
@@ -1392,18 +1190,16 @@ def blob_candidates(
     cx2, cy2, a2, b2, th2, feats, saturated, ok = _refine(
         dbuf, lw, lh, lb, sig, sx, sy, sa, sb, th, open_bg, colour, part_arr)
     cx2, cy2, a2, b2 = cx2 * g + o, cy2 * g + o, a2 * g, b2 * g
-    feats = np.column_stack([feats, np.vstack(pfeats), split])
+    feats = np.column_stack([feats, split])
     ok &= (2 * a2 >= min_radius - MIN_RADIUS_TOLERANCE) & (2 * a2 <= max_radius)
     if mask is not None:
         mc = np.asarray(mask)[np.clip(np.rint(cy2).astype(np.int64), 0, h - 1),
                               np.clip(np.rint(cx2).astype(np.int64), 0, w - 1)]
         ok &= mc.astype(bool)
     idx = np.flatnonzero(ok)
-    # The same blob seen on two levels, or by a peak seed and another seed (close and
-    # of similar size): keep the copy the model finds more blob-like (the finer level's
-    # on a tie).
-    peak = split == 2
-    if idx.size > 1 and (np.unique(lev[idx]).size > 1 or peak[idx].any()):
+    # The same blob seen on two levels (close and of similar size): keep the copy the
+    # model finds more blob-like (the finer level's on a tie).
+    if idx.size > 1 and np.unique(lev[idx]).size > 1:
         from scipy.spatial import cKDTree
 
         pts = np.column_stack([cx2[idx], cy2[idx]])
@@ -1413,7 +1209,7 @@ def blob_candidates(
         if len(pairs):
             i, j = pairs[:, 0], pairs[:, 1]
             dist = np.hypot(*(pts[i] - pts[j]).T)
-            same = ((lev[idx[i]] != lev[idx[j]]) | (peak[idx[i]] != peak[idx[j]])) & (
+            same = (lev[idx[i]] != lev[idx[j]]) & (
                 dist <= 0.5 * np.minimum(b2[idx[i]], b2[idx[j]]) + 1.0)
             # ... and of a similar size (texture inside a large dot is not the dot).
             same &= np.abs(np.log(a2[idx[i]] / a2[idx[j]])) < 0.4
