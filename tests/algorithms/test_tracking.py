@@ -736,3 +736,32 @@ def test_track_take_with_images_detects_frames_without_detections_and_undoes():
     assert np.isfinite(pts.positions[8:11, face, 0]).mean() > 0.9
     stack.undo()
     assert snapshot(prj) == before
+
+
+@pytest.mark.parametrize("shift", [(2.5, 0.0), (0.0, 2.5)])
+def test_biased_blob_of_a_resuming_camera_does_not_move_a_one_camera_point(shift):
+    """A marker carried by one camera (single sensor) whose second camera comes back with
+    a blob 2.5 px off (a marker merged with a shadow) must not be solved from that blob:
+    the two-camera point would sit millimetres deep and keep that depth afterwards."""
+    scene = scene_of("speech", 40)
+    dets = copy.deepcopy(synth_detections(scene, dropout=0.0))
+    # a brow marker: it moves with its neighbours, so they predict it well
+    brow = [i for i, lab in enumerate(scene.labels) if lab.startswith("Brow_Mid")]
+    m = next(i for i in brow if scene.visible[:, i, :2].all())
+    for f in range(10, 40):
+        for c in (1, 2, 3):
+            cen, axes, ids = dets[f][c]
+            if f == 20 and c == 1:  # camera 1 sees it again for one frame, biased
+                cen = np.where((ids == m)[:, None], cen + np.asarray(shift), cen)
+                dets[f][c] = (cen, axes, ids)
+                continue
+            keep = ids != m
+            dets[f][c] = (cen[keep], axes[keep], ids[keep])
+    res, init = run_tracker(scene, dets, start=0, stop=39)
+    assert init[m]
+    rows = np.arange(res.first, res.last + 1)
+    pos = res.positions[:, m].astype(np.float64)
+    later = rows >= 20
+    err = np.linalg.norm(pos[later] - scene.points3d[rows[later], m], axis=-1)
+    assert np.isfinite(err).mean() > 0.8
+    assert np.nanmax(err) < 1.0
