@@ -141,8 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--c3d", help="also export C3D here")
     sp.add_argument("--fbx", help="also export FBX here")
     sp.add_argument("--patch-tracking", action="store_true",
-                    help="patch track point-cameras without a blob (more coverage, about "
-                         "8x slower: every image is decoded again while tracking)")
+                    help="patch track point-cameras without a blob (a little more "
+                         "coverage, about 2.5x slower: every image is decoded again "
+                         "while tracking)")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")

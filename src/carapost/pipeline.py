@@ -144,8 +144,9 @@ def process_take(
     patch_tracking : bool
         Give the tracker the images, so a point-camera without a blob is patch tracked
         (Patch Match Size / Threshold). Off by default: every image is decoded again
-        while tracking, both passes, which makes the whole run about 8x slower for
-        +0.2 % coverage on the rendered speech takes (docs/benchmarks.md).
+        while tracking, both passes, which makes the whole run about 2.5x slower for
+        +0.1 % coverage and +0.05 mm RMSE on the rendered speech takes
+        (docs/benchmarks.md).
 
     Returns
     -------

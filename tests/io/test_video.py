@@ -271,3 +271,25 @@ def test_read_ahead_close_after_a_cancel_stops_cleanly(tmp_path, rng):
         np.testing.assert_array_equal(get((0, 0)), a[0])
         close()  # the consumer stopped after one image
         assert not [t for t in threading.enumerate() if t.name.startswith("carapost-read")]
+
+
+def test_reading_backwards_decodes_blocks_in_order(tmp_path, rng, monkeypatch):
+    """Frame by frame towards the start (tracking backwards) costs one seek per block of
+    BACKWARD_BLOCK frames, not one per image, and every image is still exact."""
+    from carapost.io import video
+
+    a = make_frames(rng, 40)
+    take = _take([write_video(tmp_path / "t_cam0.mkv", a)], 40)
+    moves = []
+    original = video.VideoSource._position
+    monkeypatch.setattr(video.VideoSource, "_position",
+                        lambda self, index: (moves.append(index), original(self, index)))
+    with TakeFrames(take, strict=True) as tf:
+        for f in range(39, -1, -1):
+            np.testing.assert_array_equal(tf.get(f, 0), a[f], err_msg=f"frame {f}")
+    assert len(moves) <= 40 // video.BACKWARD_BLOCK + 2
+    moves.clear()
+    with TakeFrames(take, strict=True, cache_mb=0) as tf:  # no room for blocks
+        for f in range(39, 29, -1):
+            np.testing.assert_array_equal(tf.get(f, 0), a[f])
+    assert len(moves) == 10

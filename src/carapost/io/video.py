@@ -58,6 +58,9 @@ __all__ = [
     "read_ahead",
 ]
 
+#: Frames decoded in order at once when a camera is read backwards (see `TakeFrames.get`).
+BACKWARD_BLOCK = 16
+
 #: Containers imported as camera videos (anything OpenCV's FFmpeg reads would do; these
 #: are the ones a take is looked up by).
 VIDEO_EXTENSIONS = (".mkv", ".mp4", ".avi", ".mov")
@@ -444,6 +447,7 @@ class TakeFrames:
         self._current: PrefetchRequest | None = None
         self._closed = False
         self._blank: dict[int, NDArray[np.uint8]] = {}
+        self._last_get: dict[int, int] = {}  # camera -> frame of its last `get`
 
     # -- sources -------------------------------------------------------------------------
     def source(self, camera: int) -> VideoSource | None:
@@ -534,12 +538,18 @@ class TakeFrames:
     def get(self, frame: int, camera: int) -> NDArray[np.uint8]:
         """Image of ``camera`` at take ``frame``, decoding it now if it is not cached.
 
+        A camera read backwards frame by frame (tracking towards the start of a take) has
+        the block of `BACKWARD_BLOCK` frames ending at a missing one decoded in order and
+        cached: one seek per block instead of one per image.
+
         Returns
         -------
         ndarray, shape (H, W) uint8, read-only
         """
         frame, camera = int(frame), int(camera)
         self._check(frame, camera)
+        previous = self._last_get.get(camera)
+        self._last_get[camera] = frame
         index = self._video_index(frame, camera)
         if index is None:
             return self._blank_image(camera)
@@ -548,9 +558,19 @@ class TakeFrames:
         if img is None:
             src = self.source(camera)
             assert src is not None
+            if previous == frame + 1 and not src.is_sequence and self._holds_blocks():
+                for f in range(max(frame - BACKWARD_BLOCK + 1, 0), frame):
+                    i = self._video_index(f, camera)
+                    if i is not None and self._cache_get((f, camera)) is None:
+                        self._cache_put((f, camera), src.read(i))
             img = src.read(index)
             self._cache_put(key, img)
         return img
+
+    def _holds_blocks(self) -> bool:
+        """Whether the cache holds a backward block of every camera twice over."""
+        size = sum(int(w) * int(h) for w, h in (c.image_size for c in self.take.cameras))
+        return self.cache_bytes >= 2 * BACKWARD_BLOCK * size
 
     def get_cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         """The image if it can be had without decoding (cached or blank), else None."""
