@@ -895,6 +895,22 @@ def _refine_patches(d, w, h, lb, sigma, r, xi, yi, dx, dy, ai, bi, ao, bo, c, s,
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_plane_pixel(m: np.ndarray, rhs: np.ndarray, x: float, y: float, v: float
+                     ) -> None:  # pragma: no cover - jit
+    """Add pixel (x, y) of value v to the weight sums ``m`` (1, x, y, x^2, y^2, xy) and
+    right-hand sums ``rhs`` (v, v x, v y) of a plane fit (see :func:`_solve_plane`)."""
+    m[0] += 1.0
+    m[1] += x
+    m[2] += y
+    m[3] += x * x
+    m[4] += y * y
+    m[5] += x * y
+    rhs[0] += v
+    rhs[1] += v * x
+    rhs[2] += v * y
+
+
 @numba.njit(cache=True, nogil=True)
 def _solve_plane(m: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - jit
     """Least-squares plane c0 + c1 x + c2 y from weight sums ``m`` (1, x, y, x^2, y^2,
@@ -976,15 +992,7 @@ def _refine_sums_jit(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, 
                 px[cnt], py[cnt], pv[cnt], pflag[cnt] = x, y, v, f
                 cnt += 1
                 if f & 2:
-                    m[0] += 1.0
-                    m[1] += x
-                    m[2] += y
-                    m[3] += x * x
-                    m[4] += y * y
-                    m[5] += x * y
-                    rhs[0] += v
-                    rhs[1] += v * x
-                    rhs[2] += v * y
+                    _add_plane_pixel(m, rhs, x, y, v)
         _solve_plane(m, rhs, coef)
         # Second plane without ring pixels well above the first one.
         peak = -1e9
@@ -999,16 +1007,7 @@ def _refine_sums_jit(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, 
         for j in range(cnt):
             if pflag[j] & 2 and pres[j] < thr:
                 pflag[j] |= 4
-                x, y, v = px[j], py[j], pv[j]
-                m[0] += 1.0
-                m[1] += x
-                m[2] += y
-                m[3] += x * x
-                m[4] += y * y
-                m[5] += x * y
-                rhs[0] += v
-                rhs[1] += v * x
-                rhs[2] += v * y
+                _add_plane_pixel(m, rhs, px[j], py[j], pv[j])
         n_ring = m[0]
         _solve_plane(m, rhs, coef)
         peak = -1e9

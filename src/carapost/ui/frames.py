@@ -27,6 +27,14 @@ class FrameSource:
         """The image of ``camera`` at take frame ``frame`` (None if there is none)."""
         return None
 
+    def require(self, frame: int, camera: int) -> NDArray[np.uint8]:
+        """The image of ``camera`` at ``frame``; ValueError when there is none (for work
+        that cannot go on without it: detection, tracking)."""
+        img = self.image(frame, camera)
+        if img is None:
+            raise ValueError(f"no image for frame {frame}, camera {camera}")
+        return img
+
     def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         """The image if it is available without decoding (None otherwise)."""
         return None

@@ -750,12 +750,8 @@ class MainWindow(QMainWindow):
         source = self.ctx.frames.worker_copy()
 
         def job(progress: Callable[[int, int], bool]) -> Any:
-            def image(key: tuple[int, int]) -> Any:
-                img = source.image(*key)
-                if img is None:
-                    raise ValueError(f"no image for frame {key[0]}, camera {key[1]}")
-                return img
-            return detect_blobs_batch(image, keys, params, workers=2, progress=progress)
+            return detect_blobs_batch(lambda key: source.require(*key), keys, params,
+                                      workers=2, progress=progress)
 
         def done(result: Any, cancelled: bool) -> None:
             if source is not self.ctx.frames:
@@ -796,14 +792,8 @@ class MainWindow(QMainWindow):
         def job(progress: Callable[[int, int], bool]) -> Any:
             if source is None:
                 return fn(project, progress=progress)
-
-            def get_image(frame: int, camera: int) -> Any:
-                img = source.image(frame, camera)
-                if img is None:
-                    raise ValueError(f"no image for frame {frame}, camera {camera}")
-                return img
             try:  # tracking: patch tracking, and detection of frames that have none
-                return fn(project, progress=progress, get_image=get_image)
+                return fn(project, progress=progress, get_image=source.require)
             finally:
                 if source is not self.ctx.frames:
                     source.close()
