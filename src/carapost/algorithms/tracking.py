@@ -843,7 +843,9 @@ class FrameMatcher:
         wide_rows : (P, C) bool, optional
             The point-cameras that may take part in that vote (:func:`track`: those with
             a blob in the previous frame; a point not seen there is most often hidden,
-            and searching far for it costs time and risks a wrong blob).
+            and searching far for it costs time and risks a wrong blob). The same rows
+            tell the rejection step which cameras take a point up again (held to a
+            tighter disagreement limit).
 
         Returns
         -------

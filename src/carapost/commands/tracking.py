@@ -256,6 +256,15 @@ def compute_tracking(
                             [found[k] for k in images], desc)
 
 
+def _store_found(journal: Journal, project: Project, images: list[tuple[int, int]],
+                 tables: list[dict[str, NDArray]]) -> None:
+    """Store (undoably) the detections the tracker found on the fly, which its
+    observations refer to."""
+    if images:
+        journal.detections(images)
+        project.detections.replace_images(images, tables)
+
+
 class TrackResultCommand(Command):
     """Apply a :class:`TrackComputation` as one undoable step."""
 
@@ -267,9 +276,7 @@ class TrackResultCommand(Command):
     def apply(self, project: Project, journal: Journal) -> None:
         comp = self.computation
         res = comp.result
-        if comp.detected_images:
-            journal.detections(comp.detected_images)
-            project.detections.replace_images(comp.detected_images, comp.detected_tables)
+        _store_found(journal, project, comp.detected_images, comp.detected_tables)
         if res.last < res.first:
             return
         fr = slice(res.first, res.last + 1)
@@ -440,9 +447,7 @@ class TrackTakeCommand(Command):
     def apply(self, project: Project, journal: Journal) -> None:
         comp = self.computation
         res = comp.result
-        if comp.detected_images:
-            journal.detections(comp.detected_images)
-            project.detections.replace_images(comp.detected_images, comp.detected_tables)
+        _store_found(journal, project, comp.detected_images, comp.detected_tables)
         if res.last < res.first:
             return
         pts = project.points
