@@ -15,7 +15,6 @@ from carapost.io.video import (
     VideoSource,
     image_sequence_files,
     natural_key,
-    read_ahead,
 )
 from carapost.model.project import CameraChannel, Take
 
@@ -233,44 +232,6 @@ def test_reading_from_the_start_needs_no_seek(ffv1):
         np.testing.assert_array_equal(src.read(i), frames[i])
     assert src.seek_exact is None  # never had to seek
     np.testing.assert_array_equal(src.read(0), frames[0])
-
-
-def test_read_ahead_serves_every_key_in_order_from_per_camera_threads(tmp_path, rng):
-    a, b = make_frames(rng, 12), make_frames(rng, 12)
-    take = _take([write_video(tmp_path / "t_cam0.mkv", a),
-                  write_video(tmp_path / "t_cam1.mkv", b)], 12)
-    with TakeFrames(take, strict=True) as tf:
-        decoded_on = {}
-
-        def source(frame, camera):
-            decoded_on[(frame, camera)] = threading.current_thread().name
-            return tf.get(frame, camera)
-
-        keys = [(f, c) for f in range(2, 12) for c in (0, 1)]
-        get, close = read_ahead(source, keys, depth=3)
-        try:
-            for f, c in keys:
-                np.testing.assert_array_equal(get((f, c)), (a, b)[c][f])
-            np.testing.assert_array_equal(get((0, 1)), b[0])  # not announced: decoded here
-        finally:
-            close()
-        # each camera on its own decoding thread; an unannounced key on the caller's
-        assert {decoded_on[k] for k in keys if k[1] == 0} == {"carapost-read-c0_0"}
-        assert {decoded_on[k] for k in keys if k[1] == 1} == {"carapost-read-c1_0"}
-        assert decoded_on[(0, 1)] == threading.current_thread().name
-        with pytest.raises(RuntimeError):
-            get((3, 0))
-
-
-def test_read_ahead_close_after_a_cancel_stops_cleanly(tmp_path, rng):
-    a = make_frames(rng, 30)
-    take = _take([write_video(tmp_path / "t_cam0.mkv", a)], 30)
-    with TakeFrames(take, strict=True) as tf:
-        keys = [(f, 0) for f in range(30)]
-        get, close = read_ahead(tf.get, keys, depth=4)
-        np.testing.assert_array_equal(get((0, 0)), a[0])
-        close()  # the consumer stopped after one image
-        assert not [t for t in threading.enumerate() if t.name.startswith("carapost-read")]
 
 
 def test_reading_backwards_decodes_blocks_in_order(tmp_path, rng, monkeypatch):

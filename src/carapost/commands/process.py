@@ -200,18 +200,8 @@ class DetectBlobs(ReplaceDetections):
         except ValueError as exc:
             raise refuse(f"{what}: {exc}") from None
         keys: list[Hashable] = [(f, int(c)) for f in range(a, b + 1) for c in cams]
-        if len(keys) > len(cams):
-            # a range: the cameras decode on their own threads while the workers detect
-            from carapost.io.video import read_ahead
-
-            fetch, stop = read_ahead(get_image, keys)  # type: ignore[arg-type]
-        else:
-            fetch, stop = (lambda k: get_image(*k)), (lambda: None)
-        try:
-            result = detect_blobs_batch(fetch, keys, params, workers=workers,
-                                        progress=progress)
-        finally:
-            stop()
+        result = detect_blobs_batch(lambda k: get_image(*k), keys, params, workers=workers,
+                                    progress=progress)
         if not result:
             raise refuse(f"{what}: cancelled before any image was finished")
         images = [k for k in keys if k in result]

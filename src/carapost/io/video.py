@@ -55,7 +55,6 @@ __all__ = [
     "VideoSource",
     "image_sequence_files",
     "natural_key",
-    "read_ahead",
 ]
 
 #: Frames decoded in order at once when a camera is read backwards (see `TakeFrames.get`).
@@ -667,78 +666,3 @@ class TakeFrames:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def read_ahead(
-    get_image: Callable[[int, int], NDArray[Any]],
-    keys: Sequence[tuple[int, int]],
-    depth: int = 4,
-) -> tuple[Callable[[tuple[int, int]], NDArray[Any]], Callable[[], None]]:
-    """Decode images ahead of a consumer that wants them in the order of ``keys``.
-
-    Each camera gets one decoding thread, so its frames are decoded in order (no seeks)
-    while the consumer works on earlier images: OpenCV's decoders release the GIL, so
-    the cameras' decoding overlaps each other and the consumer's work (blob detection
-    of a whole take: the parent decoding alone held it to about 60 images/s).
-
-    Parameters
-    ----------
-    get_image : callable (frame, camera) -> ndarray
-        Thread-safe image source (e.g. `TakeFrames.get`).
-    keys : sequence of (frame, camera)
-        Every image the consumer will ask for, in the order it will ask.
-    depth : int
-        Images decoded ahead per camera (bounds the memory in flight).
-
-    Returns
-    -------
-    get : callable (frame, camera) key -> ndarray
-        The image of a key; keys must be asked for in the order given (any other key
-        is decoded on the calling thread).
-    close : callable
-        Stops the decoding threads (call it when done, also after a cancel).
-    """
-    keys = [(int(f), int(c)) for f, c in keys]
-    cams = sorted({c for _, c in keys})
-    pools = {c: ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"carapost-read-c{c}")
-             for c in cams}
-    per_cam: dict[int, list[tuple[int, int]]] = {c: [] for c in cams}
-    for k in keys:
-        per_cam[k[1]].append(k)
-    queued: dict[tuple[int, int], Future] = {}
-    next_index = dict.fromkeys(cams, 0)
-    lock = threading.Lock()
-    closed = False
-
-    def top_up(camera: int) -> None:
-        wanted = per_cam[camera]
-        while (next_index[camera] < len(wanted)
-               and sum(1 for k in queued if k[1] == camera) < depth):
-            k = wanted[next_index[camera]]
-            next_index[camera] += 1
-            queued[k] = pools[camera].submit(get_image, *k)
-
-    def get(key: tuple[int, int]) -> NDArray[Any]:
-        key = (int(key[0]), int(key[1]))
-        with lock:
-            if closed:
-                raise RuntimeError("read_ahead is closed")
-            fut = queued.pop(key, None)
-            if key[1] in pools:
-                top_up(key[1])
-        return fut.result() if fut is not None else get_image(*key)
-
-    def close() -> None:
-        nonlocal closed
-        with lock:
-            closed = True
-            for fut in queued.values():
-                fut.cancel()
-            queued.clear()
-        for pool in pools.values():
-            pool.shutdown(wait=True)
-
-    with lock:
-        for c in cams:
-            top_up(c)
-    return get, close
