@@ -3,8 +3,8 @@
 Renders views of ``carapost.synth`` takes (all marker sets and motion presets, noise,
 optical and motion blur, highlights, merged pair) plus images of the detector's own
 renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
-every blob candidate with its features, labels it true when it lies on a
-truth marker centre, and fits two small neural networks (one hidden layer of
+every blob candidate with its features (measured ones and the appearance of its
+surroundings), labels it true when it lies on a truth marker centre, and fits two small neural networks (one hidden layer of
 ``MODEL_HIDDEN`` tanh units, log-loss with an L2 penalty, L-BFGS): one for candidates
 from ordinary seeds, one for candidates from seeds found by splitting an over-size
 region (the ``split`` feature). Besides carapost.synth views and the detector's own
@@ -36,6 +36,7 @@ from carapost.algorithms._blob_synth import (
     match_to_truth,
     render_face,
 )
+from carapost.algorithms import blobs
 from carapost.algorithms.blobs import (
     BLACK,
     FEATURE_NAMES,
@@ -65,7 +66,8 @@ def _synth_config(i: int, rng: np.random.Generator) -> dict:
         "preset": ("speech", "fast", "rom", "blink")[(i // 3) % 4],
         "noise": float(rng.choice([1.0, 2.0, 2.0, 3.5, 6.0])),
         "blur": float(rng.choice([0.4, 0.6, 0.6, 0.9])),
-        "motion_blur": bool(rng.random() < 0.5),
+        # the fast preset's long streaks are rare otherwise: always blurred
+        "motion_blur": bool(rng.random() < 0.5) or (i // 3) % 4 == 1,
         "highlights": bool(rng.random() < 0.35),
         "merge_pair": bool(rng.random() < 0.3),
     }
@@ -130,15 +132,19 @@ def _dot_grid_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
     yy, xx = np.mgrid[0:h, 0:w]
     img = paper * (1 - rng.uniform(0, 0.25) * (xx / w) - rng.uniform(0, 0.2) * (yy / h))
     r = rng.uniform(3.0, 16.0)
-    step = r * rng.uniform(3.0, 5.0)
+    # Half the grids are staggered (asymmetric circle grids): every other row shifted by
+    # half a step, rows closer together, so diagonal neighbours sit ~1.5 radii apart.
+    stagger = rng.random() < 0.5
+    step = r * (rng.uniform(4.0, 6.0) if stagger else rng.uniform(3.0, 5.0))
+    pitch = step * (rng.uniform(0.55, 0.75) if stagger else 1.0)
     squeeze, rot = rng.uniform(0.55, 1.0), rng.uniform(-np.pi / 2, np.pi / 2)
     ink = rng.uniform(5, 60) if rng.random() < 0.7 else paper * rng.uniform(0.4, 0.8)
     inner = rng.uniform(0.4, 0.8) if rng.random() < 0.6 else 0.0
     inner_level = rng.uniform(0.2, 0.8)
     centres, minors = [], []
-    for i in range(-6, 7):  # at most 13 x 13 dots
-        for j in range(-6, 7):
-            u, v = i * step, j * step * squeeze
+    for i in range(-6, 7):  # at most 13 x 25 dots
+        for j in range(-12, 13):
+            u, v = (i + 0.5 * (j % 2 and stagger)) * step, j * pitch * squeeze
             x = w / 2 + u * np.cos(rot) - v * np.sin(rot)
             y = h / 2 + u * np.sin(rot) + v * np.cos(rot)
             if not (r + 4 < x < w - r - 4 and r + 4 < y < h - r - 4):
@@ -305,6 +311,20 @@ def main() -> None:
                     "else collected and saved there (the collection is ~3/4 of the time)")
     args = ap.parse_args()
 
+    try:
+        blobs._model()
+    except RuntimeError:
+        # The shipped model does not fit the detector's features (they changed): the
+        # detector only uses it to choose between two copies of one blob seen on two
+        # pyramid levels, so a neutral model (every candidate 0.5: the finer level's copy
+        # is kept) serves for the collection. Run the script again afterwards so the
+        # collection uses the new model, as the detector will.
+        print("blob_model.json does not fit the detector's features: collecting with a "
+              "neutral model; run this script again once it has written the new one")
+        neutral = tuple(_Net(np.zeros(MODEL_INPUTS[k]), np.ones(MODEL_INPUTS[k]),
+                             np.zeros((MODEL_INPUTS[k], MODEL_HIDDEN)), np.zeros(MODEL_HIDDEN),
+                             np.zeros(MODEL_HIDDEN), 0.0) for k in MODEL_KINDS)
+        blobs._model = lambda: neutral
     if args.data is not None and args.data.exists():
         z = np.load(args.data)
         x_tr, y_tr, x_te, y_te = z["x_tr"], z["y_tr"], z["x_te"], z["y_te"]

@@ -372,6 +372,44 @@ def test_compiled_refinement_matches_the_numpy_reference(rng, monkeypatch):
         np.testing.assert_allclose(x, y, atol=2e-3)
 
 
+def test_appearance_features_do_not_depend_on_mirroring(rng):
+    # The appearance grids are folded about both ellipse axes, so a scene and its mirror
+    # image (transposed: every angle mirrored) give each blob the same appearance
+    # features, up to the bilinear sampling.
+    from carapost.algorithms import blobs
+
+    img, centres, _axes, _angles = _scene(rng, n=12, noise=0.5)
+    names = blobs.FEATURE_NAMES
+    look = slice(names.index("patch_0_0"), names.index("split"))
+    got = blobs.blob_candidates(img, blobs.BLACK, 4.0, 50.0)
+    mir = blobs.blob_candidates(np.ascontiguousarray(img.T), blobs.BLACK, 4.0, 50.0)
+    i, d = _match(got.centre, centres)
+    j, e = _match(mir.centre[:, ::-1], centres)
+    assert d.max() < 0.2 and e.max() < 0.2
+    np.testing.assert_allclose(got.features[i, look], mir.features[j, look], atol=0.06)
+
+
+def test_context_features_see_a_dark_patch_beside_a_blob(rng):
+    # A dark patch a few px beside a blob (not touching it) leaves the blob's centre
+    # alone but shows in the asymmetry of its context grid.
+    from carapost.algorithms import blobs
+
+    img = np.full((80, 80), 170.0)
+    x0, y0, cov = _ellipse_coverage(40.3, 40.6, 6.0, 4.0, 0.0)
+    _paint(img, x0, y0, cov, 30.0)
+    shadow = img.copy()
+    shadow[36:46, 52:58] = 60.0  # 6 px beyond the blob's major axis end
+    k = blobs.FEATURE_NAMES.index("context_asym_major")
+    out = []
+    for im in (img, shadow):
+        im = np.clip(np.rint(im + rng.standard_normal(im.shape)), 0, 255).astype(np.uint8)
+        c = blobs.blob_candidates(im, blobs.BLACK, 4.0, 50.0)
+        i, d = _match(c.centre, np.array([(40.3, 40.6)]))
+        assert d[0] < 0.1
+        out.append(c.features[i[0], k])
+    assert out[1] > out[0] + 0.1
+
+
 def test_blob_cut_by_the_image_border_is_dropped(rng):
     # A dark blob cut in half by the bottom border (its centroid would be biased and its
     # shape is not its own) gives no detection; a whole one beside it does.

@@ -96,10 +96,17 @@ FEATURE_NAMES = (
     "axis_ratio",
     "ring_fill",
     "pedestal",
+    # appearance (see _appearance): the candidate's surroundings sampled on a grid
+    # aligned with its ellipse and scaled by its semi-axes (``patch``), and on a wider
+    # grid scaled by its semi-major axis in both directions (``context``), each folded
+    # about both axes
+    *(f"{g}_{i}_{j}" if i >= 0 else f"{g}_asym_{j}"
+      for g in ("patch", "context") for i in (*range(5), -1)
+      for j in (range(5) if i >= 0 else ("major", "minor"))),
     "split",
 )
-#: Features measured by the refinement (the last one, ``split``, comes from the seed).
-_N_REFINED = len(FEATURE_NAMES) - 1
+#: Features measured by the refinement (the appearance features and ``split`` follow).
+_N_REFINED = 9
 
 
 @dataclass(frozen=True)
@@ -225,7 +232,7 @@ class Candidates(NamedTuple):
 #: darker plateau, such as a pupil in its iris) only matters for split seeds: an ordinary
 #: seed's region already ends where its surround begins.
 MODEL_KINDS = ("seed", "split")
-MODEL_INPUTS = {"seed": 9, "split": 9}
+MODEL_INPUTS = {"seed": 63, "split": 63}
 
 
 #: Hidden units of each network (one tanh layer).
@@ -1081,6 +1088,84 @@ def _levels(a_min: float, a_max: float) -> list[tuple[int, float, float]]:
     return out
 
 
+#: Appearance grids: PATCH_SIZE x PATCH_SIZE samples spanning +-PATCH_EXTENT semi-axes
+#: along each ellipse axis (the minor one at least 1 px), and +-CONTEXT_EXTENT
+#: semi-major axes in both directions.
+PATCH_SIZE = 9
+PATCH_EXTENT = 2.0
+CONTEXT_EXTENT = 4.0
+
+
+def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray,
+                su: np.ndarray, sv: np.ndarray, angle: np.ndarray, extent: float
+                ) -> np.ndarray:
+    """Appearance features of candidates: their surroundings on an ellipse-aligned grid.
+
+    The contrast image is sampled (bilinear, ``cv2.remap``) at PATCH_SIZE x PATCH_SIZE
+    points spanning +-``extent`` x ``su`` along the major axis and +-``extent`` x ``sv``
+    along the minor axis, on the pyramid level whose pixels are about the grid spacing
+    (so large blobs are not aliased). Samples are scaled to the blob: 0 at the median of
+    the grid's outer ring, 1 at the mean of the central 3 x 3 samples (the scale at
+    least 3 noise sigmas), clipped to +-1.5. A blob shows as a centred bump; a marker
+    running into a crease or a shadow, a motion streak, the end of a hair or a nostril's
+    rim each leave their own pattern. The grid is folded about both axes (mean of the
+    four mirror images: the 5 x 5 quarter), so the features do not depend on the sign
+    of the ellipse angle; the mean absolute difference from the mirror image along each
+    axis keeps the asymmetry.
+
+    Parameters
+    ----------
+    pyramid : {factor: contrast image uint8}, factor 1 the full-resolution level
+    sigma : float
+        Noise sigma of the full-resolution image, grey levels.
+    centre : ndarray [N, 2]; angle : ndarray [N]
+        The refined candidates at full resolution (px, rad).
+    su, sv : ndarray [N]
+        Grid scale along the major and the minor axis (px).
+    extent : float
+        Half-width of the grid in units of ``su`` / ``sv``.
+
+    Returns
+    -------
+    ndarray [N, 27] float64 (one group of appearance features, in FEATURE_NAMES order)
+    """
+    n, k = len(centre), PATCH_SIZE
+    if n == 0:
+        return np.zeros((0, (k // 2 + 1) ** 2 + 2))
+    t = np.linspace(-extent, extent, k)
+    gu, gv = (g.ravel()[None] for g in np.meshgrid(t, t, indexing="ij"))
+    su = np.asarray(su, np.float64)[:, None]
+    sv = np.asarray(sv, np.float64)[:, None]
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    x = centre[:, :1] + gu * su * c - gv * sv * s
+    y = centre[:, 1:] + gu * su * s + gv * sv * c
+    # level whose pixel is at most the grid spacing along the major axis
+    spacing = 2.0 * extent * su[:, 0] / (k - 1)
+    factors = sorted(pyramid)
+    g = np.ones(n, np.int64)
+    for f in factors[1:]:
+        g[spacing >= f] = f
+    vals = np.empty((n, k * k), np.float32)
+    for f in np.unique(g):
+        sel = g == f
+        o = 0.5 * (f - 1)
+        vals[sel] = cv2.remap(pyramid[int(f)], ((x[sel] - o) / f).astype(np.float32),
+                              ((y[sel] - o) / f).astype(np.float32), cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+    q = vals.reshape(n, k, k).astype(np.float64)
+    ring = np.concatenate([q[:, 0, :], q[:, -1, :], q[:, 1:-1, 0], q[:, 1:-1, -1]], axis=1)
+    base = np.median(ring, axis=1)
+    m = k // 2
+    top = q[:, m - 1:m + 2, m - 1:m + 2].mean(axis=(1, 2))
+    scale = np.maximum(top - base, max(3.0 * sigma, 2.0))
+    q = np.clip((q - base[:, None, None]) / scale[:, None, None], -1.5, 1.5)
+    flip_u, flip_v = q[:, ::-1], q[:, :, ::-1]
+    folded = 0.25 * (q + flip_u + flip_v + flip_u[:, :, ::-1])
+    return np.column_stack([folded[:, m:, m:].reshape(n, -1),
+                            np.abs(q - flip_u).mean(axis=(1, 2)),
+                            np.abs(q - flip_v).mean(axis=(1, 2))])
+
+
 def blob_candidates(
     image8: np.ndarray,
     colour: int,
@@ -1189,13 +1274,19 @@ def blob_candidates(
     cx2, cy2, a2, b2, th2, feats, saturated, ok = _refine(
         dbuf, lw, lh, lb, sig, sx, sy, sa, sb, th, open_bg, colour, part_arr)
     cx2, cy2, a2, b2 = cx2 * g + o, cy2 * g + o, a2 * g, b2 * g
-    feats = np.column_stack([feats, split])
     ok &= (2 * a2 >= min_radius - MIN_RADIUS_TOLERANCE) & (2 * a2 <= max_radius)
     if mask is not None:
         mc = np.asarray(mask)[np.clip(np.rint(cy2).astype(np.int64), 0, h - 1),
                               np.clip(np.rint(cx2).astype(np.int64), 0, w - 1)]
         ok &= mc.astype(bool)
     idx = np.flatnonzero(ok)
+    look = np.zeros((cx2.size, len(FEATURE_NAMES) - _N_REFINED - 1))
+    centre = np.column_stack([cx2[idx], cy2[idx]])
+    look[idx] = np.hstack([
+        _appearance(pyramid, sigma, centre, a2[idx], np.maximum(b2[idx], 1.0), th2[idx],
+                    PATCH_EXTENT),
+        _appearance(pyramid, sigma, centre, a2[idx], a2[idx], th2[idx], CONTEXT_EXTENT)])
+    feats = np.column_stack([feats, look, split])
     # The same blob seen on two levels (close and of similar size): keep the copy the
     # model finds more blob-like (the finer level's on a tie).
     if idx.size > 1 and np.unique(lev[idx]).size > 1:
