@@ -16,7 +16,7 @@ candidates) printed here and drawn to ``docs/blob-reliability.png``.
 
 Run from the repository root::
 
-    python scripts/train_blob_model.py            # ~6 minutes on 2 cores
+    python scripts/train_blob_model.py            # ~4 minutes (one core)
 """
 
 from __future__ import annotations
@@ -302,7 +302,7 @@ def draw_plot(rows, path: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--train-scenes", type=int, default=36)
+    ap.add_argument("--train-scenes", type=int, default=60)
     ap.add_argument("--test-scenes", type=int, default=12)
     ap.add_argument("--no-write", action="store_true", help="report only, keep the model")
     ap.add_argument("--init-seed", type=int, default=0, help="seed of the initial weights")

@@ -32,8 +32,10 @@ candidates; there is no Python loop per pixel or blob:
    log-loss with an L2 penalty) over scale-free features (signal-to-noise, contrast
    relative to the surround, how well the coverage fills its ellipse, ring roughness,
    symmetry, axis ratio, how much of the ring is as dark as the blob, how far the ring
-   plane sits above the surround) gives the probability that the candidate is a blob
-   centre; split seeds have a model of their own. It was fitted on synthetic images
+   plane sits above the surround) and over the candidate's appearance (its surroundings
+   sampled on a grid aligned with its ellipse and on a wider context grid, scaled to
+   its contrast and folded about both axes) gives the probability that the candidate
+   is a blob centre; split seeds have a model of their own. It was fitted on synthetic images
    with known truth by ``scripts/train_blob_model.py`` (weights in
    ``carapost/resources/blob_model.json``). Candidates whose major axis (the full
    length of the longest ellipse axis, ``2 a``) is outside the radius range, or whose
@@ -228,9 +230,7 @@ class Candidates(NamedTuple):
 
 #: The two models of ``blob_model.json``: candidates from ordinary seeds and candidates
 #: from seeds found by splitting an over-size region (indexed by the ``split`` feature),
-#: with the number of leading FEATURE_NAMES each one uses. ``pedestal`` (a blob on a
-#: darker plateau, such as a pupil in its iris) only matters for split seeds: an ordinary
-#: seed's region already ends where its surround begins.
+#: with the number of leading FEATURE_NAMES each one uses (all but ``split``).
 MODEL_KINDS = ("seed", "split")
 MODEL_INPUTS = {"seed": 63, "split": 63}
 
@@ -1097,8 +1097,8 @@ CONTEXT_EXTENT = 4.0
 
 
 def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray,
-                su: np.ndarray, sv: np.ndarray, angle: np.ndarray, extent: float
-                ) -> np.ndarray:
+                su: np.ndarray, sv: np.ndarray, angle: np.ndarray,
+                extent: float | np.ndarray) -> np.ndarray:
     """Appearance features of candidates: their surroundings on an ellipse-aligned grid.
 
     The contrast image is sampled (bilinear, ``cv2.remap``) at PATCH_SIZE x PATCH_SIZE
@@ -1122,48 +1122,111 @@ def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray
         The refined candidates at full resolution (px, rad).
     su, sv : ndarray [N]
         Grid scale along the major and the minor axis (px).
-    extent : float
-        Half-width of the grid in units of ``su`` / ``sv``.
+    extent : float or ndarray [N]
+        Half-width of the grid in units of ``su`` / ``sv`` (both grids of the detector
+        are sampled in one call, the candidates stacked twice).
 
     Returns
     -------
     ndarray [N, 27] float64 (one group of appearance features, in FEATURE_NAMES order)
     """
     n, k = len(centre), PATCH_SIZE
+    out = np.zeros((n, (k // 2 + 1) ** 2 + 2))
     if n == 0:
-        return np.zeros((0, (k // 2 + 1) ** 2 + 2))
-    t = np.linspace(-extent, extent, k)
-    gu, gv = (g.ravel()[None] for g in np.meshgrid(t, t, indexing="ij"))
-    su = np.asarray(su, np.float64)[:, None]
-    sv = np.asarray(sv, np.float64)[:, None]
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    x = centre[:, :1] + gu * su * c - gv * sv * s
-    y = centre[:, 1:] + gu * su * s + gv * sv * c
+        return out
+    ext = np.broadcast_to(np.asarray(extent, np.float64), (n,))
+    su = ext * np.asarray(su, np.float64)
+    sv = ext * np.asarray(sv, np.float64)
     # level whose pixel is at most the grid spacing along the major axis
-    spacing = 2.0 * extent * su[:, 0] / (k - 1)
+    spacing = 2.0 * su / (k - 1)
     factors = sorted(pyramid)
     g = np.ones(n, np.int64)
     for f in factors[1:]:
         g[spacing >= f] = f
-    vals = np.empty((n, k * k), np.float32)
-    for f in np.unique(g):
-        sel = g == f
-        o = 0.5 * (f - 1)
-        vals[sel] = cv2.remap(pyramid[int(f)], ((x[sel] - o) / f).astype(np.float32),
-                              ((y[sel] - o) / f).astype(np.float32), cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REPLICATE)
-    q = vals.reshape(n, k, k).astype(np.float64)
-    ring = np.concatenate([q[:, 0, :], q[:, -1, :], q[:, 1:-1, 0], q[:, 1:-1, -1]], axis=1)
-    base = np.median(ring, axis=1)
+    used = [int(f) for f in np.unique(g)]
+    starts = np.cumsum([0] + [pyramid[f].size for f in used])
+    buf = np.concatenate([pyramid[f].reshape(-1) for f in used])
+    li = np.searchsorted(used, g)
+    lw = np.array([pyramid[f].shape[1] for f in used])[li]
+    lh = np.array([pyramid[f].shape[0] for f in used])[li]
+    _appearance_jit(buf, starts[li], lw, lh, g.astype(np.float64), max(3.0 * sigma, 2.0),
+                    np.ascontiguousarray(centre[:, 0], np.float64),
+                    np.ascontiguousarray(centre[:, 1], np.float64), su, sv,
+                    np.cos(angle).astype(np.float64), np.sin(angle).astype(np.float64), k, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _appearance_jit(buf, lb, lw, lh, lf, min_scale, cx, cy, su, sv, c, s, k, out
+                    ):  # pragma: no cover - jit
+    """The sampling, scaling and folding of :func:`_appearance`, one candidate at a
+    time: bilinear samples of level ``lf`` (pixels beyond the border repeat the border),
+    ring median, centre mean, fold."""
+    q = np.empty((k, k))
+    ring = np.empty(4 * (k - 1))
     m = k // 2
-    top = q[:, m - 1:m + 2, m - 1:m + 2].mean(axis=(1, 2))
-    scale = np.maximum(top - base, max(3.0 * sigma, 2.0))
-    q = np.clip((q - base[:, None, None]) / scale[:, None, None], -1.5, 1.5)
-    flip_u, flip_v = q[:, ::-1], q[:, :, ::-1]
-    folded = 0.25 * (q + flip_u + flip_v + flip_u[:, :, ::-1])
-    return np.column_stack([folded[:, m:, m:].reshape(n, -1),
-                            np.abs(q - flip_u).mean(axis=(1, 2)),
-                            np.abs(q - flip_v).mean(axis=(1, 2))])
+    for i in range(cx.size):
+        f = lf[i]
+        o = 0.5 * (f - 1.0)
+        w, h, b0 = lw[i], lh[i], lb[i]
+        for a in range(k):
+            tu = (2.0 * a / (k - 1) - 1.0) * su[i]
+            for bb in range(k):
+                tv = (2.0 * bb / (k - 1) - 1.0) * sv[i]
+                x = (cx[i] + tu * c[i] - tv * s[i] - o) / f
+                y = (cy[i] + tu * s[i] + tv * c[i] - o) / f
+                x = min(max(x, 0.0), w - 1.0)
+                y = min(max(y, 0.0), h - 1.0)
+                x0 = min(int(x), w - 2) if w > 1 else 0
+                y0 = min(int(y), h - 2) if h > 1 else 0
+                fx, fy = x - x0, y - y0
+                x1 = min(x0 + 1, w - 1)
+                y1 = min(y0 + 1, h - 1)
+                p00 = float(buf[b0 + y0 * w + x0])
+                p01 = float(buf[b0 + y0 * w + x1])
+                p10 = float(buf[b0 + y1 * w + x0])
+                p11 = float(buf[b0 + y1 * w + x1])
+                q[a, bb] = ((1 - fy) * ((1 - fx) * p00 + fx * p01)
+                            + fy * ((1 - fx) * p10 + fx * p11))
+        r = 0
+        for j in range(k):
+            ring[r] = q[0, j]
+            ring[r + 1] = q[k - 1, j]
+            r += 2
+        for j in range(1, k - 1):
+            ring[r] = q[j, 0]
+            ring[r + 1] = q[j, k - 1]
+            r += 2
+        for j in range(1, r):  # insertion sort of the ring in place (32 values)
+            v = ring[j]
+            jj = j - 1
+            while jj >= 0 and ring[jj] > v:
+                ring[jj + 1] = ring[jj]
+                jj -= 1
+            ring[jj + 1] = v
+        base = 0.5 * (ring[r // 2 - 1] + ring[r // 2])
+        top = 0.0
+        for a in range(m - 1, m + 2):
+            for bb in range(m - 1, m + 2):
+                top += q[a, bb]
+        scale = max(top / 9.0 - base, min_scale)
+        for a in range(k):
+            for bb in range(k):
+                q[a, bb] = min(max((q[a, bb] - base) / scale, -1.5), 1.5)
+        du = 0.0
+        dv = 0.0
+        for a in range(k):
+            for bb in range(k):
+                du += abs(q[a, bb] - q[k - 1 - a, bb])
+                dv += abs(q[a, bb] - q[a, k - 1 - bb])
+        col = 0
+        for a in range(m, k):
+            for bb in range(m, k):
+                out[i, col] = 0.25 * (q[a, bb] + q[k - 1 - a, bb] + q[a, k - 1 - bb]
+                                      + q[k - 1 - a, k - 1 - bb])
+                col += 1
+        out[i, col] = du / (k * k)
+        out[i, col + 1] = dv / (k * k)
 
 
 def blob_candidates(
@@ -1281,11 +1344,12 @@ def blob_candidates(
         ok &= mc.astype(bool)
     idx = np.flatnonzero(ok)
     look = np.zeros((cx2.size, len(FEATURE_NAMES) - _N_REFINED - 1))
-    centre = np.column_stack([cx2[idx], cy2[idx]])
-    look[idx] = np.hstack([
-        _appearance(pyramid, sigma, centre, a2[idx], np.maximum(b2[idx], 1.0), th2[idx],
-                    PATCH_EXTENT),
-        _appearance(pyramid, sigma, centre, a2[idx], a2[idx], th2[idx], CONTEXT_EXTENT)])
+    # both grids in one call: the candidates twice, ellipse-aligned then context
+    m = idx.size
+    both = _appearance(pyramid, sigma, np.tile(np.column_stack([cx2[idx], cy2[idx]]), (2, 1)),
+                       np.tile(a2[idx], 2), np.concatenate([np.maximum(b2[idx], 1.0), a2[idx]]),
+                       np.tile(th2[idx], 2), np.repeat([PATCH_EXTENT, CONTEXT_EXTENT], m))
+    look[idx] = np.hstack([both[:m], both[m:]])
     feats = np.column_stack([feats, look, split])
     # The same blob seen on two levels (close and of similar size): keep the copy the
     # model finds more blob-like (the finer level's on a tie).
