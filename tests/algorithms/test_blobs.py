@@ -496,7 +496,8 @@ def test_preview_matches_detection(rng):
 
 @pytest.mark.parametrize("processes", [False, True])
 def test_batch_matches_single_images_and_reports_progress(processes):
-    images = {k: _scene(np.random.default_rng(k))[0] for k in range(6)}
+    # 10 images: two full tasks of the worker processes (PROCESS_CHUNK 4) and a part.
+    images = {k: _scene(np.random.default_rng(k))[0] for k in (*range(6), 8, 9)}
     # A 12-bit image and one of another size (it does not fit the shared-memory slots).
     images[6] = images[0].astype(np.uint16) << 4
     images[7] = _scene(np.random.default_rng(7), size=(200, 300))[0]
@@ -514,7 +515,7 @@ def test_batch_matches_single_images_and_reports_progress(processes):
         assert len(ref) >= 12
         for x, y in zip(out[k], ref, strict=True):
             np.testing.assert_array_equal(x, y)
-    assert [d for d, _ in seen] == list(range(1, 9)) and all(t == 8 for _, t in seen)
+    assert [d for d, _ in seen] == list(range(1, 11)) and all(t == 10 for _, t in seen)
 
 
 def test_batch_in_processes_applies_the_mask_and_reports_errors():
