@@ -4,15 +4,16 @@ Renders views of ``carapost.synth`` takes (all marker sets and motion presets, n
 optical and motion blur, highlights, merged pair) plus images of the detector's own
 renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
 every blob candidate with its features (measured ones and the appearance of its
-surroundings), labels it true when it lies on a truth marker centre, and fits two small neural networks (one hidden layer of
-``MODEL_HIDDEN`` tanh units, log-loss with an L2 penalty, L-BFGS): one for candidates
-from ordinary seeds, one for candidates from seeds found by splitting an over-size
-region (the ``split`` feature). Besides carapost.synth views and the detector's own
-renderer, the training images include markers touching a nostril-like dark feature and
-printed dot grids (calibration targets). The weights go to
-``src/carapost/resources/blob_model.json``. A held-out set of images
-gives the reliability table (predicted probability vs observed fraction of true
-candidates) printed here and drawn to ``docs/blob-reliability.png``.
+surroundings), labels it true when it lies on a truth marker centre, and fits two
+small neural networks (one hidden layer of ``MODEL_HIDDEN`` tanh units, log-loss with
+an L2 penalty, L-BFGS): one for candidates from ordinary seeds, one for candidates
+from seeds found by splitting an over-size region (the ``split`` feature). Besides
+carapost.synth views and the detector's own renderer, the training images include
+markers touching a nostril-like dark feature and printed dot grids (calibration
+targets, half of them staggered). The weights go to
+``src/carapost/resources/blob_model.json``. A held-out set of images gives the
+reliability table (predicted probability vs observed fraction of true candidates)
+printed here and drawn to ``docs/blob-reliability.png``.
 
 Run from the repository root::
 
@@ -29,6 +30,7 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 
+from carapost.algorithms import blobs
 from carapost.algorithms._blob_eval import _match, synth_scene, synth_view
 from carapost.algorithms._blob_synth import (
     _ellipse_coverage,
@@ -36,7 +38,6 @@ from carapost.algorithms._blob_synth import (
     match_to_truth,
     render_face,
 )
-from carapost.algorithms import blobs
 from carapost.algorithms.blobs import (
     BLACK,
     FEATURE_NAMES,
