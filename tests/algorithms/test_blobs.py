@@ -246,7 +246,7 @@ def test_projected_ellipse_of_a_frontal_disc():
 RECALL_TARGET, PRECISION_TARGET, MEDIAN_TARGET, P95_TARGET = 0.99, 0.98, 0.08, 0.25
 # ... and what the detector reaches on carapost.synth today (regression guard; see
 # docs/benchmarks.md for the gap).
-RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.98, 0.98, 0.08, 0.25
+RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.985, 0.99, 0.08, 0.25
 
 
 def _synth_score(markers, preset, frames, **options):
@@ -271,10 +271,9 @@ def test_carapost_synth_take_regression():
     assert s["false_per_image_background"] <= 0.25
 
 
-@pytest.mark.xfail(reason="on carapost.synth recall is 0.986 with the defaults (0.988 on "
-                          "this frame), not 0.99: thin markers along creases, low-contrast "
-                          "thin markers at noise 5 and long motion streaks are missed (see "
-                          "docs/benchmarks.md)",
+@pytest.mark.xfail(reason="recall is 0.991 over the benchmark's 96 views but 0.988 on this "
+                          "one frame (4 cameras): thin markers joined to a crease have no "
+                          "candidate (see docs/benchmarks.md)",
                    strict=False)
 def test_carapost_synth_take_meets_the_recall_target():
     s = _synth_score("standard", "speech", [30]).summary()
@@ -308,7 +307,9 @@ def test_shading_gradient_does_not_bias_the_centre(rng):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="targets not reached yet on carapost.synth", strict=False)
+@pytest.mark.xfail(reason="10 of the 20 cells meet every target; the noise 5 and "
+                          "highlights cells miss the centre p95 (0.26-0.28 px), the fast "
+                          "motion-blur cells recall (0.982)", strict=False)
 @pytest.mark.parametrize("markers", ["standard", "dense156"])
 @pytest.mark.parametrize("preset", ["speech", "fast"])
 @pytest.mark.parametrize("option", ["none", "noise", "motion_blur", "merge_pair", "highlights"])
@@ -320,6 +321,29 @@ def test_carapost_synth_takes_all_options(markers, preset, option):
     assert s["precision"] >= PRECISION_TARGET
     if option != "motion_blur":
         assert s["centre_median_px"] <= MEDIAN_TARGET and s["centre_p95_px"] <= P95_TARGET
+
+
+@pytest.mark.slow
+def test_acceptance_targets_over_the_benchmark_views():
+    # The acceptance figures as benchmarks/blobs.py measures them: noise 2,
+    # noise 5 and motion blur, each over the standard and dense156 sets with the speech
+    # and fast presets, frames 20 and 80, four cameras (96 views, ~9,500 markers).
+    params = BlobParameters()
+    score = SynthScore()
+    sets = (("standard", "speech"), ("standard", "fast"), ("dense156", "speech"),
+            ("dense156", "fast"))
+    for k, options in enumerate(({}, {"noise": 5.0}, {"motion_blur": True})):
+        for i, (markers, preset) in enumerate(sets):
+            scene = synth_scene(markers, preset, seed=100 * k + i, frames=81, **options)
+            for f in (20, 80):
+                for cam in range(scene.n_cameras):
+                    v = synth_view(scene, f, cam)
+                    score.add(v, detect_blobs(v.image, params), params)
+    s = score.summary()
+    assert score.expected > 9000
+    assert s["recall"] >= RECALL_TARGET
+    assert s["precision"] >= PRECISION_TARGET
+    assert s["centre_median_px"] <= MEDIAN_TARGET and s["centre_p95_px"] <= P95_TARGET
 
 
 def test_blob_cut_by_the_image_corner_keeps_its_centre(rng):
