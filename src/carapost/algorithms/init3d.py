@@ -325,8 +325,11 @@ def _strict_epipolar(tracks: NDArray, dets_n: Sequence[NDArray], R: NDArray, t: 
                      focal: NDArray, caddies: Sequence[tuple[int, int]],
                      params: Init3DParameters) -> float:
     """Epipolar tolerance (px) a new match must meet: a multiple of the seeds' own
-    epipolar RMS (it measures calibration and detection noise), within
-    [min_strict_epipolar_px, Max Allowed Symmetric Epipolar Distance]."""
+    epipolar scatter (it measures calibration and detection noise), within
+    [min_strict_epipolar_px, Max Allowed Symmetric Epipolar Distance]. The scatter is
+    the RMS, or 1.4826 x the median distance when that is smaller: one hand seed on a
+    biased blob (0.8 px off among seeds at 0.02 px) must not loosen the tolerance for
+    every match that follows (looser tolerances make more candidate pairs ambiguous)."""
     e = []
     for a, b in caddies:
         m = (tracks[:, a] >= 0) & (tracks[:, b] >= 0)
@@ -338,8 +341,9 @@ def _strict_epipolar(tracks: NDArray, dets_n: Sequence[NDArray], R: NDArray, t: 
         e.append(np.diag(d))
     if not e:
         return params.max_symmetric_epipolar_distance
-    rms = float(np.sqrt(np.mean(np.concatenate(e) ** 2)))
-    return float(np.clip(params.epipolar_noise_factor * rms, params.min_strict_epipolar_px,
+    e = np.concatenate(e)
+    scatter = min(float(np.sqrt(np.mean(e ** 2))), 1.4826 * float(np.median(e)))
+    return float(np.clip(params.epipolar_noise_factor * scatter, params.min_strict_epipolar_px,
                          params.max_symmetric_epipolar_distance))
 
 
