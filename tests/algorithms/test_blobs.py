@@ -246,7 +246,7 @@ def test_projected_ellipse_of_a_frontal_disc():
 RECALL_TARGET, PRECISION_TARGET, MEDIAN_TARGET, P95_TARGET = 0.99, 0.98, 0.08, 0.25
 # ... and what the detector reaches on carapost.synth today (regression guard; see
 # docs/benchmarks.md for the gap).
-RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.985, 0.99, 0.08, 0.25
+RECALL_NOW, PRECISION_NOW, MEDIAN_NOW, P95_NOW = 0.985, 0.99, 0.08, 0.24
 
 
 def _synth_score(markers, preset, frames, **options):
@@ -271,9 +271,10 @@ def test_carapost_synth_take_regression():
     assert s["false_per_image_background"] <= 0.25
 
 
-@pytest.mark.xfail(reason="recall is 0.991 over the benchmark's 96 views but 0.988 on this "
-                          "one frame (4 cameras): thin markers joined to a crease have no "
-                          "candidate (see docs/benchmarks.md)",
+@pytest.mark.xfail(reason="0.991 on this one frame (4 cameras), one marker above the "
+                          "target: a single frame is too small a sample to hold it to 0.99; "
+                          "test_acceptance_targets_over_the_benchmark_views checks the target "
+                          "over 96 views (see docs/benchmarks.md)",
                    strict=False)
 def test_carapost_synth_take_meets_the_recall_target():
     s = _synth_score("standard", "speech", [30]).summary()
@@ -307,9 +308,9 @@ def test_shading_gradient_does_not_bias_the_centre(rng):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="10 of the 20 cells meet every target; the noise 5 and "
-                          "highlights cells miss the centre p95 (0.26-0.28 px), the fast "
-                          "motion-blur cells recall (0.982)", strict=False)
+@pytest.mark.xfail(reason="11 of the 20 cells meet every target; most noise 5 and "
+                          "highlights cells miss the centre p95 (0.25-0.28 px), the fast "
+                          "motion-blur cells recall (0.983-0.985)", strict=False)
 @pytest.mark.parametrize("markers", ["standard", "dense156"])
 @pytest.mark.parametrize("preset", ["speech", "fast"])
 @pytest.mark.parametrize("option", ["none", "noise", "motion_blur", "merge_pair", "highlights"])
