@@ -130,9 +130,9 @@ def test_rendered_dense_set_reaches_one_caddy_clusters():
     from carapost.synth.render import render_frame
 
     frame = 30
-    # seed 3: without the reach steps coverage is 0.949 here, with them 0.993 (seeds 0
-    # and 2 with the current detector find a bridging marker and need no reach step)
-    scene = build_scene(SynthConfig(markers="dense156", frames=frame + 1, seed=3))
+    # seed 4: without the reach steps coverage is 0.925 here, with them 0.970 (with the
+    # current detector seeds 0, 2 and 3 find a bridging marker and need no reach step)
+    scene = build_scene(SynthConfig(markers="dense156", frames=frame + 1, seed=4))
     dets, ident = [], []
     for c in range(4):
         d = detect_blobs(render_frame(scene, frame, c), BlobParameters()).centre
