@@ -402,8 +402,11 @@ LEVEL_OVERLAP = 0.15
 #: mean level is the paint's level in the coverage.
 CORE_FRACTION = 0.8
 #: Margin (px) of the refinement support beyond the seed ellipse, and ring width (px).
+#: A 2 px ring (3 px until the ninth round) sees the shading closest to the blob, where
+#: a plane fits it best: centre p95 0.234 -> 0.219 px on the benchmark views, thin
+#: markers 0.49 -> 0.45 px, recall and the dot grids unchanged.
 SUPPORT_MARGIN = 1.5
-RING_WIDTH = 3.0
+RING_WIDTH = 2.0
 #: Seeds larger than this (px of a level) are refined on the next coarser level.
 REFINE_RADIUS = 12.0
 #: A blob is cut by the image border when the outermost rows and columns hold at least
