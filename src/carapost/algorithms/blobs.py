@@ -937,6 +937,19 @@ def _add_plane_pixel(m: np.ndarray, rhs: np.ndarray, x: float, y: float, v: floa
     rhs[2] += v * y
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _plane_residuals(pv, px, py, pflag, coef, pres, cnt):  # pragma: no cover - jit
+    """Residuals over the plane ``coef`` of the first ``cnt`` pixels into ``pres``;
+    returns the largest residual over the support pixels (flag 1), -1e9 if none."""
+    peak = -1e9
+    for j in range(cnt):
+        res = pv[j] - (coef[0] + coef[1] * px[j] + coef[2] * py[j])
+        pres[j] = res
+        if pflag[j] & 1 and res > peak:
+            peak = res
+    return peak
+
+
 @numba.njit(cache=True, nogil=True)
 def _solve_plane(m: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - jit
     """Least-squares plane c0 + c1 x + c2 y from weight sums ``m`` (1, x, y, x^2, y^2,
@@ -1021,12 +1034,7 @@ def _refine_sums_jit(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, 
                     _add_plane_pixel(m, rhs, x, y, v)
         _solve_plane(m, rhs, coef)
         # Second plane without ring pixels well above the first one.
-        peak = -1e9
-        for j in range(cnt):
-            res = pv[j] - (coef[0] + coef[1] * px[j] + coef[2] * py[j])
-            pres[j] = res
-            if pflag[j] & 1 and res > peak:
-                peak = res
+        peak = _plane_residuals(pv, px, py, pflag, coef, pres, cnt)
         thr = max(3.0 * sigma[k], 0.25 * peak)
         m[:] = 0.0
         rhs[:] = 0.0
@@ -1036,12 +1044,7 @@ def _refine_sums_jit(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, 
                 _add_plane_pixel(m, rhs, px[j], py[j], pv[j])
         n_ring = m[0]
         _solve_plane(m, rhs, coef)
-        peak = -1e9
-        for j in range(cnt):
-            res = pv[j] - (coef[0] + coef[1] * px[j] + coef[2] * py[j])
-            pres[j] = res
-            if pflag[j] & 1 and res > peak:
-                peak = res
+        peak = _plane_residuals(pv, px, py, pflag, coef, pres, cnt)
         pk = max(peak, 1e-3)
         # Paint level: mean over the core, scaled by the light (see _refine_patches).
         core_sum, bg_sum, core_n = 0.0, 0.0, 0
@@ -1113,6 +1116,32 @@ def _levels(a_min: float, a_max: float) -> list[tuple[int, float, float]]:
     return out
 
 
+class _Levels(NamedTuple):
+    """Pyramid levels flattened one after the other into one buffer."""
+
+    buf: np.ndarray  # [sum of level sizes] uint8
+    factor: np.ndarray  # [L] reduction factor of each level, ascending
+    width: np.ndarray  # [L]
+    height: np.ndarray  # [L]
+    start: np.ndarray  # [L] offset of each level in buf
+
+    def at(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Width, height and buffer offset of the level with factor ``g`` (per item)."""
+        i = np.searchsorted(self.factor, g)
+        return self.width[i], self.height[i], self.start[i]
+
+
+def _stack_levels(pyramid: dict[int, np.ndarray]) -> _Levels:
+    """All levels of ``pyramid`` ({factor: image}) in one buffer."""
+    factor = sorted(pyramid)
+    sizes = [pyramid[f].size for f in factor]
+    return _Levels(np.concatenate([pyramid[f].reshape(-1) for f in factor]),
+                   np.array(factor, np.int64),
+                   np.array([pyramid[f].shape[1] for f in factor], np.int64),
+                   np.array([pyramid[f].shape[0] for f in factor], np.int64),
+                   np.cumsum([0, *sizes[:-1]]).astype(np.int64))
+
+
 #: Appearance grids: PATCH_SIZE x PATCH_SIZE samples spanning +-PATCH_EXTENT semi-axes
 #: along each ellipse axis (the minor one at least 1 px), and +-CONTEXT_EXTENT
 #: semi-major axes in both directions.
@@ -1121,12 +1150,12 @@ PATCH_EXTENT = 2.0
 CONTEXT_EXTENT = 4.0
 
 
-def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray,
+def _appearance(levels: _Levels, sigma: float, centre: np.ndarray,
                 su: np.ndarray, sv: np.ndarray, angle: np.ndarray,
                 extent: float | np.ndarray) -> np.ndarray:
     """Appearance features of candidates: their surroundings on an ellipse-aligned grid.
 
-    The contrast image is sampled (bilinear, ``cv2.remap``) at PATCH_SIZE x PATCH_SIZE
+    The contrast image is sampled (bilinear, compiled) at PATCH_SIZE x PATCH_SIZE
     points spanning +-``extent`` x ``su`` along the major axis and +-``extent`` x ``sv``
     along the minor axis, on the pyramid level whose pixels are about the grid spacing
     (so large blobs are not aliased). Samples are scaled to the blob: 0 at the median of
@@ -1140,7 +1169,8 @@ def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray
 
     Parameters
     ----------
-    pyramid : {factor: contrast image uint8}, factor 1 the full-resolution level
+    levels : _Levels
+        The contrast pyramid in one buffer (:func:`_stack_levels`).
     sigma : float
         Noise sigma of the full-resolution image, grey levels.
     centre : ndarray [N, 2]; angle : ndarray [N]
@@ -1164,17 +1194,11 @@ def _appearance(pyramid: dict[int, np.ndarray], sigma: float, centre: np.ndarray
     sv = ext * np.asarray(sv, np.float64)
     # level whose pixel is at most the grid spacing along the major axis
     spacing = 2.0 * su / (k - 1)
-    factors = sorted(pyramid)
     g = np.ones(n, np.int64)
-    for f in factors[1:]:
+    for f in levels.factor[1:]:
         g[spacing >= f] = f
-    used = [int(f) for f in np.unique(g)]
-    starts = np.cumsum([0] + [pyramid[f].size for f in used])
-    buf = np.concatenate([pyramid[f].reshape(-1) for f in used])
-    li = np.searchsorted(used, g)
-    lw = np.array([pyramid[f].shape[1] for f in used])[li]
-    lh = np.array([pyramid[f].shape[0] for f in used])[li]
-    _appearance_jit(buf, starts[li], lw, lh, g.astype(np.float64), max(3.0 * sigma, 2.0),
+    lw, lh, lb = levels.at(g)
+    _appearance_jit(levels.buf, lb, lw, lh, g.astype(np.float64), max(3.0 * sigma, 2.0),
                     np.ascontiguousarray(centre[:, 0], np.float64),
                     np.ascontiguousarray(centre[:, 1], np.float64), su, sv,
                     np.cos(angle).astype(np.float64), np.sin(angle).astype(np.float64), k, out)
@@ -1348,16 +1372,11 @@ def blob_candidates(
         if not up.any():
             break
         g[up] *= 2
-    # All levels in one buffer, so each patch size is one gather for every level.
-    used = [int(f) for f in np.unique(g)]
-    base, off = {}, 0
-    for f in used:
-        base[f] = off
-        off += pyramid[f].size
-    dbuf = np.concatenate([pyramid[f].reshape(-1) for f in used])
-    lw = np.array([pyramid[f].shape[1] for f in used])[np.searchsorted(used, g)]
-    lh = np.array([pyramid[f].shape[0] for f in used])[np.searchsorted(used, g)]
-    lb = np.array([base[f] for f in used])[np.searchsorted(used, g)]
+    # All levels in one buffer (shared by the refinement and the appearance sampling),
+    # so each patch size is one gather for every level.
+    levels = _stack_levels(pyramid)
+    dbuf = levels.buf
+    lw, lh, lb = levels.at(g)
     o = 0.5 * (g - 1)
     part_arr = np.empty(len(parts), object)
     part_arr[:] = parts
@@ -1375,7 +1394,7 @@ def blob_candidates(
     look = np.zeros((cx2.size, len(FEATURE_NAMES) - _N_REFINED - 1))
     # both grids in one call: the candidates twice, ellipse-aligned then context
     m = idx.size
-    both = _appearance(pyramid, sigma, np.tile(np.column_stack([cx2[idx], cy2[idx]]), (2, 1)),
+    both = _appearance(levels, sigma, np.tile(np.column_stack([cx2[idx], cy2[idx]]), (2, 1)),
                        np.tile(a2[idx], 2), np.concatenate([np.maximum(b2[idx], 1.0), a2[idx]]),
                        np.tile(th2[idx], 2), np.repeat([PATCH_EXTENT, CONTEXT_EXTENT], m))
     look[idx] = np.hstack([both[:m], both[m:]])
