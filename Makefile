@@ -17,7 +17,10 @@ $(STAMP): $(VPY) pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/carapost demo
 
+# lint-imports checks the [tool.importlinter] contracts of pyproject.toml; pytest also
+# runs the doctests of algorithms, io and model (testpaths).
 test: $(STAMP)
+	$(VENV)/bin/lint-imports
 	QT_QPA_PLATFORM=offscreen $(VPY) -m pytest -q
 
 lint: $(STAMP)

@@ -9,6 +9,14 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+UI_TESTS = REPO / "tests" / "ui"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark every test under ``tests/ui`` as ``gui`` (a conftest ``pytestmark`` is inert)."""
+    for item in items:
+        if item.path.is_relative_to(UI_TESTS):
+            item.add_marker(pytest.mark.gui)
 
 
 def shared_fixtures_dir() -> Path:
@@ -25,7 +33,8 @@ def fixtures_dir() -> Path:
     """Path to ``shared/fixtures``; skips the test with a clear reason when absent."""
     path = shared_fixtures_dir()
     if not path.is_dir():
-        pytest.skip(f"third-party fixtures not found at {path} (set CARAPOST_FIXTURES)")
+        pytest.skip(f"needs the third-party fixture files, which are not in this repository: "
+                    f"{path} is absent (set CARAPOST_FIXTURES to their folder)")
     return path
 
 

@@ -150,9 +150,6 @@ def test_demo_cache_folder_follows_xdg(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_demo_generates_and_processes_the_take(tmp_path, monkeypatch, capsys):
-    synth = pytest.importorskip("carapost.synth")
-    if not hasattr(synth, "generate_take"):
-        pytest.skip("carapost.synth.generate_take is not available yet")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     assert demo.run_demo(headless=True, frames=6, out=str(tmp_path / "r")) == 0
     assert (tmp_path / "r" / "demo.cara").is_file()

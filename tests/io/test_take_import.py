@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from carapost import synth
 from carapost.algorithms.camera import CameraIntrinsics, rodrigues_to_matrix
 from carapost.io.errors import CaraFileError
 from carapost.io.take_import import find_take_files, import_take, read_brim_csv
@@ -222,9 +223,6 @@ def test_bad_brim_csv_refuses_the_import(tmp_path, rng):
 
 
 def test_import_synthetic_take(tmp_path):
-    synth = pytest.importorskip("carapost.synth")
-    if not hasattr(synth, "generate_take"):
-        pytest.skip("carapost.synth.generate_take is not available yet")
     config = synth.SynthConfig(frames=4, size=(160, 96), n_cameras=2, markers="sparse35",
                                take_name="tiny")
     out = synth.generate_take(tmp_path, config)

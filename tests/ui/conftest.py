@@ -12,7 +12,8 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 from PySide6.QtWidgets import QApplication  # noqa: E402
 
-pytestmark = pytest.mark.gui
+# every test in this folder gets the `gui` marker from tests/conftest.py
+# (pytest_collection_modifyitems): a `pytestmark` in a conftest marks nothing
 
 
 class FakeDialogs:
