@@ -69,6 +69,7 @@ __all__ = [
     "param_info",
     "property_fields",
     "range_text",
+    "shown",
     "to_mapping",
     "validate",
 ]
@@ -278,8 +279,9 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
-def _shown(value: Any) -> str:
-    # numbers plainly (1.5, not np.float64(1.5)); anything else by repr
+def shown(value: Any) -> str:
+    """A refused value as quoted in messages: numbers plainly (``1.5``, not
+    ``np.float64(1.5)``), anything else by ``repr``."""
     if isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_):
         return format_value(value)
     return repr(value)
@@ -351,7 +353,7 @@ def check_number(
     allowed = range_text(minimum, maximum, min_exclusive, max_exclusive)
 
     def refuse(expected: str) -> ValueError:
-        return ValueError(f"{label} must be {expected.rstrip()} (got {_shown(value)})")
+        return ValueError(f"{label} must be {expected.rstrip()} (got {shown(value)})")
 
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
         raise refuse(f"a number {allowed}")
@@ -385,14 +387,14 @@ def check_value(value: Any, info: ParamInfo, kind: type, label: str) -> Any:
     if kind is bool:
         if isinstance(value, bool | np.bool_):
             return bool(value)
-        raise ValueError(f"{label} must be True or False (got {_shown(value)})")
+        raise ValueError(f"{label} must be True or False (got {shown(value)})")
     if kind is int or kind is float:
         return check_number(value, label, integer=kind is int, minimum=info.minimum,
                             maximum=info.maximum, min_exclusive=info.min_exclusive,
                             max_exclusive=info.max_exclusive)
     if kind is tuple:
         if not isinstance(value, tuple | list):
-            raise ValueError(f"{label} must be a tuple of numbers (got {_shown(value)})")
+            raise ValueError(f"{label} must be a tuple of numbers (got {shown(value)})")
         return tuple(check_number(v, f"{label}[{i}]", minimum=info.minimum,
                                   maximum=info.maximum, min_exclusive=info.min_exclusive,
                                   max_exclusive=info.max_exclusive)
@@ -402,10 +404,10 @@ def check_value(value: Any, info: ParamInfo, kind: type, label: str) -> Any:
             for choice in info.choices:
                 if value.strip().lower() == choice.lower():
                     return choice
-        raise ValueError(f"{label} must be {info.range_text()} (got {_shown(value)})")
+        raise ValueError(f"{label} must be {info.range_text()} (got {shown(value)})")
     if isinstance(value, str):
         return value
-    raise ValueError(f"{label} must be text (got {_shown(value)})")
+    raise ValueError(f"{label} must be text (got {shown(value)})")
 
 
 def _declared(obj: Any) -> Iterator[tuple[dataclasses.Field, ParamInfo]]:
