@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from carapost.algorithms.camera import CameraIntrinsics, project
+from carapost.algorithms.params import property_fields
 from carapost.algorithms.triangulation import (
-    PROPERTY_SPECS,
     Triangulation,
     TriangulationParameters,
     triangulate,
@@ -323,8 +323,10 @@ def test_bad_input_is_rejected_clearly(rng):
 
 def test_property_specs_match_parameter_defaults():
     defaults = TriangulationParameters()
-    for key, _label, _type, default, _range, _unit, _help in PROPERTY_SPECS:
-        assert getattr(defaults, key) == default
+    assert [f.name for f, _ in property_fields(TriangulationParameters)] == [
+        "minimum_cameras", "flatten_single_camera_data", "use_outlier_rejection",
+        "maximum_cameras_to_drop", "target_reprojection_error", "min_ray_angle_deg",
+        "refine_iterations"]
     assert math.isclose(defaults.target_reprojection_error, 2.0)
     assert defaults.minimum_cameras == 3 and defaults.maximum_cameras_to_drop == 1
     assert defaults.use_outlier_rejection is False

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import logging
 import re
@@ -22,64 +23,21 @@ from carapost.model.properties import (
     PropertyError,
     PropertySpec,
     UnknownPropertyError,
-    properties_markdown,
     spec,
     specs_in_section,
 )
 
 REPO = Path(__file__).resolve().parents[2]
 
-# Defaults stated in the reference guide (or the triangulation seeds text), by key.
-GUIDE_DEFAULTS = {
-    "point_labels_all": False,
-    "point_labels_selected": True,
-    "point_labels_preselected": True,
-    "label_font_size": 10,
-    "select_points": True,
-    "select_sticks": True,
-    "white_min_radius": 4,
-    "white_max_radius": 50,
-    "black_min_radius": 4,
-    "black_max_radius": 50,
-    "find_black_blobs": True,
-    "find_white_blobs": False,
-    "black_threshold": 0.4,
-    "white_threshold": 0.4,
-    "max_allowed_depth": 35,
-    "max_3d_distance_to_merge": 5,
-    "max_symmetric_epipolar_distance": 5,
-    "rom_face_point_tracking_distance": 50,
-    "rom_brim_point_tracking_distance": 30,
-    "rom_max_3d_point_error": 5,
-    "patch_match_threshold": 0.8,
-    "face_point_tracking_distance": 35,
-    "face_point_max_elastic_prediction_distance": 15,
-    "brim_point_tracking_distance": 15,
-    "patch_match_size": 15,
-    "remove_bad_2d_projections": True,
-    "max_2d_projection_error": 5,
-    "remove_bad_3d_points": True,
-    "max_3d_point_error": 5,
-    "allow_single_sensor_tracking": True,
-    "single_sensor_tracking_threshold": 0.5,
-    "blob_size_difference_threshold": 0.75,
-    "overwrite_existing_filled_gaps": False,
-    "use_forwards_prediction": True,
-    "use_backwards_prediction": True,
-    "allow_single_sensor_gap_filling": True,
-    "stabilization_use_brim_points": False,
-    "base_frame_weighting": 1.0,
-    "inter_frame_weighting": 1.0,
-    "stable_points_percent": 0.25,
-    "max_processing_iterations": 50,
-    "show_version_check_dialog": True,
-    "tracker_break_threshold": 0.9,
-    # Triangulation (FreeMoCap-style parameters, see the seeds text)
-    "minimum_cameras": 3,
-    "use_outlier_rejection": False,
-    "maximum_cameras_to_drop": 1,
-    "flatten_single_camera_data": True,
-}
+
+
+def _doc_script():
+    """scripts/gen_properties_doc.py as a module (scripts/ is not a package)."""
+    path = REPO / "scripts" / "gen_properties_doc.py"
+    loaded = importlib.util.spec_from_file_location("gen_properties_doc", path)
+    module = importlib.util.module_from_spec(loaded)
+    loaded.loader.exec_module(module)
+    return module
 
 
 # ---- the table itself --------------------------------------------------------------------
@@ -95,7 +53,6 @@ def test_every_section_present_and_in_display_order():
         "Gap-Filling Parameters",
         "Stabilization Parameters",
         "Export",
-        "Show Again Flags",
         "Target Tracker",
     )
     assert SECTIONS == expected
@@ -120,17 +77,13 @@ def test_defaults_are_valid_and_canonical():
         assert type(s.validate(s.default)) is type(s.default), s.key
         assert s.help and len(s.help) < 300, s.key
         if s.kind in ("int", "float"):
-            assert s.minimum is not None and s.maximum is not None, s.key
-            assert s.minimum <= s.default <= s.maximum, s.key
+            # every number has both bounds, except Max Allowed Depth (the reach steps of
+            # Initialize 3D multiply it, so it has no cap)
+            assert s.minimum is not None, s.key
+            assert s.maximum is not None or s.key == "max_allowed_depth", s.key
+            assert s.minimum <= s.default <= (s.maximum or s.default), s.key
         if s.kind == "choice":
             assert s.default in s.choices
-
-
-@pytest.mark.parametrize(("key", "value"), sorted(GUIDE_DEFAULTS.items()))
-def test_default_matches_guide(key, value):
-    props = Properties()
-    assert props[key] == value
-    assert type(props[key]) is type(value) or isinstance(value, int) and spec(key).kind == "float"
 
 
 def test_labels_match_guide_names():
@@ -301,30 +254,55 @@ def test_section_gives_algorithm_parameters():
     assert tri["min_ray_angle_deg"] == 2.0 and tri["target_reprojection_error"] > 0
 
 
-@pytest.mark.parametrize(
-    ("module", "cls", "section"),
-    [
-        ("carapost.algorithms.blobs", "BlobParameters", "Blob Parameters"),
-        (
-            "carapost.algorithms.triangulation",
-            "TriangulationParameters",
-            "Triangulation Parameters",
-        ),
-    ],
-)
-def test_section_feeds_algorithm_parameters(module, cls, section):
-    """A section's keys and defaults are exactly the algorithm's parameter fields."""
-    import dataclasses
-    import importlib
+@pytest.mark.parametrize("cls", mod.PARAMETER_CLASSES, ids=lambda c: c.__name__)
+def test_section_feeds_algorithm_parameters(cls):
+    """A section's keys, defaults and ranges are the algorithm's parameter fields."""
+    from carapost.algorithms.params import from_mapping, property_fields
 
-    try:
-        params_cls = getattr(importlib.import_module(module), cls)
-    except (ImportError, AttributeError):
-        pytest.skip(f"{module}.{cls} not available in this checkout")
+    declared = property_fields(cls)
+    section = declared[0][1].section
     values = Properties().section(section)
-    assert params_cls(**values) == params_cls()
-    fields = {f.name for f in dataclasses.fields(params_cls)}
-    assert set(values) == fields
+    assert list(values) == [f.name for f, _ in declared]
+    assert from_mapping(cls, values) == cls() == from_mapping(cls, Properties())
+    for f, info in declared:
+        s = spec(f.name)
+        assert (s.label, s.default, s.unit, s.help) == (info.label, f.default, info.unit,
+                                                         info.help)
+        assert (s.minimum, s.maximum, s.min_exclusive, s.max_exclusive) == (
+            info.minimum, info.maximum, info.min_exclusive, info.max_exclusive)
+
+
+def test_one_range_for_the_registry_and_the_algorithm():
+    """The registry refuses exactly what the parameter class refuses."""
+    from carapost.algorithms.blobs import BlobParameters
+    from carapost.algorithms.init3d import Init3DParameters
+
+    for value, ok in ((1000.0, True), (1000.5, False), (0.0, False), (0.25, True)):
+        try:
+            BlobParameters(white_min_radius=value, white_max_radius=1000.0)
+            algorithm_ok = True
+        except ValueError:
+            algorithm_ok = False
+        try:
+            spec("white_min_radius").validate(value)
+            registry_ok = True
+        except PropertyError:
+            registry_ok = False
+        assert algorithm_ok == registry_ok == ok, value
+    with pytest.raises(PropertyError, match="Max Allowed Depth must be greater than 0"):
+        Properties().set("max_allowed_depth", 0)
+    with pytest.raises(ValueError, match="Max Allowed Depth .* greater than 0"):
+        Init3DParameters(max_allowed_depth=0)
+
+
+def test_gui_preferences_of_old_project_files_are_ignored_quietly(caplog):
+    old = {"show_version_check_dialog": False, "tracker_update_2d_view_every_frame": True,
+           "tracker_update_timeline_every_frame": False, "black_threshold": 0.5}
+    with caplog.at_level(logging.WARNING, logger=mod.__name__):
+        props = Properties.from_dict(old)
+    assert props["black_threshold"] == 0.5
+    assert not mod.MOVED_TO_USER_SETTINGS & set(props.keys())
+    assert caplog.records == []
 
 
 def test_copy_is_independent_and_eq():
@@ -367,7 +345,9 @@ def _value_strategy(s: PropertySpec) -> st.SearchStrategy:
     if s.kind == "int":
         return st.integers(int(s.minimum), int(s.maximum))
     if s.kind == "float":
-        return st.floats(s.minimum, s.maximum, allow_nan=False, allow_infinity=False)
+        return st.floats(s.minimum, s.maximum if s.maximum is not None else 1e6,
+                         exclude_min=s.min_exclusive, exclude_max=s.max_exclusive,
+                         allow_nan=False, allow_infinity=False)
     assert s.kind == "choice"
     return st.sampled_from(s.choices)
 
@@ -412,20 +392,26 @@ def test_module_imports_without_qt():
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 
 
-# ---- docs --------------------------------------------------------------------------------
+# ---- docs ---------------------------------------------------------------------------------
 def test_markdown_lists_every_property():
-    text = properties_markdown()
+    text = _doc_script().properties_markdown()
     for name in SECTIONS:
         assert f"## {name}" in text
     for s in SPECS:
         assert f"`{s.key}`" in text
     assert "| Black Threshold | `black_threshold` | float | 0.4 | 0 – 1 | 0-1 |" in text
+    assert "| `white_max_radius` | float | 50 | greater than 0 and at most 1000 | px |" in text
 
 
 def test_generated_doc_is_up_to_date():
     path = REPO / "docs" / "properties.md"
-    if not path.exists():
-        pytest.skip("docs/properties.md not present in this checkout")
-    assert path.read_text(encoding="utf-8") == properties_markdown(), (
-        "docs/properties.md is stale; regenerate it with properties_markdown()"
+    assert path.read_text(encoding="utf-8") == _doc_script().properties_markdown(), (
+        "docs/properties.md is stale; run python scripts/gen_properties_doc.py"
     )
+
+
+def test_examples_run():
+    import doctest
+
+    result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0 and result.failed == 0

@@ -74,6 +74,8 @@ import cv2
 import numba
 import numpy as np
 
+from carapost.algorithms.params import BLOB, param, validate
+
 __all__ = [
     "BlobParameters",
     "BlobDetections",
@@ -135,36 +137,53 @@ class BlobParameters:
         outside 0-1 (the message names the parameter).
     """
 
-    find_black_blobs: bool = True
-    find_white_blobs: bool = False
-    black_min_radius: float = 4.0
-    black_max_radius: float = 50.0
-    black_threshold: float = 0.4
-    white_min_radius: float = 4.0
-    white_max_radius: float = 50.0
-    white_threshold: float = 0.4
+    # in the guide's order (the Properties pane shows them so)
+    white_min_radius: float = param(
+        4.0, label="White Min Radius", section=BLOB, unit="px",
+        min=0.0, min_exclusive=True, max=1000.0,
+        help="Smallest length of the longest axis of the ellipse (measured across the "
+             "blob, as the measuring tool shows it) accepted as a white blob; lower finds "
+             "tiny blobs but also noise. Range is our choice.")
+    white_max_radius: float = param(
+        50.0, label="White Max Radius", section=BLOB, unit="px",
+        min=0.0, min_exclusive=True, max=1000.0,
+        help="Largest length of the longest axis of the ellipse (measured across the blob) "
+             "accepted as a white blob; larger is slower and admits clutter. Range is our "
+             "choice.")
+    black_min_radius: float = param(
+        4.0, label="Black Min Radius", section=BLOB, unit="px",
+        min=0.0, min_exclusive=True, max=1000.0,
+        help="Smallest length of the longest axis of the ellipse (measured across the "
+             "blob, as the measuring tool shows it) accepted as a black blob. Range is our "
+             "choice.")
+    black_max_radius: float = param(
+        50.0, label="Black Max Radius", section=BLOB, unit="px",
+        min=0.0, min_exclusive=True, max=1000.0,
+        help="Largest length of the longest axis of the ellipse (measured across the blob) "
+             "accepted as a black blob. Range is our choice.")
+    find_black_blobs: bool = param(
+        True, label="Find Black Blobs", section=BLOB,
+        help="Look for dark markers on lighter skin.")
+    find_white_blobs: bool = param(
+        False, label="Find White Blobs", section=BLOB,
+        help="Look for bright markers on darker skin.")
+    black_threshold: float = param(
+        0.4, label="Black Threshold", section=BLOB, unit="0-1", min=0.0, max=1.0,
+        help="How closely a dark candidate must resemble a model blob: 0 accepts nearly "
+             "anything, 1 only near-perfect blobs.")
+    white_threshold: float = param(
+        0.4, label="White Threshold", section=BLOB, unit="0-1", min=0.0, max=1.0,
+        help="How closely a bright candidate must resemble a model blob: 0 accepts nearly "
+             "anything, 1 only near-perfect blobs.")
 
     def __post_init__(self) -> None:
+        validate(self)
         for colour in ("black", "white"):
             lo = getattr(self, f"{colour}_min_radius")
             hi = getattr(self, f"{colour}_max_radius")
-            th = getattr(self, f"{colour}_threshold")
-            for name, val in ((f"{colour}_min_radius", lo), (f"{colour}_max_radius", hi)):
-                if not isinstance(val, int | float) or not math.isfinite(val) or val <= 0:
-                    raise ValueError(f"BlobParameters.{name} must be a positive number of "
-                                     f"pixels, got {val!r}")
-                if val > 1000:
-                    raise ValueError(f"BlobParameters.{name} must be at most 1000 px, "
-                                     f"got {val!r}")
             if lo > hi:
                 raise ValueError(f"BlobParameters.{colour}_min_radius ({lo}) must not exceed "
                                  f"{colour}_max_radius ({hi})")
-            if not isinstance(th, int | float) or not (0.0 <= th <= 1.0):
-                raise ValueError(f"BlobParameters.{colour}_threshold must be in 0-1, got {th!r}")
-        for name in ("find_black_blobs", "find_white_blobs"):
-            if not isinstance(getattr(self, name), bool | np.bool_):
-                raise ValueError(f"BlobParameters.{name} must be a bool, "
-                                 f"got {getattr(self, name)!r}")
 
 
 class BlobDetections(NamedTuple):

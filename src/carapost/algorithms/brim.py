@@ -52,6 +52,7 @@ from carapost.algorithms.camera import (
     project,
     rodrigues_to_matrix,
 )
+from carapost.algorithms.params import param, validate
 
 log = logging.getLogger("carapost.brim")
 
@@ -116,15 +117,16 @@ class BrimSolveParameters:
         projection after a robust refinement is unmatched before the final refinement.
     """
 
-    min_correspondences: int = 4
-    match_distance_px: float = 8.0
-    ambiguity_ratio: float = 1.5
+    # internal tunables: the guide has no brim solve properties
+    min_correspondences: int = param(4, min=4)
+    match_distance_px: float = param(8.0, min=0.0, min_exclusive=True)
+    ambiguity_ratio: float = param(1.5, min=1.0)
     match_rounds: int = 3
-    min_matches: int = 4
-    max_rms_px: float = 2.0
+    min_matches: int = param(4, min=3)
+    max_rms_px: float = param(2.0, min=0.0, min_exclusive=True)
     refine_iterations: int = 8
-    epipolar_distance_px: float = 3.0
-    registration_tolerance_mm: float = 2.0
+    epipolar_distance_px: float = param(3.0, min=0.0, min_exclusive=True)
+    registration_tolerance_mm: float = param(2.0, min=0.0, min_exclusive=True)
     ransac_samples: int = 300
     seed: int = 0
     use_face_points: bool = True
@@ -132,18 +134,7 @@ class BrimSolveParameters:
     outlier_px: float = 1.0
 
     def __post_init__(self) -> None:
-        if int(self.min_correspondences) < 4:
-            raise ValueError(
-                f"min_correspondences must be >= 4, got {self.min_correspondences}")
-        for name in ("match_distance_px", "max_rms_px", "epipolar_distance_px",
-                     "registration_tolerance_mm"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v}")
-        if not self.ambiguity_ratio >= 1.0:
-            raise ValueError(f"ambiguity_ratio must be >= 1, got {self.ambiguity_ratio}")
-        if int(self.min_matches) < 3:
-            raise ValueError(f"min_matches must be >= 3, got {self.min_matches}")
+        validate(self)
 
 
 @dataclass

@@ -45,6 +45,7 @@ from carapost.algorithms.brim import (
     triangulate_tracks,
 )
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.params import INITIALIZE_3D, param, validate
 
 log = logging.getLogger("carapost.init3d")
 
@@ -104,12 +105,28 @@ class Init3DParameters:
         Ambiguity ratio required while the reach is widened.
     """
 
-    max_3d_distance_to_merge: float = 5.0
-    max_allowed_depth: float = 35.0
-    max_symmetric_epipolar_distance: float = 5.0
-    max_surface_distance: float = 0.0
-    max_reprojection_px: float = 3.0
-    ambiguity_ratio: float = 2.0
+    # the Initialize 3D Parameters section, in the guide's order
+    max_allowed_depth: float = param(
+        35.0, label="Max Allowed Depth", section=INITIALIZE_3D, unit="mm",
+        # no upper bound: the reach steps below multiply it, so a cap would be hit inside
+        # initialize_3d rather than when the value is set
+        min=0.0, min_exclusive=True,
+        help="How far a newly initialised point may lie from an existing point; a little "
+             "more than the widest marker spacing (lower it for dense marker sets).")
+    max_3d_distance_to_merge: float = param(
+        5.0, label="Max 3D Distance To Merge", section=INITIALIZE_3D, unit="mm",
+        min=0.0, min_exclusive=True, max=100.0,
+        help="Points from the two caddies closer than this are treated as the same marker. "
+             "Upper bound is our choice.")
+    max_symmetric_epipolar_distance: float = param(
+        5.0, label="Max Allowed Symmetric Epipolar Distance", section=INITIALIZE_3D,
+        unit="px", min=0.0, min_exclusive=True, max=100.0,
+        help="Largest epipolar error allowed when pairing detections of the two cameras of "
+             "one caddy. Upper bound is our choice.")
+    # internal tunables
+    max_surface_distance: float = param(0.0, min=0.0)
+    max_reprojection_px: float = param(3.0, min=0.0, min_exclusive=True)
+    ambiguity_ratio: float = param(2.0, min=1.0)
     auto_seeds: bool = True
     cross_caddy: bool = True
     bundle_adjust: bool = True
@@ -118,27 +135,11 @@ class Init3DParameters:
     min_strict_epipolar_px: float = 0.5
     surface_tiebreak: bool = True
     max_range: float = 600.0
-    reach_steps: tuple[float, ...] = (1.5, 2.0)
-    reach_ambiguity_ratio: float = 4.0
+    reach_steps: tuple[float, ...] = param((1.5, 2.0), min=1.0)
+    reach_ambiguity_ratio: float = param(4.0, min=1.0)
 
     def __post_init__(self) -> None:
-        for name in ("max_3d_distance_to_merge", "max_allowed_depth",
-                     "max_symmetric_epipolar_distance", "max_reprojection_px"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"Init3DParameters.{name} must be a positive number, got {v}")
-        if not (np.isfinite(self.max_surface_distance) and self.max_surface_distance >= 0):
-            raise ValueError("Init3DParameters.max_surface_distance must be >= 0, got "
-                             f"{self.max_surface_distance}")
-        if not all(np.isfinite(k) and k >= 1.0 for k in self.reach_steps):
-            raise ValueError("Init3DParameters.reach_steps must be factors >= 1, got "
-                             f"{self.reach_steps}")
-        if not self.reach_ambiguity_ratio >= 1.0:
-            raise ValueError("Init3DParameters.reach_ambiguity_ratio must be >= 1, got "
-                             f"{self.reach_ambiguity_ratio}")
-        if not self.ambiguity_ratio >= 1.0:
-            raise ValueError(f"Init3DParameters.ambiguity_ratio must be >= 1, got "
-                             f"{self.ambiguity_ratio}")
+        validate(self)
 
 
 @dataclass

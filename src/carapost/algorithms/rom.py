@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.params import INITIALIZE_FROM_ROM, param, validate
 from carapost.algorithms.tracking import (
     KIND_BRIM,
     FrameDetections,
@@ -48,20 +49,29 @@ class RomParameters:
         Largest distance (mm) from the neighbour-based prediction.
     """
 
-    rom_frame_index: int = 0
-    rom_face_point_tracking_distance: float = 50.0
-    rom_brim_point_tracking_distance: float = 30.0
-    rom_max_3d_point_error: float = 5.0
+    rom_frame_index: int = param(
+        0, label="ROM Frame Index", section=INITIALIZE_FROM_ROM, unit="frame",
+        min=0, max=1_000_000,
+        help="Frame of the loaded ROM take whose face and brim pose best resembles the "
+             "frame being initialised. Default is our choice (the guide gives none).")
+    rom_face_point_tracking_distance: float = param(
+        50.0, label="ROM Face Point Tracking Distance", section=INITIALIZE_FROM_ROM,
+        unit="px", min=0.0, max=1000.0,
+        help="Search radius when matching face points from the ROM frame to this take; "
+             "larger tolerates more change but risks mismatches. Range is our choice.")
+    rom_brim_point_tracking_distance: float = param(
+        30.0, label="ROM Brim Point Tracking Distance", section=INITIALIZE_FROM_ROM,
+        unit="px", min=0.0, max=1000.0,
+        help="Search radius when matching brim points from the ROM frame to this take. "
+             "Range is our choice.")
+    rom_max_3d_point_error: float = param(
+        5.0, label="ROM Max Allowed 3D Point Error", section=INITIALIZE_FROM_ROM, unit="mm",
+        min=0.0, max=100.0,
+        help="Points further than this from where their ROM neighbours predict are "
+             "dropped (needs Remove Bad 3D Points). Range is our choice.")
 
     def __post_init__(self) -> None:
-        if int(self.rom_frame_index) < 0:
-            raise ValueError(f"RomParameters.rom_frame_index must be >= 0, got "
-                             f"{self.rom_frame_index!r}")
-        for name in ("rom_face_point_tracking_distance", "rom_brim_point_tracking_distance",
-                     "rom_max_3d_point_error"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"RomParameters.{name} must be a number >= 0, got {v!r}")
+        validate(self)
 
 
 class RomResult(NamedTuple):

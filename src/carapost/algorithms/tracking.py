@@ -45,7 +45,7 @@ import logging
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -60,6 +60,7 @@ from carapost.algorithms.camera import (
     project,
     rodrigues_to_matrix,
 )
+from carapost.algorithms.params import TRACKING, from_mapping, param, validate
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 
 log = logging.getLogger("carapost.tracking")
@@ -98,7 +99,8 @@ FrameDetections = Sequence[tuple[NDArray[Any], NDArray[Any] | None]]
 class TrackingParameters:
     """The Tracking Parameters section, plus a few settings of our own.
 
-    The first twelve fields have the keys and defaults of the properties registry, so
+    The first twelve fields are the properties of the Tracking Parameters section
+    (declared with :func:`~carapost.algorithms.params.param`), so
     ``TrackingParameters(**props.section("Tracking Parameters"))`` works.
 
     Attributes
@@ -148,59 +150,77 @@ class TrackingParameters:
         guide, found before any neighbour is matched).
     """
 
-    patch_match_threshold: float = 0.8
-    face_point_tracking_distance: float = 35.0
-    face_point_max_elastic_prediction_distance: float = 15.0
-    brim_point_tracking_distance: float = 15.0
-    patch_match_size: int = 15
-    remove_bad_2d_projections: bool = True
-    max_2d_projection_error: float = 5.0
-    remove_bad_3d_points: bool = True
-    max_3d_point_error: float = 5.0
-    allow_single_sensor_tracking: bool = True
-    single_sensor_tracking_threshold: float = 0.5
-    blob_size_difference_threshold: float = 0.75
-    velocity_weight: float = 0.0
-    neighbours: int = 8
+    patch_match_threshold: float = param(
+        0.8, label="Patch Match Threshold", section=TRACKING, unit="0-1", min=0.0, max=1.0,
+        help="Minimum patch similarity for two detections in consecutive frames to count "
+             "as the same marker (1 = identical).")
+    face_point_tracking_distance: float = param(
+        35.0, label="Face Point Tracking Distance", section=TRACKING, unit="px",
+        min=0.0, max=1000.0,
+        help="Frame-to-frame search radius for face markers; larger follows faster motion "
+             "but mismatches more. Range is our choice.")
+    face_point_max_elastic_prediction_distance: float = param(
+        15.0, label="Face Point Max Elastic Prediction Distance", section=TRACKING, unit="px",
+        min=0.0, max=1000.0,
+        help="Search radius for face markers once neighbour-based (elastic) prediction is "
+             "available; keep it below Face Point Tracking Distance. Range is our choice.")
+    brim_point_tracking_distance: float = param(
+        15.0, label="Brim Point Tracking Distance", section=TRACKING, unit="px",
+        min=0.0, max=1000.0,
+        help="Frame-to-frame search radius for brim markers, small because the brim barely "
+             "moves. Range is our choice.")
+    patch_match_size: int = param(
+        15, label="Patch Match Size", section=TRACKING, unit="px", min=3, max=101,
+        help="Side of the square grey-level patch compared around each detection; larger "
+             "rejects more outliers but finds fewer matches. Range is our choice.")
+    remove_bad_2d_projections: bool = param(
+        True, label="Remove Bad 2D Projections", section=TRACKING,
+        help="Detach detections whose reprojection error exceeds Max Allowed 2D Projection "
+             "Error.")
+    max_2d_projection_error: float = param(
+        5.0, label="Max Allowed 2D Projection Error", section=TRACKING, unit="px",
+        min=0.0, max=100.0,
+        help="Largest distance between a detection and its point's projection before the "
+             "detection is detached. Range is our choice.")
+    remove_bad_3d_points: bool = param(
+        True, label="Remove Bad 3D Points", section=TRACKING,
+        help="Detach detections that put a point somewhere its neighbours say it cannot "
+             "be (slightly slower, cleaner).")
+    max_3d_point_error: float = param(
+        5.0, label="Max Allowed 3D Point Error", section=TRACKING, unit="mm",
+        min=0.0, max=100.0,
+        help="Distance from the neighbour-predicted position beyond which a point is "
+             "treated as bad. Range is our choice.")
+    allow_single_sensor_tracking: bool = param(
+        True, label="Allow Single Sensor Tracking", section=TRACKING,
+        help="Keep tracking a point seen by one camera only, placing it on that camera's "
+             "ray near its predicted position.")
+    single_sensor_tracking_threshold: float = param(
+        0.5, label="Single Sensor Tracking Threshold", section=TRACKING, unit="mm",
+        min=0.0, max=100.0,
+        help="A single-camera result further than this from its predicted position is "
+             "rejected. Range is our choice.")
+    blob_size_difference_threshold: float = param(
+        0.75, label="Blob Size Difference Threshold", section=TRACKING, unit="0-1",
+        min=0.0, max=1.0,
+        help="How much a blob's width and height may change between frames and still "
+             "match (0 = none, 1 = any); lower it to reject merged blobs.")
+    # internal tunables (not in the Properties pane)
+    velocity_weight: float = param(0.0, min=0.0, max=1.0)
+    neighbours: int = param(8, min=1)
     min_elastic_support: float = 1.5
     bundle_frames: bool = False
     max_patch_frames: int = 5
-    elastic_passes: int = 5
-    consensus_radius_factor: float = 2.0
+    elastic_passes: int = param(5, min=1)
+    consensus_radius_factor: float = param(2.0, min=1.0)
 
     def __post_init__(self) -> None:
-        for name in ("face_point_tracking_distance", "face_point_max_elastic_prediction_distance",
-                     "brim_point_tracking_distance", "max_2d_projection_error",
-                     "max_3d_point_error", "single_sensor_tracking_threshold"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"TrackingParameters.{name} must be a number >= 0, got {v!r}")
-        for name in ("patch_match_threshold", "blob_size_difference_threshold",
-                     "velocity_weight"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
-                raise ValueError(f"TrackingParameters.{name} must be in 0-1, got {v!r}")
-        if int(self.patch_match_size) < 3:
-            raise ValueError(f"TrackingParameters.patch_match_size must be >= 3 px, got "
-                             f"{self.patch_match_size!r}")
-        if int(self.elastic_passes) < 1:
-            raise ValueError(f"TrackingParameters.elastic_passes must be >= 1, got "
-                             f"{self.elastic_passes!r}")
-        v = self.consensus_radius_factor
-        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 1.0):
-            raise ValueError(f"TrackingParameters.consensus_radius_factor must be >= 1, got "
-                             f"{v!r}")
-        if int(self.neighbours) < 1:
-            raise ValueError(f"TrackingParameters.neighbours must be >= 1, got "
-                             f"{self.neighbours!r}")
+        validate(self)
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any], **overrides: Any) -> TrackingParameters:
-        """Build from a properties section (unknown keys are ignored)."""
-        names = {f.name for f in fields(cls)}
-        kw = {k: v for k, v in values.items() if k in names}
-        kw.update(overrides)
-        return cls(**kw)
+        """Build from properties (see :func:`carapost.algorithms.params.from_mapping`)."""
+        return from_mapping(cls, values, **overrides)
 
 
 class TrackResult(NamedTuple):

@@ -46,32 +46,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.params import TRIANGULATION, param, validate
 
 log = logging.getLogger("carapost.triangulation")
 
 #: Sharpness of the subset weight decay, ``w = exp(-WEIGHT_DECAY * e / e_target)``.
 WEIGHT_DECAY = 5.0
-
-#: Properties-registry entries for :class:`TriangulationParameters`
-#: (key, label, type, default, (min, max), unit, help).
-PROPERTY_SPECS: tuple[tuple[str, str, str, object, tuple[float, float] | None, str, str], ...] = (
-    ("minimum_cameras", "Minimum Cameras for Triangulation", "int", 3, (1, 64), "",
-     "Points seen by fewer cameras are left out. Set above the camera count: clamped, "
-     "with a warning in the log."),
-    ("flatten_single_camera_data", "Flatten Single Camera Data", "bool", True, None, "",
-     "Points seen by one camera only (when the minimum allows it) are placed where their "
-     "ray meets the world plane Z = 0; off: the supplied single-camera estimates are used."),
-    ("use_outlier_rejection", "Use Outlier Rejection", "bool", False, None, "",
-     "Re-triangulate points with a high reprojection error from camera subsets."),
-    ("maximum_cameras_to_drop", "Maximum Cameras to Drop", "int", 1, (0, 63), "",
-     "Largest number of cameras removed from a point during the subset search."),
-    ("target_reprojection_error", "Target Reprojection Error", "float", 2.0, (0.01, 1000.0),
-     "px", "Mean reprojection error a subset should reach; sets the weight decay."),
-    ("min_ray_angle_deg", "Minimum Ray Angle", "float", 2.0, (0.0, 90.0), "deg",
-     "Subsets whose rays meet at a smaller angle are rejected."),
-    ("refine_iterations", "Refinement Iterations", "int", 0, (0, 20), "",
-     "Gauss-Newton steps on the pixel reprojection error after the linear solve."),
-)
 
 
 @dataclass(frozen=True)
@@ -101,31 +81,42 @@ class TriangulationParameters:
         Gauss-Newton steps on the pixel reprojection error after the linear solution.
     """
 
-    minimum_cameras: int = 3
-    flatten_single_camera_data: bool = True
-    use_outlier_rejection: bool = False
-    maximum_cameras_to_drop: int = 1
-    target_reprojection_error: float = 2.0
-    min_ray_angle_deg: float = 2.0
-    refine_iterations: int = 0
+    minimum_cameras: int = param(
+        3, label="Minimum Cameras for Triangulation", section=TRIANGULATION, unit="cameras",
+        min=1, max=16,
+        help="A 3D point is only reconstructed from at least this many cameras (lowered to "
+             "the camera count of the take, with a logged warning).")
+    flatten_single_camera_data: bool = param(
+        True, label="Flatten Single Camera Data", section=TRIANGULATION,
+        help="Put points seen by a single camera where their ray meets the world plane "
+             "Z = 0 instead of using a poor single-view depth estimate.")
+    use_outlier_rejection: bool = param(
+        False, label="Use Outlier Rejection", section=TRIANGULATION,
+        help="Re-triangulate points with high reprojection error from camera subsets and "
+             "blend them by error (best with more cameras than the minimum).")
+    maximum_cameras_to_drop: int = param(
+        1, label="Maximum Cameras to Drop", section=TRIANGULATION, unit="cameras",
+        min=0, max=14,
+        help="Most cameras outlier rejection may leave out of a subset; 0 disables the "
+             "search. Range is our choice.")
+    target_reprojection_error: float = param(
+        2.0, label="Target Reprojection Error", section=TRIANGULATION, unit="px",
+        min=0.0, min_exclusive=True, max=1000.0,
+        help="Mean reprojection error a subset should reach; subsets are weighted "
+             "exp(-5 error / target). Default is our choice (the guide gives none). Range "
+             "is our choice.")
+    min_ray_angle_deg: float = param(
+        2.0, label="Minimum Ray Angle", section=TRIANGULATION, unit="deg",
+        min=0.0, max=90.0, max_exclusive=True,
+        help="Camera subsets whose rays meet at a smaller angle are too parallel to fix "
+             "depth and are not used (our own parameter).")
+    refine_iterations: int = param(
+        0, label="Refinement Iterations", section=TRIANGULATION, min=0, max=20,
+        help="Gauss-Newton steps on the pixel reprojection error after the linear solution "
+             "(our own parameter).")
 
     def __post_init__(self) -> None:
-        if int(self.minimum_cameras) < 1:
-            raise ValueError(f"minimum_cameras must be >= 1, got {self.minimum_cameras}")
-        if int(self.maximum_cameras_to_drop) < 0:
-            raise ValueError(
-                f"maximum_cameras_to_drop must be >= 0, got {self.maximum_cameras_to_drop}"
-            )
-        if not (self.target_reprojection_error > 0 and math.isfinite(
-                self.target_reprojection_error)):
-            raise ValueError(
-                "target_reprojection_error must be a positive number of pixels, got "
-                f"{self.target_reprojection_error}"
-            )
-        if not 0.0 <= self.min_ray_angle_deg < 90.0:
-            raise ValueError(f"min_ray_angle_deg must be in [0, 90), got {self.min_ray_angle_deg}")
-        if int(self.refine_iterations) < 0:
-            raise ValueError(f"refine_iterations must be >= 0, got {self.refine_iterations}")
+        validate(self)
 
 
 class Triangulation(NamedTuple):

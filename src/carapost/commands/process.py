@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.params import from_mapping
 from carapost.commands.edit import ReplaceDetections
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import (
@@ -196,7 +197,7 @@ class DetectBlobs(ReplaceDetections):
         if cams.size == 0 or cams.min() < 0 or cams.max() >= project.n_cameras:
             raise refuse(f"{what}: no such camera in {list(cams)}")
         try:
-            params = BlobParameters(**project.properties.section("Blob Parameters"))
+            params = from_mapping(BlobParameters, project.properties)
         except ValueError as exc:
             raise refuse(f"{what}: {exc}") from None
         keys: list[Hashable] = [(f, int(c)) for f in range(a, b + 1) for c in cams]
@@ -429,7 +430,7 @@ class Initialize3D(Command):
         else:
             seed_rows = [list(s) for s in seeds]
         try:
-            params = Init3DParameters(**project.properties.section("Initialize 3D Parameters"))
+            params = from_mapping(Init3DParameters, project.properties)
         except (TypeError, ValueError) as exc:
             raise refuse(f"{what}: {exc}") from None
         try:

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.params import from_mapping
 from carapost.algorithms.rom import RomParameters, initialize_from_rom
 from carapost.algorithms.tracking import (
     InitialState,
@@ -138,7 +139,7 @@ def _detection_source(project: Project, get_image: Callable[[int, int], NDArray]
         from carapost.algorithms.blobs import BlobParameters, detect_blobs
 
         if blob_params is None:
-            blob_params = BlobParameters(**project.properties.section("Blob Parameters"))
+            blob_params = from_mapping(BlobParameters, project.properties)
         out = []
         for c in range(project.n_cameras):
             d = detect_blobs(get_image(frame, c), blob_params)
@@ -395,7 +396,7 @@ def compute_take_tracking(
     spawn = None
     if find_markers:
         try:
-            ip = Init3DParameters(**project.properties.section("Initialize 3D Parameters"))
+            ip = from_mapping(Init3DParameters, project.properties)
         except (TypeError, ValueError) as exc:
             raise refuse(f"{what}: {exc}") from None
         bm = X0[brim][np.isfinite(X0[brim]).all(-1)] if has_brim else None
@@ -549,7 +550,7 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
         raise refuse(f"{what}: the ROM has {rom.n_cameras} cameras, this take "
                       f"{project.n_cameras}")
     try:
-        rp = RomParameters(**project.properties.section("Initialize From ROM Parameters"))
+        rp = from_mapping(RomParameters, project.properties)
     except (TypeError, ValueError) as exc:
         raise refuse(f"{what}: {exc}") from None
     rf = rp.rom_frame_index

@@ -3,14 +3,22 @@
 One typed table (:data:`SPECS`) describes each parameter of the Properties pane
 (Display, Selection, Blob Parameters, Initialize 3D Parameters, Initialize From ROM
 Parameters, Tracking Parameters, Gap-Filling Parameters, Stabilization Parameters,
-Export, Show Again Flags), the Target Tracker settings of the Tracker pane, and our own
-Triangulation Parameters section. The property pane, the command line, the scripting API
-and the project file all read this one table, so a parameter is declared exactly once.
+Export), the Target Tracker settings of the Tracker pane, and our own Triangulation
+Parameters section. The property pane, the command line, the scripting API and the
+project file all read this one table.
+
+The algorithm sections are not written here: they are generated from the fields of the
+algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
+``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``), which declare
+label, unit, range and help once with :func:`carapost.algorithms.params.param`. Display,
+Selection, Gap-Filling, Stabilization, Export and Target Tracker have no parameter class
+yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
-no range (or no default), the value is our choice and the help text says so.
-
-The guide's Shortcut section only lists keyboard shortcuts, so it holds no parameter.
+no range (or no default), the value is our choice and the help text says so. The guide's
+Shortcut section only lists keyboard shortcuts, so it holds no parameter. Purely GUI
+preferences (the Show Again Flags, the Tracker pane's "Update ... Every Frame") are user
+settings (:mod:`carapost.ui.settings`), not project properties.
 
 Examples
 --------
@@ -29,14 +37,28 @@ from __future__ import annotations
 
 import difflib
 import logging
-import math
-import numbers
 import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from carapost.algorithms import params as _params
+from carapost.algorithms.blobs import BlobParameters
+from carapost.algorithms.init3d import Init3DParameters
+from carapost.algorithms.params import (
+    BLOB,
+    INITIALIZE_3D,
+    INITIALIZE_FROM_ROM,
+    TRACKING,
+    TRIANGULATION,
+    check_number,
+    format_value,
+)
+from carapost.algorithms.rom import RomParameters
+from carapost.algorithms.tracking import TrackingParameters
+from carapost.algorithms.triangulation import TriangulationParameters
 
 log = logging.getLogger(__name__)
 
@@ -47,24 +69,30 @@ __all__ = [
     "PropertyError",
     "PropertySpec",
     "UnknownPropertyError",
-    "properties_markdown",
+    "PARAMETER_CLASSES",
     "spec",
+    "specs_from_parameters",
     "specs_in_section",
 ]
 
-# Section names, as displayed (display order is SECTIONS below).
+# Section names, as displayed (display order is SECTIONS below). The algorithm sections
+# (BLOB, INITIALIZE_3D, INITIALIZE_FROM_ROM, TRACKING, TRIANGULATION) are named in
+# carapost.algorithms.params, beside the fields that fill them.
 DISPLAY = "Display"
 SELECTION = "Selection"
-BLOB = "Blob Parameters"
-INITIALIZE_3D = "Initialize 3D Parameters"
-INITIALIZE_FROM_ROM = "Initialize From ROM Parameters"
-TRACKING = "Tracking Parameters"
-TRIANGULATION = "Triangulation Parameters"
 GAP_FILLING = "Gap-Filling Parameters"
 STABILIZATION = "Stabilization Parameters"
 EXPORT = "Export"
-SHOW_AGAIN = "Show Again Flags"
 TARGET_TRACKER = "Target Tracker"
+
+#: Keys that older project files may hold but that are now user settings
+#: (carapost.ui.settings.PREFERENCES): purely GUI preferences do not belong to a take.
+#: Loading ignores them without a warning; the user's own setting applies instead.
+MOVED_TO_USER_SETTINGS = frozenset({
+    "show_version_check_dialog",
+    "tracker_update_timeline_every_frame",
+    "tracker_update_2d_view_every_frame",
+})
 
 #: Type names accepted in :attr:`PropertySpec.type` besides the Python types
 #: ``bool``, ``int``, ``float`` and ``str``.
@@ -104,15 +132,6 @@ class UnknownPropertyError(PropertyError, KeyError):
         return str(self.args[0])
 
 
-def _fmt(value: Any) -> str:
-    """Format a number or value for messages and docs (0.4, 50, True, 'active')."""
-    if isinstance(value, bool):
-        return str(value)
-    if isinstance(value, float):
-        return f"{value:g}"
-    return str(value)
-
-
 @dataclass(frozen=True)
 class PropertySpec:
     """Declaration of one property.
@@ -131,13 +150,16 @@ class PropertySpec:
     default : Any
         Default value; must itself be valid.
     minimum, maximum : float or None
-        Inclusive bounds for ``int`` and ``float`` properties.
+        Bounds for ``int`` and ``float`` properties (inclusive unless the flags below
+        say otherwise).
     choices : tuple of str or None
         Allowed values of a ``"choice"`` property.
     unit : str
         Unit shown beside the value (``"px"``, ``"mm"``, ``"frames"``, ``"0-1"``...).
     help : str
         One-line description for tooltips and the docs.
+    min_exclusive, max_exclusive : bool
+        The bound itself is not allowed (``minimum=0, min_exclusive=True``: positive).
     """
 
     section: str
@@ -150,6 +172,8 @@ class PropertySpec:
     choices: tuple[str, ...] | None = None
     unit: str = ""
     help: str = ""
+    min_exclusive: bool = False
+    max_exclusive: bool = False
 
     @property
     def kind(self) -> str:
@@ -162,25 +186,17 @@ class PropertySpec:
         """Allowed values in words, e.g. ``"between 0 and 1"`` (empty if unrestricted)."""
         if self.choices is not None:
             return "one of " + ", ".join(repr(c) for c in self.choices)
-        if self.minimum is not None and self.maximum is not None:
-            return f"between {_fmt(self.minimum)} and {_fmt(self.maximum)}"
-        if self.minimum is not None:
-            return f"at least {_fmt(self.minimum)}"
-        if self.maximum is not None:
-            return f"at most {_fmt(self.maximum)}"
+        bounds = _params.range_text(self.minimum, self.maximum, self.min_exclusive,
+                                    self.max_exclusive)
+        if bounds:
+            return bounds
         if self.kind == COLOUR:
             return "a colour '#rrggbb'"
         return ""
 
     def _refuse(self, value: Any, expected: str) -> PropertyError:
-        # Show numbers plainly (1.5, not np.float64(1.5)); anything else by repr.
-        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
-            shown = str(int(value))
-        elif isinstance(value, numbers.Real) and not isinstance(value, bool):
-            shown = _fmt(float(value))
-        else:
-            shown = repr(value)
-        return PropertyError(f"{self.label} must be {expected} (got {shown})", self.key)
+        return PropertyError(f"{self.label} must be {expected} (got {_params.shown(value)})",
+                             self.key)
 
     def validate(self, value: Any) -> Any:
         """Check ``value`` and return it coerced to the property's type.
@@ -200,27 +216,13 @@ class PropertySpec:
                 return bool(value)
             raise self._refuse(value, "True or False")
         if kind in ("int", "float"):
-            if isinstance(value, (bool, np.bool_)):
-                raise self._refuse(value, f"a number {self.range_text()}".rstrip())
-            if not isinstance(value, numbers.Real):
-                raise self._refuse(value, f"a number {self.range_text()}".rstrip())
-            try:
-                number = float(value)
-            except OverflowError:
-                number = math.inf
-            if not math.isfinite(number):
-                raise self._refuse(value, f"a finite number {self.range_text()}".rstrip())
-            if kind == "int":
-                if number != int(number):
-                    raise self._refuse(value, f"a whole number {self.range_text()}".rstrip())
-                coerced: int | float = int(number)
-            else:
-                coerced = number
-            low_ok = self.minimum is None or coerced >= self.minimum
-            high_ok = self.maximum is None or coerced <= self.maximum
-            if not (low_ok and high_ok):
-                raise self._refuse(value, self.range_text())
-            return coerced
+            try:  # the same check as the algorithm parameter classes make
+                return check_number(value, self.label, integer=kind == "int",
+                                    minimum=self.minimum, maximum=self.maximum,
+                                    min_exclusive=self.min_exclusive,
+                                    max_exclusive=self.max_exclusive)
+            except ValueError as exc:
+                raise PropertyError(str(exc), self.key) from None
         if kind == CHOICE:
             assert self.choices is not None
             if isinstance(value, str):
@@ -278,6 +280,55 @@ def _p(
     return PropertySpec(section, key, label, type_, default, minimum, maximum, choices, unit, help)
 
 
+#: The algorithm parameter classes whose property fields make up their sections, in
+#: display order.
+PARAMETER_CLASSES: tuple[type, ...] = (
+    BlobParameters,
+    Init3DParameters,
+    RomParameters,
+    TrackingParameters,
+    TriangulationParameters,
+)
+
+_KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
+
+
+def specs_from_parameters(cls: type) -> tuple[PropertySpec, ...]:
+    """The property specs of a parameter dataclass, from its fields' metadata.
+
+    Parameters
+    ----------
+    cls : dataclass type
+        Fields declared with :func:`carapost.algorithms.params.param` and a section
+        become properties (key, label, default, range, unit and help as declared; the
+        type is the default's); other fields are skipped.
+
+    Returns
+    -------
+    tuple of PropertySpec
+        In field order.
+
+    Examples
+    --------
+    >>> [s.label for s in specs_from_parameters(RomParameters)][:2]
+    ['ROM Frame Index', 'ROM Face Point Tracking Distance']
+    >>> spec("black_min_radius").range_text()
+    'greater than 0 and at most 1000'
+    """
+    out = []
+    for f, info in _params.property_fields(cls):
+        type_: type | str = CHOICE if info.choices is not None else _KINDS[type(f.default)]
+        assert info.section is not None and info.label is not None
+        out.append(PropertySpec(
+            info.section, info.key or f.name, info.label, type_, f.default,
+            info.minimum, info.maximum, info.choices, info.unit, info.help,
+            info.min_exclusive, info.max_exclusive))
+    return tuple(out)
+
+
+_ALGORITHM_SPECS: tuple[PropertySpec, ...] = tuple(
+    s for cls in PARAMETER_CLASSES for s in specs_from_parameters(cls))
+
 _OURS_RANGE = " Range is our choice."
 _OURS_DEFAULT = " Default is our choice (the guide gives none)."
 
@@ -302,133 +353,8 @@ SPECS: tuple[PropertySpec, ...] = (
        help="Cameras can be picked in the 2D and 3D views."),
     _p(SELECTION, "select_sticks", "Sticks", bool, True,
        help="Sticks can be picked in the 2D and 3D views."),
-    # --- Blob Parameters --------------------------------------------------------------
-    _p(BLOB, "white_min_radius", "White Min Radius", float, 4.0, 0.5, 500.0, unit="px",
-       help="Smallest length of the longest axis of the ellipse (measured across the blob, "
-            "as the measuring tool shows it) accepted as a white blob; lower finds tiny "
-            "blobs but also noise." + _OURS_RANGE),
-    _p(BLOB, "white_max_radius", "White Max Radius", float, 50.0, 0.5, 500.0, unit="px",
-       help="Largest length of the longest axis of the ellipse (measured across the blob) "
-            "accepted as a white blob; larger is slower and admits clutter." + _OURS_RANGE),
-    _p(BLOB, "black_min_radius", "Black Min Radius", float, 4.0, 0.5, 500.0, unit="px",
-       help="Smallest length of the longest axis of the ellipse (measured across the blob, "
-            "as the measuring tool shows it) accepted as a black blob." + _OURS_RANGE),
-    _p(BLOB, "black_max_radius", "Black Max Radius", float, 50.0, 0.5, 500.0, unit="px",
-       help="Largest length of the longest axis of the ellipse (measured across the blob) "
-            "accepted as a black blob." + _OURS_RANGE),
-    _p(BLOB, "find_black_blobs", "Find Black Blobs", bool, True,
-       help="Look for dark markers on lighter skin."),
-    _p(BLOB, "find_white_blobs", "Find White Blobs", bool, False,
-       help="Look for bright markers on darker skin."),
-    _p(BLOB, "black_threshold", "Black Threshold", float, 0.4, 0.0, 1.0, unit="0-1",
-       help="How closely a dark candidate must resemble a model blob: 0 accepts nearly "
-            "anything, 1 only near-perfect blobs."),
-    _p(BLOB, "white_threshold", "White Threshold", float, 0.4, 0.0, 1.0, unit="0-1",
-       help="How closely a bright candidate must resemble a model blob: 0 accepts nearly "
-            "anything, 1 only near-perfect blobs."),
-    # --- Initialize 3D Parameters -----------------------------------------------------
-    _p(INITIALIZE_3D, "max_allowed_depth", "Max Allowed Depth", float, 35.0, 0.0, 1000.0,
-       unit="mm",
-       help="How far a newly initialised point may lie from an existing point; a little more "
-            "than the widest marker spacing (lower it for dense marker sets)." + _OURS_RANGE),
-    _p(INITIALIZE_3D, "max_3d_distance_to_merge", "Max 3D Distance To Merge", float, 5.0,
-       0.0, 100.0, unit="mm",
-       help="Points from the two caddies closer than this are treated as the same marker."
-            + _OURS_RANGE),
-    _p(INITIALIZE_3D, "max_symmetric_epipolar_distance",
-       "Max Allowed Symmetric Epipolar Distance", float, 5.0, 0.0, 100.0, unit="px",
-       help="Largest epipolar error allowed when pairing detections of the two cameras of "
-            "one caddy." + _OURS_RANGE),
-    # --- Initialize From ROM Parameters -----------------------------------------------
-    _p(INITIALIZE_FROM_ROM, "rom_frame_index", "ROM Frame Index", int, 0, 0, 1_000_000,
-       unit="frame",
-       help="Frame of the loaded ROM take whose face and brim pose best resembles the "
-            "frame being initialised." + _OURS_DEFAULT),
-    _p(INITIALIZE_FROM_ROM, "rom_face_point_tracking_distance",
-       "ROM Face Point Tracking Distance", float, 50.0, 0.0, 1000.0, unit="px",
-       help="Search radius when matching face points from the ROM frame to this take; "
-            "larger tolerates more change but risks mismatches." + _OURS_RANGE),
-    _p(INITIALIZE_FROM_ROM, "rom_brim_point_tracking_distance",
-       "ROM Brim Point Tracking Distance", float, 30.0, 0.0, 1000.0, unit="px",
-       help="Search radius when matching brim points from the ROM frame to this take."
-            + _OURS_RANGE),
-    _p(INITIALIZE_FROM_ROM, "rom_max_3d_point_error", "ROM Max Allowed 3D Point Error",
-       float, 5.0, 0.0, 100.0, unit="mm",
-       help="Points further than this from where their ROM neighbours predict are dropped "
-            "(needs Remove Bad 3D Points)." + _OURS_RANGE),
-    # --- Tracking Parameters ----------------------------------------------------------
-    _p(TRACKING, "patch_match_threshold", "Patch Match Threshold", float, 0.8, 0.0, 1.0,
-       unit="0-1",
-       help="Minimum patch similarity for two detections in consecutive frames to count as "
-            "the same marker (1 = identical)."),
-    _p(TRACKING, "face_point_tracking_distance", "Face Point Tracking Distance", float, 35.0,
-       0.0, 1000.0, unit="px",
-       help="Frame-to-frame search radius for face markers; larger follows faster motion "
-            "but mismatches more." + _OURS_RANGE),
-    _p(TRACKING, "face_point_max_elastic_prediction_distance",
-       "Face Point Max Elastic Prediction Distance", float, 15.0, 0.0, 1000.0, unit="px",
-       help="Search radius for face markers once neighbour-based (elastic) prediction is "
-            "available; keep it below Face Point Tracking Distance." + _OURS_RANGE),
-    _p(TRACKING, "brim_point_tracking_distance", "Brim Point Tracking Distance", float, 15.0,
-       0.0, 1000.0, unit="px",
-       help="Frame-to-frame search radius for brim markers, small because the brim barely "
-            "moves." + _OURS_RANGE),
-    _p(TRACKING, "patch_match_size", "Patch Match Size", int, 15, 3, 101, unit="px",
-       help="Side of the square grey-level patch compared around each detection; larger "
-            "rejects more outliers but finds fewer matches." + _OURS_RANGE),
-    _p(TRACKING, "remove_bad_2d_projections", "Remove Bad 2D Projections", bool, True,
-       help="Detach detections whose reprojection error exceeds Max Allowed 2D Projection "
-            "Error."),
-    _p(TRACKING, "max_2d_projection_error", "Max Allowed 2D Projection Error", float, 5.0,
-       0.0, 100.0, unit="px",
-       help="Largest distance between a detection and its point's projection before the "
-            "detection is detached." + _OURS_RANGE),
-    _p(TRACKING, "remove_bad_3d_points", "Remove Bad 3D Points", bool, True,
-       help="Detach detections that put a point somewhere its neighbours say it cannot be "
-            "(slightly slower, cleaner)."),
-    _p(TRACKING, "max_3d_point_error", "Max Allowed 3D Point Error", float, 5.0, 0.0, 100.0,
-       unit="mm",
-       help="Distance from the neighbour-predicted position beyond which a point is "
-            "treated as bad." + _OURS_RANGE),
-    _p(TRACKING, "allow_single_sensor_tracking", "Allow Single Sensor Tracking", bool, True,
-       help="Keep tracking a point seen by one camera only, placing it on that camera's "
-            "ray near its predicted position."),
-    _p(TRACKING, "single_sensor_tracking_threshold", "Single Sensor Tracking Threshold",
-       float, 0.5, 0.0, 100.0, unit="mm",
-       help="A single-camera result further than this from its predicted position is "
-            "rejected." + _OURS_RANGE),
-    _p(TRACKING, "blob_size_difference_threshold", "Blob Size Difference Threshold", float,
-       0.75, 0.0, 1.0, unit="0-1",
-       help="How much a blob's width and height may change between frames and still match "
-            "(0 = none, 1 = any); lower it to reject merged blobs."),
-    # --- Triangulation Parameters (ours) ----------------------------------------------
-    # Keys match carapost.algorithms.triangulation.TriangulationParameters, so
-    # TriangulationParameters(**props.section(TRIANGULATION)) works.
-    _p(TRIANGULATION, "minimum_cameras", "Minimum Cameras for Triangulation", int, 3, 1, 16,
-       unit="cameras",
-       help="A 3D point is only reconstructed from at least this many cameras (lowered to "
-            "the camera count of the take, with a logged warning)."),
-    _p(TRIANGULATION, "flatten_single_camera_data", "Flatten Single Camera Data", bool, True,
-       help="Put points seen by a single camera where their ray meets the world plane Z = 0 "
-            "instead of using a poor single-view depth estimate."),
-    _p(TRIANGULATION, "use_outlier_rejection", "Use Outlier Rejection", bool, False,
-       help="Re-triangulate points with high reprojection error from camera subsets and "
-            "blend them by error (best with more cameras than the minimum)."),
-    _p(TRIANGULATION, "maximum_cameras_to_drop", "Maximum Cameras to Drop", int, 1, 0, 14,
-       unit="cameras",
-       help="Most cameras outlier rejection may leave out of a subset; 0 disables the search."
-            + _OURS_RANGE),
-    _p(TRIANGULATION, "target_reprojection_error", "Target Reprojection Error", float, 2.0,
-       0.01, 1000.0, unit="px",
-       help="Mean reprojection error a subset should reach; subsets are weighted "
-            "exp(-5 error / target)." + _OURS_DEFAULT + _OURS_RANGE),
-    _p(TRIANGULATION, "min_ray_angle_deg", "Minimum Ray Angle", float, 2.0, 0.0, 89.0,
-       unit="deg",
-       help="Camera subsets whose rays meet at a smaller angle are too parallel to fix depth "
-            "and are not used (our own parameter)."),
-    _p(TRIANGULATION, "refine_iterations", "Refinement Iterations", int, 0, 0, 20,
-       help="Gauss-Newton steps on the pixel reprojection error after the linear solution "
-            "(our own parameter)."),
+    # --- Blob, Initialize 3D, Initialize From ROM, Tracking, Triangulation ----------
+    *_ALGORITHM_SPECS,
     # --- Gap-Filling Parameters -------------------------------------------------------
     _p(GAP_FILLING, "overwrite_existing_filled_gaps", "Overwrite Existing Filled Gaps", bool,
        False,
@@ -476,10 +402,6 @@ SPECS: tuple[PropertySpec, ...] = (
             + _OURS_DEFAULT),
     _p(EXPORT, "fbx_include_sticks", "FBX Include Sticks", bool, False,
        help="Write sticks between points into the FBX as line geometry." + _OURS_DEFAULT),
-    # --- Show Again Flags -------------------------------------------------------------
-    _p(SHOW_AGAIN, "show_version_check_dialog", "Show Version Check Dialog On Startup", bool,
-       True,
-       help="At start-up, say when a newer release is available."),
     # --- Target Tracker (Tracker pane settings) ---------------------------------------
     _p(TARGET_TRACKER, "tracker_stop_after_n_frames", "Stop after N Frames", bool, False,
        help="Limit each track forward/backward run to N frames." + _OURS_DEFAULT),
@@ -504,13 +426,6 @@ SPECS: tuple[PropertySpec, ...] = (
        unit="0-1",
        help="Minimum match between the tracked patch and the keyframe patches; higher "
             "stops sooner but drifts less."),
-    _p(TARGET_TRACKER, "tracker_update_timeline_every_frame", "Update Timeline Every Frame",
-       bool, True,
-       help="Refresh the continuity chart and Selected Point pane while tracking."
-            + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_update_2d_view_every_frame", "Update 2D View Every Frame",
-       bool, False,
-       help="Show each tracked frame in the views while tracking (slower)." + _OURS_DEFAULT),
 )
 # fmt: on
 
@@ -526,7 +441,6 @@ SECTIONS: tuple[str, ...] = (
     GAP_FILLING,
     STABILIZATION,
     EXPORT,
-    SHOW_AGAIN,
     TARGET_TRACKER,
 )
 
@@ -687,8 +601,9 @@ class Properties:
             low, high = v[f"{colour}_min_radius"], v[f"{colour}_max_radius"]
             if low > high:
                 out.append(
-                    f"{spec(f'{colour}_min_radius').label} ({_fmt(low)}) is larger than "
-                    f"{spec(f'{colour}_max_radius').label} ({_fmt(high)}): no blob can match"
+                    f"{spec(f'{colour}_min_radius').label} ({format_value(low)}) is larger than "
+                    f"{spec(f'{colour}_max_radius').label} ({format_value(high)}): "
+                    "no blob can match"
                 )
         if not (v["find_black_blobs"] or v["find_white_blobs"]):
             out.append("Neither Find Black Blobs nor Find White Blobs is set: no blob is found")
@@ -696,8 +611,8 @@ class Properties:
         if elastic > v["face_point_tracking_distance"]:
             out.append(
                 "Face Point Max Elastic Prediction Distance "
-                f"({_fmt(elastic)}) should not exceed Face Point Tracking Distance "
-                f"({_fmt(v['face_point_tracking_distance'])})"
+                f"({format_value(elastic)}) should not exceed Face Point Tracking Distance "
+                f"({format_value(v['face_point_tracking_distance'])})"
             )
         if not (v["use_forwards_prediction"] or v["use_backwards_prediction"]):
             out.append("Gap filling needs Use Forwards Prediction or Use Backwards Prediction")
@@ -787,6 +702,10 @@ class Properties:
             )
         good: dict[str, Any] = {}
         for key, value in d.items():
+            if key in MOVED_TO_USER_SETTINGS:
+                # a GUI preference saved by an older version: now a user setting
+                log.debug("ignoring %r: it is a user setting now", key)
+                continue
             if key not in _BY_KEY:
                 log.warning("ignoring unknown property %r", key)
                 continue
@@ -808,56 +727,3 @@ class Properties:
     def __repr__(self) -> str:
         changed = self.non_defaults()
         return f"Properties({changed!r})" if changed else "Properties()"
-
-
-def _md_cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def properties_markdown() -> str:
-    """Reference of every property as Markdown: one table per section.
-
-    Returns
-    -------
-    str
-        The text of ``docs/properties.md``.
-    """
-    lines = [
-        "# Properties reference",
-        "",
-        "Generated from `carapost.model.properties.SPECS` by `properties_markdown()`;",
-        "do not edit by hand. Regenerate with:",
-        "",
-        "```",
-        'python -c "from carapost.model.properties import properties_markdown as m; '
-        "open('docs/properties.md', 'w', encoding='utf-8').write(m())\"",
-        "```",
-        "",
-        "Names and defaults follow the reference guide. Ranges are inclusive; where the",
-        "guide gives no range or default the help text says the value is our choice.",
-        "The guide's Shortcut section only lists shortcuts and has no parameters. The",
-        "Triangulation Parameters section and the contents of the Export section are",
-        "ours (the guide names the Export section without listing its options). Target",
-        "Tracker holds the settings of the Tracker pane. The keys of Blob Parameters and",
-        "Triangulation Parameters are the fields of `BlobParameters` and",
-        "`TriangulationParameters`, so `props.section(...)` can be passed straight in.",
-        "",
-    ]
-    for name in SECTIONS:
-        lines += [
-            f"## {name}",
-            "",
-            "| Label | Key | Type | Default | Range | Unit | Help |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for s in specs_in_section(name):
-            if s.choices is not None:
-                allowed = ", ".join(s.choices)
-            elif s.minimum is not None or s.maximum is not None:
-                allowed = f"{_fmt(s.minimum)} – {_fmt(s.maximum)}"
-            else:
-                allowed = ""
-            cells = [s.label, f"`{s.key}`", s.kind, _fmt(s.default), allowed, s.unit, s.help]
-            lines.append("| " + " | ".join(_md_cell(c) for c in cells) + " |")
-        lines.append("")
-    return "\n".join(lines)

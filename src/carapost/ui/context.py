@@ -150,10 +150,9 @@ class ViewContext(QObject):
     def blob_parameters(self) -> Any:
         """BlobParameters from the project's Blob Parameters properties."""
         from carapost.algorithms.blobs import BlobParameters
+        from carapost.algorithms.params import from_mapping
 
-        props = self.project.properties
-        names = [f.name for f in fields(BlobParameters)]
-        return BlobParameters(**{n: props[n] for n in names if n in props})
+        return from_mapping(BlobParameters, self.project.properties)
 
     def point_column(self, point_id: int | None) -> int | None:
         """Column of a point id (None if it does not exist)."""

@@ -1,4 +1,9 @@
-"""Persistent user settings (window layout, recent files) through QSettings.
+"""Persistent user settings (window layout, recent files, GUI preferences): QSettings.
+
+GUI preferences that do not belong to a take (the guide's Show Again Flags and the
+Tracker pane's "Update ... Every Frame" switches) are user settings, declared in
+:data:`PREFERENCES`; project files written before they moved may still hold them and
+are read without them (:data:`carapost.model.properties.MOVED_TO_USER_SETTINGS`).
 
 Settings live under the organisation ``carapost``. Setting the environment variable
 ``CARAPOST_SETTINGS_DIR`` puts them in ``<dir>/carapost.ini`` instead, which the tests
@@ -8,6 +13,7 @@ use so they never touch the user's own settings.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from PySide6.QtCore import QSettings
@@ -16,6 +22,42 @@ ORGANISATION = "carapost"
 APPLICATION = "carapost"
 SETTINGS_DIR_ENV = "CARAPOST_SETTINGS_DIR"
 MAX_RECENT = 8
+_PREFERENCES_GROUP = "preferences"
+
+
+@dataclass(frozen=True)
+class Preference:
+    """A yes/no GUI preference kept in the user settings.
+
+    Attributes
+    ----------
+    key : str
+        Settings key (the property key it had in project files).
+    label : str
+        Name as displayed (the reference guide's name).
+    default : bool
+    help : str
+    """
+
+    key: str
+    label: str
+    default: bool
+    help: str
+
+
+#: Every GUI preference (the guide's Show Again Flags section and the Tracker pane's
+#: display switches), in display order.
+PREFERENCES: tuple[Preference, ...] = (
+    Preference("show_version_check_dialog", "Show Version Check Dialog On Startup", True,
+               "At start-up, say when a newer release is available."),
+    Preference("tracker_update_timeline_every_frame", "Update Timeline Every Frame", True,
+               "Refresh the continuity chart and Selected Point pane while target tracking."
+               " Default is our choice (the guide gives none)."),
+    Preference("tracker_update_2d_view_every_frame", "Update 2D View Every Frame", False,
+               "Show each tracked frame in the views while target tracking (slower)."
+               " Default is our choice (the guide gives none)."),
+)
+_PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES}
 
 
 def make_settings() -> QSettings:
@@ -49,3 +91,31 @@ def add_recent_file(settings: QSettings, path: str) -> list[str]:
 def clear_recent_files(settings: QSettings) -> None:
     """Forget the recent files."""
     settings.setValue("recent_files", [])
+
+
+def preference(settings: QSettings, key: str) -> bool:
+    """The user's value of a GUI preference (its default when never set).
+
+    Raises
+    ------
+    KeyError
+        If ``key`` is not one of :data:`PREFERENCES`.
+    """
+    pref = _PREFERENCE_BY_KEY[key]
+    value = settings.value(f"{_PREFERENCES_GROUP}/{key}", pref.default)
+    if isinstance(value, str):  # INI files give text back
+        return value.strip().lower() in ("true", "1", "yes", "on")
+    return bool(value)
+
+
+def set_preference(settings: QSettings, key: str, value: bool) -> None:
+    """Store a GUI preference for this user.
+
+    Raises
+    ------
+    KeyError
+        If ``key`` is not one of :data:`PREFERENCES`.
+    """
+    if key not in _PREFERENCE_BY_KEY:
+        raise KeyError(f"unknown preference {key!r}")
+    settings.setValue(f"{_PREFERENCES_GROUP}/{key}", bool(value))
