@@ -14,31 +14,30 @@ from carapost import api
 from carapost.model.project import KIND_BRIM, KIND_FACE
 
 
-def _run(qtbot, w, fn, *args) -> None:
+def _run(qtbot, w, action_id: str) -> None:
     before = len(w.stack)
-    fn(*args)
+    w.action(action_id).trigger()
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
     qtbot.waitUntil(lambda: len(w.stack) == before + 1, timeout=5_000)
-    assert w.last_error in (None, ""), w.last_error
+    assert w.last_error == "", w.last_error
 
 
 def test_detect_solve_initialise_track_from_the_menus(make_window, qtbot, synth_take):
     project = api.import_take(synth_take)
     assert (project.points.kind == KIND_BRIM).sum() > 10  # the take's brim model
     w = make_window(project)
-    w.last_error = None
     F = project.n_frames
     project.set_active_range((0, F - 3))  # the last two frames are left to the tracker
-    _run(qtbot, w, w.detect_blobs, "range")
+    _run(qtbot, w, "process.blobs_range")
     assert project.detections.counts()[:F - 2].min() > 20
     assert project.detections.counts()[F - 2:].max() == 0
     project.set_active_range((0, F - 1))
-    _run(qtbot, w, w.run_process, "solve_brim")
+    _run(qtbot, w, "process.solve_brim")
     assert project.calibration.solved[0]
-    _run(qtbot, w, w.run_process, "initialize_3d")
+    _run(qtbot, w, "process.init3d")
     face = np.flatnonzero(project.points.kind == KIND_FACE)
     assert len(face) > 40
-    _run(qtbot, w, w.run_process, "track_forwards_sequence")
+    _run(qtbot, w, "process.track_fwd_seq")
     tracked = np.isfinite(project.points.positions[:, face, 0])
     assert tracked[-1].mean() > 0.8  # still tracked at the last frame
     # the tracker had the take's images: it detected the frames that had no detections

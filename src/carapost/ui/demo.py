@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.camera import camera_centres
 from carapost.algorithms.camera import project as project_points
 from carapost.model.project import (
     KIND_BRIM,
@@ -187,7 +188,7 @@ def demo_project(n_frames: int = 120, n_points: int = 40, n_cameras: int = 4, *,
     w, h = size
     inside = (uv[..., 0] >= 2) & (uv[..., 0] < w - 2) & (uv[..., 1] >= 2) & (uv[..., 1] < h - 2)
     # a marker facing away from a camera is hidden in it
-    centres = -np.einsum("cji,cj->ci", R, t)
+    centres = camera_centres(R, t)
     normal = (base - np.array([0.0, 5.0, 20.0]))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     facing = np.einsum("pk,pck->pc", normal, centres[None] - base[:, None]) > 0

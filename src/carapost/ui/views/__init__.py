@@ -69,10 +69,8 @@ class BaseView(QWidget):
         self.ctx.notify_options()
 
     def _set_labels_all(self, on: bool) -> None:
-        # a property of the project: through the window's command path (undoable)
-        win = self.window()
-        if hasattr(win, "set_properties"):
-            win.set_properties({"point_labels_all": on})
+        # a property of the project: through the owner's command path (undoable)
+        self.ctx.edit_properties({"point_labels_all": on})
 
     def center_selection(self, frame: bool = False) -> None:
         """Center (or frame, when ``frame``) the selected points in this view."""
