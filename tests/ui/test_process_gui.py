@@ -61,3 +61,28 @@ def test_detect_solve_initialise_track_from_the_menus(make_window, qtbot, synth_
     w.stack.goto(len(w.stack) - 4)
     assert project.n_points == (project.points.kind == KIND_BRIM).sum()
     assert project.detections.total == 0
+
+
+def test_file_import_from_the_menu(make_window, qtbot, synth_take):
+    """File > Import Camera Files with the take's .json chosen in the dialog gives the
+    project api.import_take builds, with its images, and a fresh history."""
+    w = make_window()
+    w.dialogs.open_paths.append(str(synth_take))
+    w.action("file.import_take").trigger()
+    assert w.runner.busy
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    assert w.last_error == "", w.last_error
+    expect = api.import_take(synth_take)
+    p = w.project
+    assert (p.take.name, p.n_frames, p.n_cameras) == (expect.take.name, expect.n_frames,
+                                                      expect.n_cameras)
+    assert np.array_equal(p.points.ids, expect.points.ids)
+    assert np.array_equal(p.points.positions, expect.points.positions, equal_nan=True)
+    assert w.context.frames.has_images and len(w.stack) == 0
+    assert expect.take.name in w.windowTitle()
+    # the imported take's Detect Blobs [Current Frame] runs from the menu, then undo
+    w.action("process.blobs_current").trigger()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    assert len(w.stack) == 1 and p.detections.counts()[p.current_frame].min() > 20
+    w.action("edit.undo").trigger()
+    assert p.detections.total == 0 and w.action("edit.redo").isEnabled()

@@ -15,16 +15,7 @@ from typing import Any
 
 from PySide6.QtCore import QByteArray, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import (
-    QDockWidget,
-    QLabel,
-    QMainWindow,
-    QMenu,
-    QProgressBar,
-    QPushButton,
-    QVBoxLayout,
-    QWidget,
-)
+from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QVBoxLayout, QWidget
 
 from carapost.commands.stack import Command, CommandStack
 from carapost.model.events import Change
@@ -38,6 +29,7 @@ from carapost.ui.frames import FrameSource
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import navigation
 from carapost.ui.settings import make_settings, recent_files
+from carapost.ui.statusbar import JobStatus
 from carapost.ui.timebar import Timebar
 from carapost.ui.workspace import FloatingWorkspace, Workspace
 
@@ -93,20 +85,10 @@ class MainWindow(QMainWindow):
         if app_log.level == logging.NOTSET or app_log.level > logging.INFO:
             app_log.setLevel(logging.INFO)
 
-        # status bar: message, frame/selection summary, progress + Cancel
-        self.status_label = QLabel()
-        self.progress = QProgressBar()
-        self.progress.setMaximumWidth(260)
-        self.progress.hide()
-        self.cancel_button = QPushButton("Cancel")
-        self.cancel_button.hide()
-        self.cancel_button.clicked.connect(ctx.runner.cancel)
-        for w in (self.status_label, self.progress, self.cancel_button):
-            self.statusBar().addPermanentWidget(w)
-        ctx.runner.started.connect(self._job_started)
-        ctx.runner.progressed.connect(self._job_progress)
-        ctx.runner.finished.connect(self._job_finished)
-        ctx.status_message.connect(self.statusBar().showMessage)
+        # status bar: messages, point/selection summary, job progress + Cancel
+        self.job_status = JobStatus(self.statusBar(), ctx)
+        self.progress = self.job_status.progress
+        self.cancel_button = self.job_status.cancel_button
 
         # menus
         self.actions_by_id: dict[str, QAction] = {}
@@ -281,8 +263,6 @@ class MainWindow(QMainWindow):
 
     def _changed(self, change: Change) -> None:
         self.timebar.refresh()
-        p = self.project
-        self.status_label.setText(f"{p.n_points} points | {len(p.selection.points)} selected")
         self._update_actions()
 
     def _project_replaced(self) -> None:
@@ -294,23 +274,6 @@ class MainWindow(QMainWindow):
     def _playing_changed(self, playing: bool) -> None:
         self.timebar.set_playing(playing)
         self.action("view.play").setChecked(playing)
-
-    def _job_started(self, title: str) -> None:
-        self.progress.setRange(0, 0)
-        self.progress.setFormat(f"{title} %p%")
-        self.progress.show()
-        self.cancel_button.show()
-        self.statusBar().showMessage(title)
-
-    def _job_progress(self, done: int, total: int) -> None:
-        self.progress.setRange(0, max(total, 1))
-        self.progress.setValue(done)
-
-    def _job_finished(self, title: str, cancelled: bool) -> None:
-        self.progress.hide()
-        self.cancel_button.hide()
-        self.statusBar().showMessage(f"{title} {'cancelled' if cancelled else 'finished'}",
-                                     4000)
 
     # -- the Shell of the handlers (layout operations) ---------------------------------------
     def set_full_screen(self, on: bool) -> None:
