@@ -369,6 +369,9 @@ def test_continuity_click_expand_and_fewest_gaps(make_window, demo, qtbot):
     assert len(chart._rows) == p.n_points
     chart.expand_all()
     assert len(chart._rows) == p.n_points * (1 + p.n_cameras)
+    # Ctrl+drag on the chart sets the active range (one undo entry)
+    chart.range_drag(12.2, 33.7, True)
+    assert p.active_range == (12, 33) and w.stack.undo_text() == "Set Active Range 12-33"
     qtbot.keyClick(w, Qt.Key.Key_A, Qt.KeyboardModifier.ControlModifier)
     from carapost.model.queries import gap_counts
 
@@ -417,6 +420,11 @@ def test_views_3d_graph_render_offscreen(make_window, demo, qtbot):
     assert np.allclose(y, p.points.positions[:, 4, 1], equal_nan=True)
     x2, y2 = graph.curves2[0].getData()
     assert np.allclose(y2, p.points.obs[:, 4, 1, 0], equal_nan=True)
+    # a click on the graph's time axis goes to that frame, Ctrl+drag sets the active range
+    graph.frame_clicked.emit(23)
+    assert p.current_frame == 23
+    graph.range_dragged.emit(5, 15)
+    assert p.active_range == (5, 15)
 
 
 def test_layout_panels_and_settings_persist(make_window, qtbot):

@@ -97,12 +97,18 @@ class ViewContext(QObject):
         ``SetProperties``; see :meth:`edit_properties`).
     frame_ready(int, int)
         A decoded image of (frame, camera) arrived (queued onto the GUI thread).
+    frame_requested(int)
+        A view asks to go to a frame.
+    range_requested(int, int)
+        A view asks for this active range (Ctrl+drag on the continuity chart or graph).
     """
 
     changed = Signal(object)
     options_changed = Signal()
     properties_requested = Signal(object)
     frame_ready = Signal(int, int)
+    frame_requested = Signal(int)
+    range_requested = Signal(int, int)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)

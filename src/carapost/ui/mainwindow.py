@@ -71,9 +71,11 @@ class MainWindow(QMainWindow):
         lay.addWidget(self.workspace, 1)
         lay.addWidget(self.timebar)
         self.setCentralWidget(central)
+        # the timebar and the views (continuity chart, graphs) ask for frames and ranges
         self.timebar.frame_requested.connect(ctx.set_frame)
-        self.timebar.range_dragged.connect(
-            lambda a, b: navigation.set_active_range(ctx, a, b))
+        ctx.view.frame_requested.connect(ctx.set_frame)
+        self.timebar.range_dragged.connect(self._set_active_range)
+        ctx.view.range_requested.connect(self._set_active_range)
         self.timebar.play_toggled.connect(ctx.playback.toggle)
 
         # panes, and the log records of the whole application in the Log pane
@@ -270,6 +272,9 @@ class MainWindow(QMainWindow):
         self._update_actions()
         for view in self.all_views():
             view.fit()
+
+    def _set_active_range(self, a: int, b: int) -> None:
+        navigation.set_active_range(self.context, a, b)
 
     def _playing_changed(self, playing: bool) -> None:
         self.timebar.set_playing(playing)

@@ -18,10 +18,16 @@ class BaseView(QWidget):
         Right-click at a global position; the workspace shows the View menu.
     activated()
         The user interacted with the view (it becomes the active view).
+    frame_clicked(int)
+        The user asked for this frame (a click on the graph's time axis).
+    range_dragged(int, int)
+        Ctrl+drag over frames: the user asks for this active range.
     """
 
     menu_requested = Signal(QPoint)
     activated = Signal()
+    frame_clicked = Signal(int)
+    range_dragged = Signal(int, int)
     kind = "base"
 
     def __init__(self, ctx: ViewContext, parent: QWidget | None = None) -> None:
