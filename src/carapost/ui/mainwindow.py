@@ -13,9 +13,9 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from PySide6.QtCore import QByteArray, Qt, QTimer
-from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QVBoxLayout, QWidget
+from PySide6.QtCore import QByteArray, QTimer
+from PySide6.QtGui import QAction
+from PySide6.QtWidgets import QDockWidget, QMainWindow, QVBoxLayout, QWidget
 
 from carapost.commands.stack import Command, CommandStack
 from carapost.model.events import Change
@@ -28,6 +28,7 @@ from carapost.ui.docks import build_docks, pane_names
 from carapost.ui.frames import FrameSource
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import navigation
+from carapost.ui.menus import MenuBar
 from carapost.ui.settings import make_settings, recent_files
 from carapost.ui.statusbar import JobStatus
 from carapost.ui.timebar import Timebar
@@ -92,10 +93,13 @@ class MainWindow(QMainWindow):
         self.progress = self.job_status.progress
         self.cancel_button = self.job_status.cancel_button
 
-        # menus
-        self.actions_by_id: dict[str, QAction] = {}
-        self.menus: dict[str, QMenu] = {}
-        self._build_menus()
+        # menus from the action table; View > Panels from the dock table
+        self.menu_bar = MenuBar(self, self._make_trigger)
+        self.menus = self.menu_bar.menus
+        for name in pane_names():
+            self.menus["View/Panels"].addAction(self.docks[name].toggleViewAction())
+        self.menus["File/Recent Files"].aboutToShow.connect(self._fill_recent)
+        self._fill_recent()
 
         ctx.view.changed.connect(self._changed)
         ctx.history_changed.connect(self._update_actions)
@@ -179,53 +183,9 @@ class MainWindow(QMainWindow):
 
     def action(self, id_: str) -> QAction:
         """The QAction of an action-table id."""
-        return self.actions_by_id[id_]
+        return self.menu_bar.actions[id_]
 
     # -- menus ----------------------------------------------------------------------------------
-    def _menu(self, path: str) -> QMenu:
-        if path in self.menus:
-            return self.menus[path]
-        parent, _, name = path.rpartition("/")
-        menu = self._menu(parent).addMenu(name) if parent else self.menuBar().addMenu(name)
-        menu.setToolTipsVisible(True)
-        self.menus[path] = menu
-        return menu
-
-    def _build_menus(self) -> None:
-        for top in action_table.MENUS:
-            self._menu(top)
-        for spec in action_table.ACTIONS:
-            if not spec.title:  # a submenu placeholder
-                parent = self._menu(spec.menu.rpartition("/")[0])
-                if spec.separator:
-                    parent.addSeparator()
-                self._menu(spec.menu)
-                continue
-            menu = self._menu(spec.menu)
-            if spec.separator:
-                menu.addSeparator()
-            act = QAction(spec.title, self)
-            act.setObjectName(spec.id)
-            if spec.shortcut:
-                act.setShortcut(QKeySequence(spec.shortcut))
-                act.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
-            act.setCheckable(spec.checkable)
-            if spec.available:
-                act.setToolTip(spec.tip or spec.title)
-                act.triggered.connect(self._make_trigger(spec))
-            else:
-                act.setEnabled(False)
-                act.setToolTip(action_table.NOT_AVAILABLE)
-                act.setStatusTip(f"{spec.title}: {action_table.NOT_AVAILABLE}")
-            menu.addAction(act)
-            self.addAction(act)  # shortcuts work with the menu bar hidden (full screen)
-            self.actions_by_id[spec.id] = act
-        panels = self.menus["View/Panels"]
-        for name in pane_names():
-            panels.addAction(self.docks[name].toggleViewAction())
-        self.menus["File/Recent Files"].aboutToShow.connect(self._fill_recent)
-        self._fill_recent()
-
     def _make_trigger(self, spec: action_table.ActionSpec) -> Callable[[bool], None]:
         callback = spec.callback
         assert callback is not None
@@ -244,13 +204,7 @@ class MainWindow(QMainWindow):
         return trigger
 
     def _fill_recent(self) -> None:
-        menu = self.menus["File/Recent Files"]
-        menu.clear()
-        files = recent_files(self.settings)
-        for path in files:
-            menu.addAction(path, lambda p=path: [self.open_project(p)] and None)
-        if not files:
-            menu.addAction("(none)").setEnabled(False)
+        self.menu_bar.fill_recent(recent_files(self.settings), self.open_project)
 
     # -- following the context --------------------------------------------------------------
     def _update_actions(self) -> None:

@@ -1,8 +1,8 @@
 """Screenshots of the main window in its common states (``make screenshots``).
 
 Run as ``python -m carapost.ui.screenshots OUTDIR`` (under Xvfb for a real window, or
-with ``QT_QPA_PLATFORM=offscreen``). Uses a rendered synthetic take when
-:mod:`carapost.synth` can render one, else a numpy-filled project with dot images.
+with ``QT_QPA_PLATFORM=offscreen``). Uses a rendered synthetic take; should rendering
+fail, a numpy-filled project with dot images, so the window is still shown.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     try:
         project, _scene, source = scene_project(frames, (1280, 720))
-    except Exception as exc:  # synth not installed: still show the window
+    except Exception as exc:  # a broken renderer must not hide the window's state
         log.warning("synthetic take unavailable (%s); using dot images", exc)
         project = demo_project(frames, 60, 4, size=(1280, 720), brim=12)
         source = dot_frames(project)
