@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from PySide6.QtCore import QObject, QSettings, Qt, Signal
 
+from carapost.commands.edit import SetProperties
 from carapost.commands.stack import Command, CommandError, CommandStack
 from carapost.model.events import Change
 from carapost.model.project import Project, Selection, new_project
@@ -391,8 +392,6 @@ class ActionContext(QObject):
 
     def set_properties(self, values: dict[str, Any]) -> bool:
         """Change project properties through the undoable ``SetProperties``."""
-        from carapost.commands.edit import SetProperties
-
         return self.make_and_push(lambda: SetProperties(self.project, values),
                                   "Set property")
 
