@@ -92,3 +92,48 @@ def test_events_batch_and_unknown_part() -> None:
         prj.events.emit("nonsense")
     with pytest.raises(ValueError, match="outside the take"):
         prj.set_active_range((2, 9))
+
+
+def test_caddy_cameras_are_consecutive_pairs() -> None:
+    assert queries.caddy_cameras(4) == [(0, 1), (2, 3)]
+    assert queries.caddy_cameras(6) == [(0, 1), (2, 3), (4, 5)]
+    assert queries.caddy_cameras(3) == [(0, 1), (2,)]
+    assert queries.caddy_cameras(0) == []
+
+
+def test_point_information_and_distance(rng: np.random.Generator) -> None:
+    prj, uv = _project_with_cameras(rng)
+    f, col = 4, 2
+    # the point uses detection 1 of camera 3: semi-axes 2.5 x 1.5 px
+    table = {"centre": np.array([[0, 0], uv[f, col, 3]], np.float32),
+             "axes": np.array([[9, 9], [2.5, 1.5]], np.float16),
+             "angle": np.zeros(2, np.float16), "colour": np.zeros(2, np.int8),
+             "score": np.ones(2, np.float16)}
+    prj.detections.replace_images([(f, 3)], [table])
+    prj.points.detection[f, col, 3] = 1
+    prj.points.obs[f, col, 1] = np.nan
+    info = queries.point_information(prj, col, f)
+    X = prj.points.positions[f, col].astype(np.float64)
+    assert info.frame == f and info.point_id == int(prj.points.ids[col])
+    assert np.array_equal(info.position, X)
+    assert np.isnan(info.observations[1]).all()
+    assert np.allclose(info.observations[0], uv[f, col, 0], atol=1e-3)
+    assert np.isnan(info.blob_size[:3]).all() and np.allclose(info.blob_size[3], [5, 3])
+    # R = I: the camera centres are -t = (30 c, 0, -250)
+    centres = np.array([[30.0 * c, 0, -250] for c in range(4)])
+    want = {"caddy 1": centres[:2].mean(0), "caddy 2": centres[2:].mean(0),
+            "all cameras": centres.mean(0)}
+    got = dict(info.centroid_distances)
+    assert list(got) == ["caddy 1", "caddy 2", "all cameras"]
+    for name, centroid in want.items():
+        assert got[name] == pytest.approx(np.linalg.norm(centroid - X))
+    text = info.text()
+    assert "Sensor 1: -" in text and "blob 5.0 x 3.0 px" in text
+    assert f"Distance to centroid of caddy 2: {got['caddy 2']:.1f} mm" in text
+    # no 3D position: no distances
+    prj.points.positions[f, col] = np.nan
+    none = queries.point_information(prj, col, f)
+    assert none.centroid_distances == () and "3D: none" in none.text()
+    a, b = prj.points.positions[0, :2].astype(np.float64)
+    assert queries.distance_between(prj, 0, 1, 0) == pytest.approx(np.linalg.norm(a - b))
+    assert np.isnan(queries.distance_between(prj, col, 0, f))

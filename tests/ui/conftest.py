@@ -76,6 +76,7 @@ def make_window(qtbot):
     def make(project=None, frames=None):
         w = MainWindow(restore=True)
         w.dialogs = FakeDialogs()
+        w.strict = True  # a menu handler that raises fails the test
         qtbot.addWidget(w)
         w.resize(1400, 900)
         if project is not None:

@@ -42,3 +42,22 @@ def image_to_widget(view, xy):
 
 def finite(a):
     return a[~np.isnan(a).any(axis=-1)]
+
+
+def history_rows(w):
+    """(text, colour) of each row of the History pane."""
+    model = w.pane("History").model
+    return [(model.data(model.index(r), Qt.ItemDataRole.DisplayRole),
+             model.data(model.index(r), Qt.ItemDataRole.ForegroundRole).color())
+            for r in range(model.rowCount())]
+
+
+def log_rows(w):
+    """(time, level, category, text, colour of the text) of each row of the Log pane."""
+    model = w.pane("Log").model
+    rows = []
+    for r in range(model.rowCount()):
+        cells = [model.data(model.index(r, c), Qt.ItemDataRole.DisplayRole) for c in range(4)]
+        colour = model.data(model.index(r, 3), Qt.ItemDataRole.ForegroundRole).color()
+        rows.append((*cells, colour))
+    return rows

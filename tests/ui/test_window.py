@@ -16,7 +16,12 @@ from PySide6.QtWidgets import QApplication
 from carapost.io.cara import autosave_path, load_project, save_project
 from carapost.ui.demo import dot_frames, render_dots
 from carapost.ui.frames import ArrayFrameSource
-from tests.ui.helpers import drag, image_to_widget, send_mouse
+from carapost.ui.handlers import edit as edit_menu
+from carapost.ui.handlers import file as file_menu
+from carapost.ui.handlers import inspect as inspect_menu
+from carapost.ui.handlers import navigation
+from carapost.ui.handlers import process as process_menu
+from tests.ui.helpers import drag, history_rows, image_to_widget, log_rows, send_mouse
 
 pytestmark = pytest.mark.gui
 
@@ -82,7 +87,7 @@ def test_open_scrub_and_overlays(make_window, demo, tmp_path, qtbot):
     assert len(xd) == n_det * 17
     # errors: one segment per connected projection
     xe, _ = view.errors.getData()
-    uv = w.ctx.projections(f)[:, c]
+    uv = w.view_context.projections(f)[:, c]
     assert len(xe) == 2 * int((~np.isnan(uv[:, 0]) & ~np.isnan(obs[:, 0])).sum())
 
 
@@ -90,10 +95,11 @@ def test_play_stops_at_view_range_end(make_window, demo, qtbot):
     p, frames = demo
     w = make_window(p, frames)
     p.set_view_range((0, 8))
-    w.toggle_play(True)
-    assert w.playing
-    qtbot.waitUntil(lambda: not w.playing, timeout=5000)
+    w.action("view.play").trigger()
+    assert w.context.playback.playing and w.action("view.play").isChecked()
+    qtbot.waitUntil(lambda: not w.context.playback.playing, timeout=5000)
     assert p.current_frame == 8
+    assert not w.action("view.play").isChecked()
 
 
 def test_select_merge_undo_redo_through_history(make_window, demo, qtbot):
@@ -120,25 +126,29 @@ def test_select_merge_undo_redo_through_history(make_window, demo, qtbot):
     qtbot.keyClick(w, Qt.Key.Key_M)  # Merge
     settle(qtbot, w)
     assert p.n_points == n - 1
-    hist = w.history.list
-    assert hist.count() == 2 and hist.item(1).text().startswith("Merge")
+    pane = w.pane("History")
+    rows = history_rows(w)
+    assert len(rows) == 2 and rows[1][0].startswith("Merge")
+    assert pane.list.currentIndex().row() == 1
     # History click on the first row undoes the merge; the entry turns red
-    hist.itemClicked.emit(hist.item(0))
+    pane.list.clicked.emit(pane.model.index(0))
     settle(qtbot, w)
     assert p.n_points == n
-    assert hist.item(1).foreground().color().red() > 200
-    assert hist.item(1).foreground().color().green() < 100
-    hist.itemClicked.emit(hist.item(1))
+    colour = history_rows(w)[1][1]
+    assert colour.red() > 200 and colour.green() < 100
+    assert pane.list.currentIndex().row() == 0
+    pane.list.clicked.emit(pane.model.index(1))
     settle(qtbot, w)
     assert p.n_points == n - 1
+    assert history_rows(w)[1][1].green() > 200  # applied again: white
     qtbot.keyClick(w, Qt.Key.Key_Z, Qt.KeyboardModifier.ControlModifier)
     assert p.n_points == n
     qtbot.keyClick(w, Qt.Key.Key_Y, Qt.KeyboardModifier.ControlModifier)
     assert p.n_points == n - 1
     # Clear History frees the memory and empties the list
-    w.clear_history()
+    pane.clear_button.click()
     settle(qtbot, w)
-    assert w.stack.memory() == 0 and w.history.list.count() == 1
+    assert w.stack.memory() == 0 and history_rows(w) == [("(opened)", history_rows(w)[0][1])]
 
 
 def test_rubber_band_lasso_and_sensor_selection(make_window, demo, qtbot):
@@ -151,7 +161,7 @@ def test_rubber_band_lasso_and_sensor_selection(make_window, demo, qtbot):
     settle(qtbot, w)
     obs = p.points.obs[0, :, 0].astype(float)
     # a point not seen in this camera is picked at its projection
-    uv = w.ctx.projections(0)[:, 0]
+    uv = w.view_context.projections(0)[:, 0]
     obs[np.isnan(obs[:, 0])] = uv[np.isnan(obs[:, 0])]
     ok = ~np.isnan(obs[:, 0])
     x0, x1 = np.nanpercentile(obs[:, 0], [10, 60])
@@ -214,7 +224,7 @@ def test_process_progress_cancel_and_one_undo_entry(make_window, demo, qtbot):
     counts = p.detections.counts()
     replaced = int((np.abs(counts - 0) >= 0).sum())
     assert replaced == 240 and p.detections.total != before
-    w.undo()
+    w.action("edit.undo").trigger()
     assert p.detections.total == before
 
 
@@ -223,7 +233,8 @@ def test_detect_blobs_current_frame_finds_the_dots(make_window, demo, qtbot):
     truth = p.detections.centres(7, 1).copy()
     w = make_window(p, frames)
     w.set_frame(7)
-    w.detect_blobs("current")
+    w.action("process.blobs_current").trigger()
+    assert w.runner.busy
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=20000)
     found = p.detections.centres(7, 1)
     d = np.hypot(*(truth[:, None, :] - found[None, :, :]).transpose(2, 0, 1)).min(axis=1)
@@ -242,14 +253,13 @@ def test_process_failure_logged_red_and_shown_once(make_window, demo, qtbot, mon
     module.initialize_3d = initialize_3d
     monkeypatch.setitem(sys.modules, "carapost.commands.menu", module)
     w = make_window(p, frames)
-    w.run_process("initialize_3d")
+    process_menu.run_process(module.initialize_3d, "Initialize 3D", False, w.context)
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=5000)
     settle(qtbot, w)
     assert len(w.dialogs.errors) == 1 and "no seed points" in w.dialogs.errors[0][1]
-    rows = [w.log_pane.table.item(r, 3).text() for r in range(w.log_pane.table.rowCount())]
-    row = next(r for r, t in enumerate(rows) if "no seed points" in t)
-    assert w.log_pane.table.item(row, 1).text() == "Error"
-    assert w.log_pane.table.item(row, 3).foreground().color().red() > 200
+    qtbot.waitUntil(lambda: any("no seed points" in r[3] for r in log_rows(w)), timeout=3000)
+    row = next(r for r in log_rows(w) if "no seed points" in r[3])
+    assert row[1] == "Error" and row[4].red() > 200
     assert len(w.stack) == 0
 
 
@@ -262,10 +272,10 @@ def test_save_reopen_prompt_autosave_and_recovery(make_window, demo, tmp_path, q
     qtbot.keyClick(w, Qt.Key.Key_S, Qt.KeyboardModifier.ControlModifier)
     assert target.exists() and w.stack.is_clean
     p.set_selection(points=[int(p.points.ids[0])])
-    w.edit_command("DeleteSelected")
+    w.action("edit.delete").trigger()
     assert w.isWindowModified()
     # autosave copy beside the file, then "crash": reopen offers the copy
-    w.autosave()
+    file_menu.autosave(w.context)
     assert autosave_path(target).exists()
     w.dialogs.ask_save_answers.append("cancel")
     assert not w.close()  # the unsaved-changes prompt can cancel closing
@@ -273,6 +283,7 @@ def test_save_reopen_prompt_autosave_and_recovery(make_window, demo, tmp_path, q
     w2.dialogs.confirm_answers.append(True)
     assert w2.open_project(str(target))
     assert w2.project.n_points == p.n_points and w2.project.modified
+    assert w2.isWindowModified() and "saved.cara" in w2.windowTitle()
     # saving again writes the edit and removes the autosave
     w.dialogs.ask_save_answers.append("save")
     assert w.close()
@@ -288,24 +299,26 @@ def test_save_reopen_prompt_autosave_and_recovery(make_window, demo, tmp_path, q
 def test_properties_pane_edits_through_commands(make_window, demo, qtbot):
     p, frames = demo
     w = make_window(p, frames)
-    editor = w.properties.editors["black_threshold"]
+    props = w.pane("Properties")
+    editor = props.editors["black_threshold"]
     editor.setValue(0.55)
     assert p.properties["black_threshold"] == pytest.approx(0.55)
     assert "Black Threshold" in w.stack.undo_text()
-    w.undo()
+    edit_menu.undo(w.context)
     settle(qtbot, w)
     assert p.properties["black_threshold"] == pytest.approx(0.4)
     assert editor.value() == pytest.approx(0.4)
     assert "between 0 and 1" in editor.toolTip()
-    w.properties.editors["max_allowed_depth"].setValue(40)
-    w.properties.restore_button.click()
+    props.editors["max_allowed_depth"].setValue(40)
+    props.restore_button.click()
     assert p.properties["max_allowed_depth"] == pytest.approx(35.0)
 
 
 def test_labelling_colours_assign_and_rename(make_window, demo, qtbot):
     p, frames = demo
     w = make_window(p, frames)
-    lst = w.labelling.list
+    labelling = w.pane("Labelling")
+    lst = labelling.list
     names = [lst.item(i).text() for i in range(lst.count())]
     assert names == p.labels
     col = {n: i for i, n in enumerate(p.points.labels) if n}
@@ -316,10 +329,11 @@ def test_labelling_colours_assign_and_rename(make_window, demo, qtbot):
     p.points.positions[3, c0] = np.nan
     w.set_frame(3)
     settle(qtbot, w)
-    assert w.labelling.label_state(assigned) == "absent"
+    assert labelling.label_state(assigned) == "absent"
+    assert lst.item(names.index(assigned)).foreground().color().name() == "#ebd228"
     w.set_frame(4)
     settle(qtbot, w)
-    assert w.labelling.label_state(assigned) == "assigned"
+    assert labelling.label_state(assigned) == "assigned"
     # click on a label with one point selected assigns it
     target = int(np.flatnonzero([not lab for lab in p.points.labels])[0])
     p.set_selection(points=[int(p.points.ids[target])])
@@ -329,6 +343,13 @@ def test_labelling_colours_assign_and_rename(make_window, demo, qtbot):
     w.dialogs.texts.append("Chin")
     lst.itemDoubleClicked.emit(lst.item(names.index(unassigned)))
     assert "Chin" in p.labels and p.points.labels[target] == "Chin"
+    # Delete Selected Labels takes the labels selected in the pane
+    settle(qtbot, w)
+    lst.clearSelection()
+    lst.item([lst.item(i).text() for i in range(lst.count())].index("Chin")).setSelected(True)
+    assert w.context.label_selection == ["Chin"]
+    w.action("edit.delete_labels").trigger()
+    assert "Chin" not in p.labels
 
 
 def test_continuity_click_expand_and_fewest_gaps(make_window, demo, qtbot):
@@ -348,6 +369,9 @@ def test_continuity_click_expand_and_fewest_gaps(make_window, demo, qtbot):
     assert len(chart._rows) == p.n_points
     chart.expand_all()
     assert len(chart._rows) == p.n_points * (1 + p.n_cameras)
+    # Ctrl+drag on the chart sets the active range (one undo entry)
+    chart.range_drag(12.2, 33.7, True)
+    assert p.active_range == (12, 33) and w.stack.undo_text() == "Set Active Range 12-33"
     qtbot.keyClick(w, Qt.Key.Key_A, Qt.KeyboardModifier.ControlModifier)
     from carapost.model.queries import gap_counts
 
@@ -356,7 +380,7 @@ def test_continuity_click_expand_and_fewest_gaps(make_window, demo, qtbot):
     assert len(sel) == 1 and counts[sel[0]] == counts[counts > 0].min()
     # Selected Point pane: the point's bar plus one per camera
     settle(qtbot, w)
-    assert len(w.selected_point.chart._rows) == 1 + p.n_cameras
+    assert len(w.pane("Selected Point").chart._rows) == 1 + p.n_cameras
 
 
 def test_log_pane_levels_and_colours(make_window, qtbot):
@@ -365,14 +389,12 @@ def test_log_pane_levels_and_colours(make_window, qtbot):
     logging.getLogger("carapost.test").info("hello")
     threading.Thread(target=lambda: logging.getLogger("carapost.test").error("from a thread")
                      ).start()
-    qtbot.waitUntil(lambda: any("from a thread" in e.text for e in w.log_pane.entries),
-                    timeout=3000)
-    t = w.log_pane.table
-    rows = {t.item(r, 3).text(): r for r in range(t.rowCount())}
-    assert t.item(rows["careful"], 2).text() == "test"
-    assert t.item(rows["careful"], 3).foreground().color().name() == "#ebd228"
-    assert t.item(rows["hello"], 3).foreground().color().name() == "#ebebeb"
-    assert t.item(rows["from a thread"], 3).foreground().color().name() == "#e64646"
+    qtbot.waitUntil(lambda: any("from a thread" in r[3] for r in log_rows(w)), timeout=3000)
+    rows = {r[3]: r for r in log_rows(w)}
+    assert rows["careful"][2] == "test"
+    assert rows["careful"][4].name() == "#ebd228"
+    assert rows["hello"][4].name() == "#ebebeb"
+    assert rows["from a thread"][4].name() == "#e64646"
 
 
 def test_views_3d_graph_render_offscreen(make_window, demo, qtbot):
@@ -398,6 +420,11 @@ def test_views_3d_graph_render_offscreen(make_window, demo, qtbot):
     assert np.allclose(y, p.points.positions[:, 4, 1], equal_nan=True)
     x2, y2 = graph.curves2[0].getData()
     assert np.allclose(y2, p.points.obs[:, 4, 1, 0], equal_nan=True)
+    # a click on the graph's time axis goes to that frame, Ctrl+drag sets the active range
+    graph.frame_clicked.emit(23)
+    assert p.current_frame == 23
+    graph.range_dragged.emit(5, 15)
+    assert p.active_range == (5, 15)
 
 
 def test_layout_panels_and_settings_persist(make_window, qtbot):
@@ -413,9 +440,9 @@ def test_layout_panels_and_settings_persist(make_window, qtbot):
     assert not w2.docks["History"].isVisible()
     w2.docks["History"].toggleViewAction().trigger()
     assert w2.docks["History"].isVisible()
-    w2.toggle_docks()
+    w2.action("view.toggle_docks").trigger()
     assert not any(d.isVisible() for d in w2.docks.values())
-    w2.toggle_docks()
+    w2.action("view.toggle_docks").trigger()
     assert w2.docks["Log"].isVisible()
 
 
@@ -428,19 +455,22 @@ def test_navigation_tools(make_window, demo, qtbot):
     assert p.current_frame == 17
     pid = int(p.points.ids[5])
     w.dialogs.ints.append(pid)
-    w.select_point_dialog()
+    w.action("view.select_point").trigger()
     assert p.selection.points == {pid}
-    info = w.point_information()
+    w.action("view.point_info").trigger()
+    title, info = w.dialogs.infos[-1]
+    assert title == "Get Point Information"
     assert f"id {pid}" in info and "Sensor 3" in info and "caddy 1" in info
+    assert info == inspect_menu.point_information(w.context)
     p.set_selection(points=[int(p.points.ids[0]), int(p.points.ids[1])])
-    d = w.distance_two_points()
+    d = inspect_menu.distance_two_points(w.context)
     expect = np.linalg.norm(p.points.positions[17, 0].astype(float)
                             - p.points.positions[17, 1].astype(float))
     assert d == pytest.approx(expect, rel=1e-5)
     # keyframes: Shift+Right jumps to the next keyframe of the selected point
     p.points.keyframe[40, 2, 1] = True
     p.set_selection(points=[int(p.points.ids[2])])
-    w.step_key(1)
+    navigation.step_key(w.context, 1)
     assert p.current_frame == 40
     # Ctrl+1 / Ctrl+2 / Ctrl+3
     w.set_frame(10)
@@ -472,7 +502,7 @@ def test_measurement_and_pixel_report(make_window, demo, qtbot):
     assert view.measurement_length() == pytest.approx(100.0, abs=2.0)
     view.clear_measurement()
     assert view.measurement_length() is None
-    w.ctx.options.pixel_report = True
+    w.view_context.options.pixel_report = True
     img = view._current_image
     view._mouse_moved(view.group.mapToScene(QPointF(50, 60)))
     assert view.report.text().endswith(f"grey {int(img[60, 50])}")

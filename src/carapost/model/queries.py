@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.camera import camera_centres
 from carapost.algorithms.camera import project as project_points
 from carapost.model.project import (
     RECON_SINGLE_SENSOR,
@@ -154,3 +157,102 @@ def next_gap(project: Project, column: int, after_frame: int) -> tuple[int, int]
     g = gaps(project, column)
     later = g[g[:, 0] > after_frame]
     return (int(later[0, 0]), int(later[0, 1])) if len(later) else None
+
+
+def caddy_cameras(n_cameras: int) -> list[tuple[int, ...]]:
+    """Cameras of each caddy: consecutive pairs (0, 1), (2, 3), ... (a last one alone).
+
+    The same grouping as Initialize 3D's caddies (``commands/process.py``).
+    """
+    return [tuple(range(c, min(c + 2, n_cameras))) for c in range(0, n_cameras, 2)]
+
+
+@dataclass(frozen=True)
+class PointInformation:
+    """What View > Get Point Information reports about one point at one frame.
+
+    Attributes
+    ----------
+    label : str
+        The point's label (or its generated name).
+    point_id : int
+    frame : int
+    position : ndarray, shape (3,) float64
+        3D position in mm, NaN when the point has none at this frame.
+    observations : ndarray, shape (C, 2) float64
+        2D position in each sensor in px, NaN where unobserved.
+    blob_size : ndarray, shape (C, 2) float64
+        Full axis lengths (px) of the detection the point uses in each sensor, NaN where
+        it uses none.
+    centroid_distances : tuple of (str, float)
+        Distance (mm) from the 3D position to the centroid of the camera centres of
+        each caddy (``"caddy 1"``, ...) and of ``"all cameras"``; empty when the point
+        has no 3D position or the frame is not calibrated.
+    """
+
+    label: str
+    point_id: int
+    frame: int
+    position: NDArray[np.float64]
+    observations: NDArray[np.float64]
+    blob_size: NDArray[np.float64]
+    centroid_distances: tuple[tuple[str, float], ...]
+
+    def text(self) -> str:
+        """The report as lines of text (the dialog and the log show this)."""
+        X = self.position
+        lines = [f"{self.label} (id {self.point_id}) at frame {self.frame}",
+                 "3D: " + ("none" if np.isnan(X[0]) else
+                           f"({X[0]:.2f}, {X[1]:.2f}, {X[2]:.2f}) mm")]
+        for c, (o, size) in enumerate(zip(self.observations, self.blob_size, strict=True)):
+            blob = "" if np.isnan(size[0]) else f", blob {size[0]:.1f} x {size[1]:.1f} px"
+            lines.append(f"Sensor {c}: " + ("-" if np.isnan(o[0]) else
+                                            f"({o[0]:.1f}, {o[1]:.1f}) px{blob}"))
+        lines += [f"Distance to centroid of {name}: {d:.1f} mm"
+                  for name, d in self.centroid_distances]
+        return "\n".join(lines)
+
+
+def point_information(project: Project, column: int, frame: int) -> PointInformation:
+    """3D position, 2D position and blob size per sensor, distances to the caddies.
+
+    Parameters
+    ----------
+    project : Project
+    column : int
+        Point column.
+    frame : int
+
+    Returns
+    -------
+    PointInformation
+    """
+    pts = project.points
+    C = project.n_cameras
+    X = pts.positions[frame, column].astype(np.float64)
+    obs = pts.obs[frame, column].astype(np.float64).reshape(C, 2)
+    size = np.full((C, 2), np.nan)
+    for c in range(C):
+        det = int(pts.detection[frame, column, c])
+        if det >= 0:
+            axes = project.detections.get(frame, c)["axes"]
+            if det < len(axes):
+                size[c] = 2.0 * axes[det, :2].astype(np.float64)  # semi-axes -> full
+    cal = project.calibration
+    distances: list[tuple[str, float]] = []
+    if not np.isnan(X[0]) and C and cal.solved.any():
+        centres = camera_centres(cal.R[frame], cal.t[frame])
+        groups = [(f"caddy {k + 1}", list(cams))
+                  for k, cams in enumerate(caddy_cameras(C))]
+        groups.append(("all cameras", list(range(C))))
+        distances = [(name, float(np.linalg.norm(centres[cams].mean(axis=0) - X)))
+                     for name, cams in groups]
+    return PointInformation(project.point_label(column), int(pts.ids[column]), int(frame),
+                            X, obs, size, tuple(distances))
+
+
+def distance_between(project: Project, column_a: int, column_b: int, frame: int) -> float:
+    """Distance (mm) between two points' 3D positions at ``frame``; NaN if one has none."""
+    a = project.points.positions[frame, column_a].astype(np.float64)
+    b = project.points.positions[frame, column_b].astype(np.float64)
+    return float(np.linalg.norm(a - b))

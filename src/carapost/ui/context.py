@@ -1,18 +1,35 @@
-"""State the views share: the project, images, display options and per-frame caches."""
+"""The two contexts of a window.
+
+* :class:`ViewContext` is what the views share: the project, images, display options and
+  per-frame caches.
+* :class:`ActionContext` is what the menu handlers (:mod:`carapost.ui.handlers`) and the
+  panes work with: the view context plus the command stack, the dialogs, the job runner
+  and the window's few layout operations (:class:`Shell`). Every change of project data
+  goes through :meth:`ActionContext.push` (one undo entry) or
+  :meth:`ActionContext.run_job` (a worker thread whose result is pushed), and a new
+  project arrives through :meth:`ActionContext.set_project`; that is the one place a
+  scripting session can take over.
+"""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QSettings, Qt, Signal
 
+from carapost.commands.edit import SetProperties
+from carapost.commands.stack import Command, CommandError, CommandStack
 from carapost.model.events import Change
-from carapost.model.project import Project, new_project
-from carapost.ui.frames import FrameSource
+from carapost.model.project import Project, Selection, new_project
+from carapost.ui.bridge import JobRunner, ModelBridge
+from carapost.ui.frames import FrameSource, frame_source_for
+from carapost.ui.playback import Playback
 
 log = logging.getLogger("carapost.ui")
 
@@ -75,11 +92,24 @@ class ViewContext(QObject):
         The model changed (coalesced, GUI thread).
     options_changed()
         Display options, pre-selection, active camera or lock changed.
+
+    properties_requested(dict)
+        A view asks for project properties to change (the owner pushes the undoable
+        ``SetProperties``; see :meth:`edit_properties`).
+    frame_ready(int, int)
+        A decoded image of (frame, camera) arrived (queued onto the GUI thread).
+    frame_requested(int)
+        A view asks to go to a frame.
+    range_requested(int, int)
+        A view asks for this active range (Ctrl+drag on the continuity chart or graph).
     """
 
     changed = Signal(object)
     options_changed = Signal()
+    properties_requested = Signal(object)
     frame_ready = Signal(int, int)
+    frame_requested = Signal(int)
+    range_requested = Signal(int, int)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -185,3 +215,236 @@ class ViewContext(QObject):
     def notify_options(self) -> None:
         """Tell views that display options changed."""
         self.options_changed.emit()
+
+    def edit_properties(self, values: dict[str, Any]) -> None:
+        """Ask for project properties to change through the undoable command path."""
+        self.properties_requested.emit(dict(values))
+
+
+class Dialogs(Protocol):
+    """The modal questions a handler may ask (:class:`carapost.ui.dialogs.Dialogs`)."""
+
+    def open_file(self, title: str, filters: str, folder: bool = False) -> str | None: ...
+    def save_file(self, title: str, filters: str, default: str = "") -> str | None: ...
+    def ask_save(self, name: str) -> str: ...
+    def confirm(self, title: str, text: str) -> bool: ...
+    def get_int(self, title: str, label: str, value: int, lo: int, hi: int) -> int | None: ...
+    def get_text(self, title: str, label: str, value: str = "") -> str | None: ...
+    def get_colour(self, title: str) -> tuple[int, int, int] | None: ...
+    def info(self, title: str, text: str) -> None: ...
+    def error(self, title: str, text: str) -> None: ...
+
+
+class Shell(Protocol):
+    """The window's own layout operations that View-menu handlers need."""
+
+    def set_full_screen(self, on: bool) -> None: ...
+    def toggle_docks(self) -> None: ...
+    def new_floating_workspace(self) -> Any: ...
+    def all_views(self) -> list[Any]: ...
+    def close(self) -> bool: ...
+
+
+#: ``fn(progress)`` of a job; ``progress(done, total)`` returns False once cancelled.
+JobFn = Callable[[Callable[[int, int], bool]], Any]
+
+
+class ActionContext(QObject):
+    """What menu handlers and panes get instead of the main window.
+
+    Attributes
+    ----------
+    view : ViewContext
+        The views' shared state (project, frame source, display options).
+    stack : CommandStack
+        Undo history of the current project.
+    dialogs : Dialogs
+        Modal questions (tests put :class:`FakeDialogs` here).
+    runner : JobRunner
+        The one worker thread for long jobs.
+    settings : QSettings
+        The user's settings (recent files).
+    shell : Shell or None
+        Layout operations of the window (full screen, docks, floating workspaces).
+    label_selection : list of str
+        Labels selected in the Labelling pane (Delete Selected Labels).
+    point_mode : str
+        Target Track point edit mode (``"add"``, ``"edit"`` or "").
+    last_error : str
+        Text of the last reported error (tests, status).
+
+    Signals
+    -------
+    history_changed()
+        The command stack changed (push, undo, redo, clear, new project).
+    project_replaced()
+        :meth:`set_project` switched to another project.
+    status_message(str, int)
+        Text for the status bar and its timeout in ms (0 = until replaced).
+    """
+
+    history_changed = Signal()
+    project_replaced = Signal()
+    status_message = Signal(str, int)
+
+    def __init__(self, dialogs: Dialogs, settings: QSettings,
+                 parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.view = ViewContext(self)
+        self.dialogs = dialogs
+        self.settings = settings
+        self.shell: Shell | None = None
+        self.runner = JobRunner(self)
+        self.bridge = ModelBridge(self)
+        self.bridge.changed.connect(self.view.changed.emit)
+        self.stack = CommandStack(self.view.project)
+        self.label_selection: list[str] = []
+        self.point_mode = ""
+        self.last_error = ""
+        self.view.properties_requested.connect(self.set_properties)
+        self.runner.failed.connect(self._job_failed)
+        self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
+        self.playback = Playback(self)
+
+    # -- state -------------------------------------------------------------------------------
+    @property
+    def project(self) -> Project:
+        """The open project."""
+        return self.view.project
+
+    @property
+    def frames(self) -> FrameSource:
+        """Images of the open project."""
+        return self.view.frames
+
+    @property
+    def selection(self) -> Selection:
+        """The project's selection (view state: set directly, not undoable)."""
+        return self.view.project.selection
+
+    def project_name(self) -> str:
+        """File name of the project, or the take's name before it is saved."""
+        p = self.project
+        return Path(p.path).name if p.path else p.take.name
+
+    @property
+    def is_modified(self) -> bool:
+        """Whether the project has changes that are not saved."""
+        return self.project.modified or not self.stack.is_clean
+
+    # -- the one path of model changes --------------------------------------------------------
+    def set_project(self, project: Project, frames: FrameSource | None = None) -> None:
+        """Show another project with a fresh undo history (Open, Import, Clear)."""
+        self.playback.stop()
+        self.bridge.detach()
+        self.stack = CommandStack(project, on_change=self.history_changed.emit)
+        if frames is None:
+            frames = frame_source_for(project, on_ready=self.on_frame_ready)
+        self.view.set_project(project, frames)
+        self.bridge.attach(project)
+        self.project_replaced.emit()
+        self.view.changed.emit(Change(frozenset({"file"})))
+        self.history_changed.emit()
+
+    def set_frames(self, frames: FrameSource) -> None:
+        """Replace the image source (Relocate Files, synthetic takes, tests)."""
+        self.view.frames.close()
+        self.view.frames = frames
+        for view in self.shell.all_views() if self.shell is not None else ():
+            view.refresh(None)
+
+    def reload_frames(self) -> None:
+        """Open the project's videos again (after their paths changed)."""
+        self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
+
+    def push(self, command: Command | None) -> bool:
+        """Run a command as one undo entry; refusals are logged (red) and shown in the bar."""
+        if command is None:
+            return False
+        if self.runner.busy:
+            self.report_error("Busy", f"{command.description}: wait for "
+                              f"{self.runner.title} to finish (or cancel it)", show=False)
+            return False
+        try:
+            self.stack.push(command)
+        except CommandError as exc:
+            self.report_error(command.description, str(exc), show=False)
+            return False
+        return True
+
+    def make_and_push(self, factory: Callable[[], Command], what: str) -> bool:
+        """Build a command (its constructor validates) and push it."""
+        try:
+            command = factory()
+        except CommandError as exc:
+            self.report_error(what, str(exc), show=False)
+            return False
+        return self.push(command)
+
+    def run_job(self, title: str, fn: JobFn, done: Callable[[Any, bool], None]) -> bool:
+        """Run ``fn(progress)`` on the worker; ``done(result, cancelled)`` on the GUI thread.
+
+        ``done`` usually pushes the command the job built (:meth:`push`), so a job is one
+        undo entry. False when another job is still running.
+        """
+        return self.runner.start(title, fn, done)
+
+    def set_properties(self, values: dict[str, Any]) -> bool:
+        """Change project properties through the undoable ``SetProperties``."""
+        return self.make_and_push(lambda: SetProperties(self.project, values),
+                                  "Set property")
+
+    # -- feedback ----------------------------------------------------------------------------
+    def report_error(self, title: str, text: str, *, show: bool = True) -> None:
+        """Log an error (red in the Log pane), show it in the status bar and, once, a box."""
+        log.error("%s", text)
+        self.status(text, 8000)
+        self.last_error = text
+        if show:
+            self.dialogs.error(title, text)
+
+    def _job_failed(self, title: str, message: str) -> None:
+        self.last_error = message  # the runner has logged it with its traceback
+        self.dialogs.error(title, message)
+
+    def status(self, text: str, ms: int = 4000) -> None:
+        """A message in the status bar."""
+        self.status_message.emit(text, ms)
+
+    # -- frames ------------------------------------------------------------------------------
+    def set_frame(self, frame: int) -> None:
+        """Move to a frame (clamped to the take); prefetches ahead while playing."""
+        p = self.project
+        if p.n_frames == 0:
+            return
+        p.set_current_frame(int(frame))
+        if self.playback.playing:
+            self.frames.prefetch(range(p.current_frame + 1, p.current_frame + 16),
+                                 list(range(p.n_cameras)))
+
+    def on_frame_ready(self, frame: int, camera: int) -> None:
+        """Decoder-thread callback: hop to the GUI thread through a queued signal."""
+        try:
+            self.view.frame_ready.emit(frame, camera)
+        except RuntimeError:  # the context is already gone at shutdown
+            pass
+
+    def _frame_ready(self, frame: int, camera: int) -> None:
+        if frame != self.project.current_frame or self.shell is None:
+            return
+        for view in self.shell.all_views():
+            if view.kind == "sensor" and view.camera == camera:
+                view.refresh(None)
+
+    def flush(self) -> None:
+        """Deliver pending model changes now (tests and benchmarks)."""
+        self.bridge.flush()
+
+    def shutdown(self) -> None:
+        """Stop playback and the worker, stop listening, close the images."""
+        self.playback.stop()
+        if self.runner.busy:
+            self.runner.cancel()
+            self.runner.wait(30)
+        self.bridge.detach()
+        self.view.frames.close()

@@ -5,7 +5,10 @@ markers on an ellipsoid moving smoothly in front of the synthetic rig's cameras,
 projections as blob observations and detections, with gaps, interpolated stretches,
 patch-tracked and target-tracked samples so every colour of the continuity chart shows.
 :func:`scene_project` does the same from a rendered synthetic take
-(:mod:`carapost.synth`) when that is installed, with its images.
+(:mod:`carapost.synth`), with its images.
+
+This is a test and demo harness kept beside the window it feeds (tests/ui, the
+screenshots and benchmarks/gui.py import it).
 """
 
 from __future__ import annotations
@@ -16,14 +19,18 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.camera import camera_centres
 from carapost.algorithms.camera import project as project_points
 from carapost.model.project import (
     KIND_BRIM,
+    KIND_FACE,
     RECON_INTERPOLATED,
+    RECON_NONE,
     RECON_SINGLE_SENSOR,
     RECON_TRIANGULATED,
     SOURCE_BLOB,
     SOURCE_KEYFRAME,
+    SOURCE_NONE,
     SOURCE_PATCH,
     SOURCE_TARGET,
     Project,
@@ -101,23 +108,23 @@ def _decorate(p: Project, rng: np.random.Generator) -> None:
         a = int(rng.integers(5, F - 10))
         n = int(rng.integers(2, max(3, F // 12)))
         sl = slice(a, min(a + n, F - 1))
-        kind = rng.integers(0, 3)
-        if kind == 0:  # a gap
+        stretch = rng.integers(0, 3)
+        if stretch == 0:  # a gap
             pts.positions[sl, col] = np.nan
-            pts.recon[sl, col] = 0
+            pts.recon[sl, col] = RECON_NONE
             pts.obs[sl, col] = np.nan
-            pts.source[sl, col] = 0
+            pts.source[sl, col] = SOURCE_NONE
             pts.detection[sl, col] = -1
-        elif kind == 1:  # interpolated: 3D, no 2D
+        elif stretch == 1:  # interpolated: 3D, no 2D
             pts.recon[sl, col] = RECON_INTERPOLATED
             pts.obs[sl, col] = np.nan
-            pts.source[sl, col] = 0
+            pts.source[sl, col] = SOURCE_NONE
             pts.detection[sl, col] = -1
         else:  # seen by fewer cameras, patch- or target-tracked in one
             cams = rng.choice(p.n_cameras, size=max(1, p.n_cameras - 2), replace=False)
             for c in cams:
                 pts.obs[sl, col, c] = np.nan
-                pts.source[sl, col, c] = 0
+                pts.source[sl, col, c] = SOURCE_NONE
                 pts.detection[sl, col, c] = -1
             keep = [c for c in range(p.n_cameras) if c not in cams]
             if len(keep) == 1:
@@ -187,7 +194,7 @@ def demo_project(n_frames: int = 120, n_points: int = 40, n_cameras: int = 4, *,
     w, h = size
     inside = (uv[..., 0] >= 2) & (uv[..., 0] < w - 2) & (uv[..., 1] >= 2) & (uv[..., 1] < h - 2)
     # a marker facing away from a camera is hidden in it
-    centres = -np.einsum("cji,cj->ci", R, t)
+    centres = camera_centres(R, t)
     normal = (base - np.array([0.0, 5.0, 20.0]))
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     facing = np.einsum("pk,pck->pc", normal, centres[None] - base[:, None]) > 0
@@ -241,7 +248,7 @@ def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
     p.calibration.R[:] = scene.cam_R
     p.calibration.t[:] = scene.cam_t
     p.calibration.solved[:] = True
-    kinds = np.array([0] * M + [KIND_BRIM] * B, np.int8)
+    kinds = np.array([KIND_FACE] * M + [KIND_BRIM] * B, np.int8)
     p.points.append(M + B, labels=list(scene.labels) + list(scene.brim_labels), kind=kinds)
     p.labels = list(scene.labels)
     pos = np.concatenate([scene.points3d, np.broadcast_to(scene.brim3d, (F, B, 3))], axis=1)

@@ -1,16 +1,16 @@
 """Docked panes: Labelling, History, Selected Point, Log, Properties, Selection, Tracker.
 
-Panes read the project and change it only through the window's ``push(command)``.
+Each pane gets the window's :class:`~carapost.ui.context.ActionContext`, listens to its
+change signals itself and changes the project only through the context (``ctx.push``
+and the handlers of :mod:`carapost.ui.handlers`).
 """
 
 from __future__ import annotations
 
-import logging
-import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QModelIndex, Qt
 from PySide6.QtGui import QBrush, QColor
 from PySide6.QtWidgets import (
     QAbstractItemView,
@@ -22,12 +22,12 @@ from PySide6.QtWidgets import (
     QHeaderView,
     QLabel,
     QLineEdit,
+    QListView,
     QListWidget,
     QListWidgetItem,
     QPushButton,
     QSpinBox,
-    QTableWidget,
-    QTableWidgetItem,
+    QTableView,
     QTreeWidget,
     QTreeWidgetItem,
     QVBoxLayout,
@@ -39,15 +39,10 @@ from carapost.model.events import Change
 from carapost.model.properties import SECTIONS, TARGET_TRACKER, specs_in_section
 from carapost.ui.actions import NOT_AVAILABLE, requirement_met
 from carapost.ui.bridge import LogEntry
+from carapost.ui.context import ActionContext
+from carapost.ui.handlers import edit as edit_menu
+from carapost.ui.models import GREY, RED, YELLOW, HistoryModel, LogModel
 from carapost.ui.views.continuity import ContinuityView
-
-if TYPE_CHECKING:
-    from carapost.ui.mainwindow import MainWindow
-
-RED = QColor(230, 70, 70)
-GREY = QColor(150, 150, 150)
-YELLOW = QColor(235, 210, 40)
-WHITE = QColor(235, 235, 235)
 
 
 def _vbox(widget: QWidget) -> QVBoxLayout:
@@ -56,15 +51,21 @@ def _vbox(widget: QWidget) -> QVBoxLayout:
     return layout
 
 
+def _touches(change: Change, parts: set[str]) -> bool:
+    return bool(change.parts & (parts | {"file"}))
+
+
 class LabellingPane(QWidget):
     """Label list: red = unassigned, grey = assigned, yellow = assigned but absent now.
 
     Clicking a label with one point selected assigns it; double-click renames it.
     """
 
-    def __init__(self, win: MainWindow) -> None:
+    PARTS = {"labels", "current_frame", "points", "point_list"}
+
+    def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
-        self.win = win
+        self.ctx = ctx
         layout = _vbox(self)
         row = QHBoxLayout()
         self.clear_button = QPushButton("Clear All Labels")
@@ -75,18 +76,25 @@ class LabellingPane(QWidget):
         self.list = QListWidget()
         self.list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         layout.addWidget(self.list)
-        self.clear_button.clicked.connect(lambda: win.edit_command("ClearAllLabels"))
-        self.delete_button.clicked.connect(win.delete_selected_labels)
-        self.list.itemClicked.connect(self._clicked)
-        self.list.itemDoubleClicked.connect(self._rename)
+        self.clear_button.clicked.connect(
+            lambda: edit_menu.command(edit.ClearAllLabels, ctx))
+        self.delete_button.clicked.connect(lambda: edit_menu.delete_selected_labels(ctx))
+        self.list.itemClicked.connect(lambda item: edit_menu.assign_label(ctx, item.text()))
+        self.list.itemDoubleClicked.connect(
+            lambda item: edit_menu.rename_label(ctx, item.text()))
+        self.list.itemSelectionChanged.connect(self._selection_changed)
+        ctx.view.changed.connect(self._changed)
 
     def selected_labels(self) -> list[str]:
         """Names selected in the list."""
         return [i.text() for i in self.list.selectedItems()]
 
+    def _selection_changed(self) -> None:
+        self.ctx.label_selection = self.selected_labels()
+
     def label_state(self, name: str) -> str:
         """``unassigned``, ``assigned`` or ``absent`` (assigned, no 3D this frame)."""
-        p = self.win.project
+        p = self.ctx.project
         try:
             col = p.points.labels.index(name)
         except ValueError:
@@ -95,10 +103,13 @@ class LabellingPane(QWidget):
             return "absent"
         return "assigned"
 
-    def refresh(self, change: Change | None) -> None:
-        """Rebuild the list (labels change rarely; colours follow the frame)."""
-        p = self.win.project
-        names = list(p.labels)
+    def _changed(self, change: Change) -> None:
+        if _touches(change, self.PARTS):
+            self.refresh()
+
+    def refresh(self) -> None:
+        """Rebuild the list when the labels changed; colours follow the frame."""
+        names = list(self.ctx.project.labels)
         if [self.list.item(i).text() for i in range(self.list.count())] != names:
             self.list.clear()
             self.list.addItems(names)
@@ -107,29 +118,18 @@ class LabellingPane(QWidget):
             item = self.list.item(i)
             item.setForeground(QBrush(colours[self.label_state(item.text())]))
 
-    def _clicked(self, item: QListWidgetItem) -> None:
-        p = self.win.project
-        if len(p.selection.points) == 1:
-            pid = next(iter(p.selection.points))
-            self.win.push(edit.AssignLabel(p, pid, item.text()))
-
-    def _rename(self, item: QListWidgetItem) -> None:
-        old = item.text()
-        new = self.win.dialogs.get_text("Rename Label", "New name:", old)
-        if new and new != old:
-            from carapost.ui.uicommands import RenameLabel
-
-            self.win.push(RenameLabel(self.win.project, old, new))
-
 
 class HistoryPane(QWidget):
     """The undo stack: undone entries in red; click an entry to undo/redo to it."""
 
-    def __init__(self, win: MainWindow) -> None:
+    def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
-        self.win = win
+        self.ctx = ctx
         layout = _vbox(self)
-        self.list = QListWidget()
+        self.model = HistoryModel(lambda: ctx.stack)
+        self.list = QListView()
+        self.list.setModel(self.model)
+        self.list.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         layout.addWidget(self.list)
         row = QHBoxLayout()
         self.memory = QLabel()
@@ -137,83 +137,64 @@ class HistoryPane(QWidget):
         row.addWidget(self.memory, 1)
         row.addWidget(self.clear_button)
         layout.addLayout(row)
-        self.clear_button.clicked.connect(win.clear_history)
-        self.list.itemClicked.connect(self._clicked)
+        self.clear_button.clicked.connect(lambda: edit_menu.clear_history(ctx))
+        self.list.clicked.connect(self._clicked)
+        ctx.history_changed.connect(self.refresh)
+        self.refresh()
 
     def refresh(self) -> None:
-        """Rebuild from the command stack."""
-        stack = self.win.stack
-        self.list.blockSignals(True)
-        self.list.clear()
-        head = QListWidgetItem("(opened)")
-        head.setForeground(QBrush(GREY))
-        self.list.addItem(head)
-        for entry in stack.history():
-            item = QListWidgetItem(f"{entry.description}   [{entry.memory / 1e6:.2f} MB]")
-            item.setForeground(QBrush(RED if entry.undone else WHITE))
-            self.list.addItem(item)
-        self.list.setCurrentRow(stack.position)
-        self.list.blockSignals(False)
-        self.memory.setText(f"{stack.memory() / 1e6:.1f} MB held")
+        """Follow the command stack."""
+        self.model.reload()
+        self.list.setCurrentIndex(self.model.index(self.model.position))
+        self.memory.setText(f"{self.ctx.stack.memory() / 1e6:.1f} MB held")
 
-    def _clicked(self, item: QListWidgetItem) -> None:
-        row = self.list.row(item)
-        self.win.goto_history(row)
+    def _clicked(self, index: QModelIndex) -> None:
+        edit_menu.goto_history(self.ctx, index.row())
 
 
 class LogPane(QWidget):
     """Time, level, category and text of every log record of the application."""
 
     MAX_ROWS = 5000
-    COLOURS = {logging.DEBUG: GREY, logging.INFO: WHITE, logging.WARNING: YELLOW,
-               logging.ERROR: RED, logging.CRITICAL: RED}
 
     def __init__(self) -> None:
         super().__init__()
         layout = _vbox(self)
-        self.table = QTableWidget(0, 4)
-        self.table.setHorizontalHeaderLabels(["Time", "Level", "Category", "Text"])
+        self.model = LogModel(self.MAX_ROWS)
+        self.table = QTableView()
+        self.table.setModel(self.model)
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.table.setWordWrap(False)
+        self.table.verticalHeader().setDefaultSectionSize(self.table.fontMetrics().height() + 6)
         hdr = self.table.horizontalHeader()
         hdr.setSectionResizeMode(3, QHeaderView.ResizeMode.Stretch)
-        self.table.setColumnWidth(0, 150)
+        # the whole time stamp on one line ("2026.01.31 12:00:00.00")
+        stamp_width = self.table.fontMetrics().horizontalAdvance("0000.00.00 00:00:00.00")
+        self.table.setColumnWidth(0, stamp_width + 16)
         self.table.setColumnWidth(1, 60)
         self.table.setColumnWidth(2, 80)
-        self.table.setStyleSheet("QTableWidget { background: #202020; }")
+        self.table.setStyleSheet("QTableView { background: #202020; }")
         layout.addWidget(self.table)
-        self.entries: list[LogEntry] = []
+        self.model.rowsInserted.connect(lambda *_: self.table.scrollToBottom())
+
+    @property
+    def entries(self) -> list[LogEntry]:
+        """The records shown, oldest first."""
+        return list(self.model.entries)
 
     def add(self, entry: LogEntry) -> None:
-        """Append one record."""
-        self.entries.append(entry)
-        t = self.table
-        if t.rowCount() >= self.MAX_ROWS:
-            t.removeRow(0)
-            self.entries.pop(0)
-        row = t.rowCount()
-        t.insertRow(row)
-        stamp = time.strftime("%Y.%m.%d %H:%M:%S", time.localtime(entry.time))
-        stamp += f".{int((entry.time % 1) * 100):02d}"
-        level = logging.getLevelName(entry.level).capitalize()
-        colour = self.COLOURS.get(entry.level, WHITE if entry.level < 30 else RED)
-        for col, text in enumerate((stamp, level, entry.category,
-                                    entry.text.splitlines()[0] if entry.text else "")):
-            item = QTableWidgetItem(text)
-            item.setForeground(QBrush(colour))
-            if col == 3:
-                item.setToolTip(entry.text)
-            t.setItem(row, col, item)
-        t.scrollToBottom()
+        """Append one record (shown on the next event-loop turn)."""
+        self.model.add(entry)
 
 
 class PropertiesPane(QWidget):
     """Every section of the properties registry, editable, with units, ranges and help."""
 
-    def __init__(self, win: MainWindow, sections: tuple[str, ...] | None = None) -> None:
+    def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None) -> None:
         super().__init__()
-        self.win = win
+        self.ctx = ctx
         layout = _vbox(self)
         self.tree = QTreeWidget()
         self.tree.setColumnCount(3)
@@ -223,8 +204,8 @@ class PropertiesPane(QWidget):
         layout.addWidget(self.tree)
         self.restore_button = QPushButton("Restore Properties To Defaults")
         layout.addWidget(self.restore_button)
-        self.restore_button.clicked.connect(lambda: win.edit_command(
-            "RestorePropertiesToDefaults"))
+        self.restore_button.clicked.connect(
+            lambda: edit_menu.command(edit.RestorePropertiesToDefaults, ctx))
         self.editors: dict[str, QWidget] = {}
         self._updating = False
         shown = sections or tuple(s for s in SECTIONS if s != TARGET_TRACKER)
@@ -245,6 +226,7 @@ class PropertiesPane(QWidget):
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
         self.refresh(None)
+        ctx.view.changed.connect(self.refresh)
 
     def _editor(self, spec: Any) -> QWidget:
         key = spec.key
@@ -279,21 +261,21 @@ class PropertiesPane(QWidget):
         return w
 
     def _pick_colour(self, key: str) -> None:
-        cur = QColor(self.win.project.properties[key])
+        cur = QColor(self.ctx.project.properties[key])
         colour = QColorDialog.getColor(cur, self, "Colour")
         if colour.isValid():
             self._set(key, colour.name())
 
     def _set(self, key: str, value: Any) -> None:
-        if self._updating or self.win.project.properties[key] == value:
+        if self._updating or self.ctx.project.properties[key] == value:
             return
-        self.win.set_properties({key: value})
+        self.ctx.set_properties({key: value})
 
     def refresh(self, change: Change | None) -> None:
         """Show the project's current values."""
-        if change is not None and not change.parts & {"properties", "file"}:
+        if change is not None and not _touches(change, {"properties"}):
             return
-        props = self.win.project.properties
+        props = self.ctx.project.properties
         self._updating = True
         try:
             for key, w in self.editors.items():
@@ -316,9 +298,11 @@ class PropertiesPane(QWidget):
 class SelectionPane(QWidget):
     """Explicit camera selection used by processing and detach commands."""
 
-    def __init__(self, win: MainWindow) -> None:
+    PARTS = {"selection", "cameras"}
+
+    def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
-        self.win = win
+        self.ctx = ctx
         layout = _vbox(self)
         layout.addWidget(QLabel("Cameras used by processing and detach commands\n"
                                 "(none checked = all cameras):"))
@@ -326,11 +310,16 @@ class SelectionPane(QWidget):
         layout.addWidget(self.list)
         self.summary = QLabel()
         layout.addWidget(self.summary)
-        self.list.itemChanged.connect(self._changed)
+        self.list.itemChanged.connect(self._checked)
+        ctx.view.changed.connect(self._changed)
 
-    def refresh(self, change: Change | None) -> None:
+    def _changed(self, change: Change) -> None:
+        if _touches(change, self.PARTS):
+            self.refresh()
+
+    def refresh(self) -> None:
         """Show the cameras and what is selected."""
-        p = self.win.project
+        p = self.ctx.project
         self.list.blockSignals(True)
         if self.list.count() != p.n_cameras:
             self.list.clear()
@@ -346,48 +335,50 @@ class SelectionPane(QWidget):
         self.summary.setText(f"{len(sel.points)} points, {len(sel.detections)} detections, "
                              f"{len(sel.cameras)} cameras selected")
 
-    def _changed(self, item: QListWidgetItem) -> None:
+    def _checked(self, item: QListWidgetItem) -> None:
         cams = {c for c in range(self.list.count())
                 if self.list.item(c).checkState() == Qt.CheckState.Checked}
-        self.win.project.set_selection(cameras=cams)
+        self.ctx.project.set_selection(cameras=cams)
 
 
 class TrackerPane(QWidget):
-    """Target Tracker controls; the buttons are wired by the target-tracker module."""
+    """Target Tracker controls and settings.
+
+    The buttons stay disabled until ``carapost.commands.target_track`` exists; the
+    Target Tracker wires them to its handlers.
+    """
 
     BUTTONS = (("<<", "Track back to start", "back_to_start"),
                ("<", "Track back one frame", "back_one"),
                (">", "Track forward one frame", "forward_one"),
-               (">>", "Track forward to end", "forward_to_end"))
+               (">>", "Track forward to end", "forward_to_end"),
+               ("Clear Tracked Points", "Clear Tracked Points", "clear"),
+               ("Add Keyframe To Current Frame", "Add Keyframe To Current Frame",
+                "add_keyframe"))
     REQUIRES = "carapost.commands.target_track:track_points"
 
-    def __init__(self, win: MainWindow) -> None:
+    def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
-        self.win = win
+        self.ctx = ctx
         layout = _vbox(self)
         available = requirement_met(self.REQUIRES)
         row = QHBoxLayout()
         self.buttons: dict[str, QPushButton] = {}
-        for text, tip, name in self.BUTTONS:
+        for i, (text, tip, name) in enumerate(self.BUTTONS):
             b = QPushButton(text)
             b.setToolTip(tip if available else f"{tip} ({NOT_AVAILABLE})")
             b.setEnabled(available)
-            b.clicked.connect(lambda _=False, n=name: win.target_track(n))
-            row.addWidget(b)
-            self.buttons[name] = b
-        layout.addLayout(row)
-        for title, name in (("Clear Tracked Points", "clear"),
-                            ("Add Keyframe To Current Frame", "add_keyframe")):
-            b = QPushButton(title)
-            b.setEnabled(available)
-            b.setToolTip(title if available else NOT_AVAILABLE)
-            b.clicked.connect(lambda _=False, n=name: win.target_track(n))
-            layout.addWidget(b)
+            if i < 4:
+                row.addWidget(b)
+            else:
+                if i == 4:
+                    layout.addLayout(row)
+                layout.addWidget(b)
             self.buttons[name] = b
         self.settings_box = QCheckBox("Settings")
         self.settings_box.setChecked(True)
         layout.addWidget(self.settings_box)
-        self.settings = PropertiesPane(win, (TARGET_TRACKER,))
+        self.settings = PropertiesPane(ctx, (TARGET_TRACKER,))
         self.settings.restore_button.hide()
         self.settings.tree.expandAll()
         layout.addWidget(self.settings, 1)
@@ -397,12 +388,13 @@ class TrackerPane(QWidget):
 class SelectedPointPane(QWidget):
     """Continuity of the one selected point, overall and per camera."""
 
-    def __init__(self, win: MainWindow) -> None:
+    def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
         layout = _vbox(self)
-        self.chart = ContinuityView(win.ctx, single=True)
+        self.chart = ContinuityView(ctx.view, single=True)
         self.chart.setMinimumHeight(90)
         layout.addWidget(self.chart)
+        ctx.view.changed.connect(self.refresh)
 
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""

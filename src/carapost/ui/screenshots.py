@@ -1,8 +1,8 @@
 """Screenshots of the main window in its common states (``make screenshots``).
 
 Run as ``python -m carapost.ui.screenshots OUTDIR`` (under Xvfb for a real window, or
-with ``QT_QPA_PLATFORM=offscreen``). Uses a rendered synthetic take when
-:mod:`carapost.synth` can render one, else a numpy-filled project with dot images.
+with ``QT_QPA_PLATFORM=offscreen``). Uses a rendered synthetic take; should rendering
+fail, a numpy-filled project with dot images, so the window is still shown.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     try:
         project, _scene, source = scene_project(frames, (1280, 720))
-    except Exception as exc:  # synth not installed: still show the window
+    except Exception as exc:  # a broken renderer must not hide the window's state
         log.warning("synthetic take unavailable (%s); using dot images", exc)
         project = demo_project(frames, 60, 4, size=(1280, 720), brim=12)
         source = dot_frames(project)
@@ -92,20 +92,19 @@ def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
 
     # 5. one camera zoomed on the selection with the blob preview
     ws.containers[0].set_spec("sensor:1")
-    w.ctx.options.blob_preview = True
+    w.action("view.blob_preview").trigger()
     project.set_selection(points=ids)
-    w.ctx.notify_options()
     _settle(app, 0.3)
     ws.containers[0].view.center_selection(frame=True)
     shot("camera-blob-preview")
-    w.ctx.options.blob_preview = False
+    w.action("view.blob_preview").trigger()
 
     # 6. a process running: progress bar and Cancel in the status bar
     ws.set_layout(4)
     for i, spec in enumerate(["sensor:0", "sensor:1", "sensor:2", "sensor:3"]):
         ws.containers[i].set_spec(spec)
     project.set_active_range((0, project.n_frames - 1))
-    w.detect_blobs("range")
+    w.action("process.blobs_range").trigger()
     deadline = time.monotonic() + 20
     while w.runner.busy and w.progress.value() < 3 and time.monotonic() < deadline:
         _settle(app, 0.1)
@@ -115,8 +114,8 @@ def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
     _settle(app, 0.5)
     # 7. History after the cancelled run and an edit
     project.set_selection(points=ids[:2])
-    w.edit_command("Merge")
-    w.undo()
+    w.action("edit.merge").trigger()
+    w.action("edit.undo").trigger()
     w.docks["History"].raise_()
     shot("history-after-undo")
     w.stack.clear()

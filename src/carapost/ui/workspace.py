@@ -64,6 +64,8 @@ class ViewContainer(QFrame):
         self._layout.addWidget(view)
         view.menu_requested.connect(self.show_menu)
         view.activated.connect(self._view_activated)
+        view.frame_clicked.connect(self.ctx.frame_requested)
+        view.range_dragged.connect(self.ctx.range_requested)
 
     def _view_activated(self) -> None:
         self.activated.emit(self)

@@ -18,10 +18,16 @@ class BaseView(QWidget):
         Right-click at a global position; the workspace shows the View menu.
     activated()
         The user interacted with the view (it becomes the active view).
+    frame_clicked(int)
+        The user asked for this frame (a click on the graph's time axis).
+    range_dragged(int, int)
+        Ctrl+drag over frames: the user asks for this active range.
     """
 
     menu_requested = Signal(QPoint)
     activated = Signal()
+    frame_clicked = Signal(int)
+    range_dragged = Signal(int, int)
     kind = "base"
 
     def __init__(self, ctx: ViewContext, parent: QWidget | None = None) -> None:
@@ -69,10 +75,8 @@ class BaseView(QWidget):
         self.ctx.notify_options()
 
     def _set_labels_all(self, on: bool) -> None:
-        # a property of the project: through the window's command path (undoable)
-        win = self.window()
-        if hasattr(win, "set_properties"):
-            win.set_properties({"point_labels_all": on})
+        # a property of the project: through the owner's command path (undoable)
+        self.ctx.edit_properties({"point_labels_all": on})
 
     def center_selection(self, frame: bool = False) -> None:
         """Center (or frame, when ``frame``) the selected points in this view."""

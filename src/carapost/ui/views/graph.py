@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMenu, QVBoxLayout
 
 from carapost.model.events import Change
@@ -47,8 +47,6 @@ class GraphView(BaseView):
     """Graph of the selected points' coordinates."""
 
     kind = "graph"
-    frame_clicked = Signal(int)
-    range_dragged = Signal(int, int)
 
     def __init__(self, ctx: ViewContext, camera: int = 0, parent=None) -> None:
         super().__init__(ctx, parent)

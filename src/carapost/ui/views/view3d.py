@@ -15,6 +15,7 @@ from PySide6.QtCore import QPoint, QPointF, Qt
 from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QMenu
 
+from carapost.algorithms.camera import camera_centres
 from carapost.model.events import Change
 from carapost.model.project import (
     KIND_BRIM,
@@ -101,8 +102,7 @@ class View3D(BaseView):
         if p.n_cameras == 0 or p.n_frames == 0 or not cal.solved.any():
             return np.zeros((0, 3))
         f = p.current_frame if cal.solved[p.current_frame] else int(np.flatnonzero(cal.solved)[0])
-        R, t = cal.R[f], cal.t[f]
-        return -np.einsum("cji,cj->ci", R, t)
+        return camera_centres(cal.R[f], cal.t[f])
 
     def fit(self, selection: bool = True) -> None:
         """Fit to Points: the selected points, or every point when none is selected."""
