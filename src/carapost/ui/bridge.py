@@ -21,19 +21,10 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from carapost.model.events import Change
+from carapost.model.events import Change, merge_changes
 from carapost.model.project import Project
 
 log = logging.getLogger("carapost.ui")
-
-
-def merge_changes(changes: list[Change]) -> Change:
-    """One change covering several (union of parts, frames and points; None = all)."""
-    parts = frozenset().union(*(c.parts for c in changes))
-    frames = None
-    if all(c.frames is not None for c in changes):
-        frames = (min(c.frames[0] for c in changes), max(c.frames[1] for c in changes))
-    return Change(parts, frames)
 
 
 class ModelBridge(QObject):
