@@ -158,7 +158,8 @@ class Journal:
         """Save only the masked samples of a (frames x columns) block before changing them.
 
         The compact record of a sparse edit (as napari's masked paint atom): the bounding
-        box of ``mask``, the mask packed to bits and the old values under it. The command
+        box of ``mask``, the mask (packed to bits, or flat indices when fewer than one
+        sample in 32 is masked) and the old values under it. The command
         must change nothing outside the mask.
 
         Parameters
@@ -186,8 +187,11 @@ class Journal:
         idx = _as_index(box_cols)
         keys = list(names) if names is not None else list(pts.arrays)
         saved = {k: pts.arrays[k][box_frames, idx][box] for k in keys}
-        self._undo.append(("masked", (box_frames, pts.ids[box_cols].copy(),
-                                      np.packbits(box), box.shape, saved)))
+        # the mask as bits over the box, or as flat indices when that is smaller
+        flat = np.flatnonzero(box)
+        where = flat.astype(np.uint32) if flat.size * 32 < box.size else np.packbits(box)
+        self._undo.append(("masked", (box_frames, pts.ids[box_cols].copy(), where,
+                                      box.shape, saved)))
         self._touch(("points",), frames=(box_frames.start, box_frames.stop - 1),
                     points=box_cols[box.any(0)], cameras=_ALL)
 
@@ -277,10 +281,14 @@ class Journal:
                 for k, v in saved.items():
                     pts.arrays[k][frames, idx] = v
             elif kind == "masked":
-                frames, ids, packed, shape, saved = data
+                frames, ids, where, shape, saved = data
                 idx = _as_index(pts.index_of(ids))
-                mask = np.unpackbits(packed, count=shape[0] * shape[1]).reshape(shape)
-                mask = mask.astype(bool)
+                if where.dtype == np.uint32:
+                    mask = np.zeros(shape, dtype=bool)
+                    mask.flat[where] = True
+                else:
+                    mask = np.unpackbits(where, count=shape[0] * shape[1]).reshape(shape)
+                    mask = mask.astype(bool)
                 for k, v in saved.items():
                     block = pts.arrays[k][frames, idx]
                     block[mask] = v
@@ -301,15 +309,16 @@ class Journal:
         self._undo.clear()
 
     def nbytes(self) -> int:
-        """Memory held by the saved slices (bytes)."""
+        """Memory held by the saved slices (bytes; at least 64 per record)."""
         total = 0
         for kind, data in self._undo:
             if kind == "call":
-                total += data[1]
+                size = data[1]
             elif kind == "masked":
-                total += _nbytes(data[1]) + _nbytes(data[2]) + _nbytes(data[4])
+                size = _nbytes(data[1]) + _nbytes(data[2]) + _nbytes(data[4])
             else:
-                total += _nbytes(data if kind != "attr" else data[2])
+                size = _nbytes(data if kind != "attr" else data[2])
+            total += max(int(size), 64)
         return total
 
 
