@@ -45,9 +45,15 @@ class Change:
     frames : tuple of (int, int) or None
         Inclusive frame range affected, None for all / not frame-specific.
     points : ndarray or None
-        Point indices affected, None for all.
+        Point columns (indices into the point arrays at the time of the change) whose
+        per-point arrays changed; None for all or not known more precisely (always None
+        when ``point_list`` changed, as columns then shift).
     cameras : ndarray or None
-        Camera indices affected, None for all.
+        Camera indices affected (detections of those cameras' images), None for all.
+
+    Commands fill these from what their journal saved
+    (:meth:`carapost.commands.stack.Journal.extent`), so a view can redraw only the
+    frames and points named.
     """
 
     parts: frozenset[str]
