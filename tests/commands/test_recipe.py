@@ -100,7 +100,7 @@ def roundtrip_recipe(project: Project, prepare: Callable[[Project], Job],
     cmd = stack.push(ApplyResult(result))
     after = full_snapshot(project)
     assert after != before, "the result changed nothing"
-    assert cmd.description == result.description and cmd.memory() > 0
+    assert cmd.description == result.description == job.description and cmd.memory() > 0
     assert stack.undo()
     assert full_snapshot(project) == before
     assert stack.redo()

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -478,11 +479,28 @@ class Init3DResult(Result):
                                                     self.residual, self.dets))
 
 
+@dataclass
 class Init3DJob(Job):
-    """Initialize 3D on the snapshot of one frame (detections, cameras, exclusions)."""
+    """Initialize 3D on the snapshot of one frame (see :func:`prepare_initialize_3d`).
 
-    def __init__(self, **fields: Any):
-        self.__dict__.update(fields)
+    ``dets`` are the frame's detection centres per camera (float64 px), ``exclude`` the
+    detections to leave out per camera, ``seed_rows`` per-seed detection indices per
+    camera and ``seed_ids`` the ids of the seed points (updated, not duplicated).
+    """
+
+    frame: int
+    dets: list[NDArray]
+    R: NDArray
+    t: NDArray
+    intr: CameraIntrinsics
+    caddies: tuple[tuple[int, int], ...]
+    seed_rows: list[list[int]]
+    exclude: list[NDArray]
+    params: Any
+    brim_model: NDArray | None
+    brim_det: NDArray | None
+    seed_ids: NDArray
+    description: str
 
     def compute(self, progress: Progress = None) -> Init3DResult:  # noqa: D102
         from carapost.algorithms.init3d import initialize_3d
@@ -593,11 +611,24 @@ class FrameBundleResult(Result):
                 "residual": self.residual[None]})
 
 
+@dataclass
 class FrameBundleJob(Job):
-    """Bundle adjustment of one frame (snapshot of its observations and cameras)."""
+    """Bundle adjustment of one frame (see :func:`prepare_bundle_frame`).
 
-    def __init__(self, **fields: Any):
-        self.__dict__.update(fields)
+    ``obs`` (n, C, 2) and ``X0`` (n, 3) are the observations and positions of the
+    points taking part, ``brim`` marks the fixed brim points among them and ``ids``
+    the ids of the others (the face points refined).
+    """
+
+    frame: int
+    obs: NDArray
+    X0: NDArray
+    R: NDArray
+    t: NDArray
+    intr: CameraIntrinsics
+    brim: NDArray
+    ids: NDArray
+    description: str
 
     def compute(self, progress: Progress = None) -> FrameBundleResult:  # noqa: D102
         from carapost.algorithms.bundle import bundle_frame

@@ -140,6 +140,11 @@ class RomJob(Job):
     template: RomComputation  # everything but the result (filled in by compute)
     what: str
 
+    @property
+    def description(self) -> str:  # type: ignore[override]
+        """The History entry of the result."""
+        return self.template.description
+
     def compute(self, progress: Progress = None) -> RomComputation:  # noqa: D102
         res = initialize_from_rom(self.detections, self.rom_points, self.rom_kind,
                                   self.rom_R, self.rom_t, self.intrinsics, self.rom_params,
@@ -239,7 +244,8 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
 
 
 class RomResultCommand(ApplyResult):
-    """Apply a :class:`RomComputation` as one undoable step (an ``ApplyResult``)."""
+    """Apply a :class:`RomComputation` as one undoable step (an ``ApplyResult``;
+    ``project`` is ignored, accepted for older callers)."""
 
     def __init__(self, computation: RomComputation, project: Project | None = None):
         super().__init__(computation)

@@ -342,7 +342,8 @@ def compute_tracking(
 
 
 class TrackResultCommand(ApplyResult):
-    """Apply a :class:`TrackComputation` as one undoable step (an ``ApplyResult``)."""
+    """Apply a :class:`TrackComputation` as one undoable step (an ``ApplyResult``;
+    ``project`` is ignored, accepted for older callers)."""
 
     def __init__(self, computation: TrackComputation, project: Project | None = None):
         super().__init__(computation)
