@@ -8,6 +8,7 @@ import pytest
 from carapost.commands import menu
 from carapost.commands.bundle import BundleSequence
 from carapost.commands.process import Initialize3D, SolveBrimAuto
+from carapost.commands.recipe import ApplyResult
 from carapost.commands.stack import CommandError, CommandStack
 from carapost.model.project import new_project
 from tests.algorithms.test_brim import camera_errors
@@ -35,7 +36,7 @@ def test_bundle_sequence_refines_perturbed_cameras_and_undoes_exactly():
     before = full_snapshot(p)
     stack = CommandStack(p)
     cmd = menu.bundle_sequence(p)
-    assert isinstance(cmd, BundleSequence) and "frames" in cmd.message
+    assert isinstance(cmd, ApplyResult) and "frames" in cmd.message
     stack.push(cmd)
     after_err = camera_errors(cal.R[1], cal.t[1], scene.cam_R[1], scene.cam_t[1])[0].max()
     assert after_err < 0.25 < before_err

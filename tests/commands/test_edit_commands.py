@@ -96,7 +96,8 @@ def run_roundtrip(
     """Do, check, undo (bit-identical), redo (bit-identical to the first do)."""
     stack = CommandStack(project)
     before = snapshot(project)
-    stack.push(make(project))
+    size = model_nbytes(project)
+    cmd = stack.push(make(project))
     check(project)
     after = snapshot(project)
     assert after != before, "the command changed nothing"
@@ -104,7 +105,18 @@ def run_roundtrip(
     assert snapshot(project) == before
     assert stack.redo()
     assert snapshot(project) == after
-    assert stack.history()[0].memory >= 0
+    # the History entry reports what the command holds for undo: something, and no more
+    # than a few copies of the model (old state saved plus any result kept for redo)
+    memory = stack.history()[0].memory
+    assert memory == cmd.memory() > 0
+    assert memory <= 4 * max(size, model_nbytes(project)) + 4096
+
+
+def model_nbytes(project: Project) -> int:
+    """Bytes of the per-point arrays and the detections."""
+    return (sum(a.nbytes for a in project.points.arrays.values())
+            + sum(a.nbytes for a in project.detections.arrays.values())
+            + project.detections.offsets.nbytes)
 
 
 @pytest.fixture

@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+# the result commands live in commands.results; importable from here as before
+from carapost.commands.results import ApplyPointData, ReplaceDetections  # noqa: F401
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import (
     RECON_INTERPOLATED,
@@ -432,9 +434,9 @@ class RemoveInterpolated3DPoints(Command):
         cols = (np.arange(pts.count) if self.point_ids is None
                 else _columns(project, self.point_ids))
         fr = _frames(project, self.frames)
-        journal.point_block(fr, cols, _POSITION_ARRAYS)
-        recon = pts.recon[fr][:, cols]
-        interp = recon == RECON_INTERPOLATED
+        interp = pts.recon[fr][:, cols] == RECON_INTERPOLATED
+        # a few samples of a long block change: save only those (masked diff)
+        journal.point_mask(fr, cols, interp, _POSITION_ARRAYS)
         for name, fill in (("positions", np.nan), ("residual", np.nan), ("recon", RECON_NONE)):
             sub = pts.arrays[name][fr]
             block = sub[:, cols]
@@ -609,10 +611,8 @@ class SetProperties(Command):
         )
 
     def apply(self, project: Project, journal: Journal) -> None:
-        props = project.properties
-        old = {k: props[k] for k in self.values}
-        journal.call(lambda: props.update(old), "properties")
-        props.update(self.values)
+        journal.properties(self.values)
+        project.properties.update(self.values)
 
 
 class RestorePropertiesToDefaults(Command):
@@ -622,8 +622,8 @@ class RestorePropertiesToDefaults(Command):
 
     def apply(self, project: Project, journal: Journal) -> None:
         props = project.properties
-        old = props.restore_defaults()
-        journal.call(lambda: props.update(old), "properties")
+        journal.properties(props.keys())
+        props.restore_defaults()
 
 
 class RevertBlobParameters(Command):
@@ -640,10 +640,8 @@ class RevertBlobParameters(Command):
         self.values = dict(project.imported_blob_parameters)
 
     def apply(self, project: Project, journal: Journal) -> None:
-        props = project.properties
-        old = {k: props[k] for k in self.values}
-        journal.call(lambda: props.update(old), "properties")
-        props.update(self.values)
+        journal.properties(self.values)
+        project.properties.update(self.values)
 
 
 def _cameras_arg(project: Project, cameras: Iterable[int] | None, what: str) -> list[int]:
@@ -740,64 +738,3 @@ class SetRange(Command):
 
     def apply(self, project: Project, journal: Journal) -> None:
         journal.setattr(project, self.which, self.range, "ranges")
-
-
-# ----------------------------------------------------------------------------------------
-# Results of processing (applied on the GUI thread as one undo step)
-# ----------------------------------------------------------------------------------------
-class ReplaceDetections(Command):
-    """Put new detections into some images (Detect Blobs), detaching stale references."""
-
-    def __init__(self, images: Sequence[tuple[int, int]], tables: Sequence[Mapping[str, Any]],
-                 description: str = "Detect Blobs"):
-        super().__init__()
-        self.images = [(int(f), int(c)) for f, c in images]
-        self.tables = [dict(t) for t in tables]
-        self.description = description
-
-    def apply(self, project: Project, journal: Journal) -> None:
-        pts = project.points
-        journal.detections(self.images)
-        # points attached to the old detections of these images lose the link (the 2D
-        # position stays as a manual observation would not be right either: detach)
-        for f, c in self.images:
-            cols = np.flatnonzero(pts.detection[f, :, c] >= 0)
-            if len(cols):
-                journal.point_block(slice(f, f + 1), cols, _OBS_ARRAYS)
-                pts.detection[f, cols, c] = -1
-        project.detections.replace_images(self.images, self.tables)
-
-
-class ApplyPointData(Command):
-    """Write computed per-point arrays over a frame range (tracking, triangulation, ...).
-
-    Parameters
-    ----------
-    frames : (int, int)
-        Inclusive frame range the arrays cover.
-    point_ids : sequence of int
-        Points (by id) the arrays' point axis refers to.
-    arrays : mapping
-        Some of the per-point arrays, each shaped like ``points.<name>[frames][:, cols]``.
-    """
-
-    def __init__(self, frames: tuple[int, int], point_ids: Sequence[int],
-                 arrays: Mapping[str, NDArray], description: str):
-        super().__init__()
-        self.frames = (int(frames[0]), int(frames[1]))
-        self.point_ids = [int(p) for p in point_ids]
-        self.arrays = dict(arrays)
-        self.description = description
-
-    def apply(self, project: Project, journal: Journal) -> None:
-        pts = project.points
-        fr = _frames(project, self.frames)
-        cols = pts.index_of(self.point_ids) if self.point_ids else np.zeros(0, np.intp)
-        journal.point_block(fr, cols, list(self.arrays))
-        for name, value in self.arrays.items():
-            sub = pts.arrays[name][fr]
-            sub[:, cols] = value
-
-    def memory(self) -> int:
-        """Bytes held (saved old slices plus the result kept for redo)."""
-        return super().memory() + sum(int(np.asarray(v).nbytes) for v in self.arrays.values())

@@ -1,33 +1,142 @@
-"""Process-menu entry points: ``name(project, progress=None) -> Command``.
+"""Process-menu entry points, one per menu item, following the processing recipe.
 
-The main window calls these on a worker thread; every command computes its result
-when it is created (the slow part) and the window pushes it on the GUI thread as one
-undo entry. Each function acts where the artist is: the current frame, the active
-range, the selected points (all points when none is selected).
+``JOBS[hook](project, get_image=None) -> Job`` prepares the item on the calling (GUI)
+thread: it validates and snapshots what the item acts on (the current frame, the active
+range, the selected points, all points when none is selected). The window then runs
+``job.compute(progress)`` on a worker and pushes ``ApplyResult(result)``:
+
+    job = menu.prepare("track_forwards_sequence", project, get_image=frames.require)
+    runner.start(title, job.compute, lambda result, cancelled: stack.push(ApplyResult(result)))
+
+Items that change the project without an algorithm (the default brims) have no job:
+``prepare`` returns the command itself (:func:`is_command` tells), which the window
+pushes directly.
+
+The functions named after the hooks (``initialize_3d(project, progress)`` ...) are the
+older form, still used by the window and tests: they prepare and compute in one call
+and return the command to push.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
 from numpy.typing import NDArray
 
+from carapost.commands.bundle import prepare_bundle_sequence
 from carapost.commands.process import (
-    BundleCurrentFrame,
-    Initialize3D,
     InitializeDefaultBrim,
     SolveBrimAuto,
     SolveBrimManual,
+    prepare_bundle_frame,
+    prepare_detect_blobs,
+    prepare_initialize_3d,
+    prepare_solve_brim,
 )
+from carapost.commands.recipe import ApplyResult, Job
+from carapost.commands.rom import prepare_rom_initialisation
 from carapost.commands.stack import Command, CommandError
-from carapost.model.project import KIND_BRIM, Project
+from carapost.commands.tracking import prepare_tracking
+from carapost.model.project import Project
 
 ProgressFn = Callable[[int, int], bool] | None
-#: ``get_image(frame, camera) -> grey image`` for the commands that can use images.
+#: ``get_image(frame, camera) -> grey image`` for the items that can use images.
 ImageFn = Callable[[int, int], NDArray] | None
 
 
+def _selected_ids(project: Project) -> list[int] | None:
+    ids = sorted(project.selection.points)
+    return ids or None
+
+
+def _tracking(direction: int, single: bool) -> Callable[..., Job]:
+    def prepare_item(project: Project, get_image: ImageFn = None) -> Job:
+        return prepare_tracking(project, direction, single_frame=single,
+                                point_ids=_selected_ids(project), get_image=get_image)
+    return prepare_item
+
+
+def _from_rom(brim_only: bool) -> Callable[..., Job]:
+    def prepare_item(project: Project, get_image: ImageFn = None) -> Job:
+        if project.rom is None or project.rom.project is None:
+            raise CommandError("Initialize from ROM: no ROM is loaded (Process > Load ROM "
+                               "first)")
+        return prepare_rom_initialisation(project, brim_only=brim_only)
+    return prepare_item
+
+
+def _brim(version: str) -> Callable[..., Command]:
+    def prepare_item(project: Project, get_image: ImageFn = None) -> Command:
+        return InitializeDefaultBrim(project, version)
+    return prepare_item
+
+
+def _detect(which: str) -> Callable[..., Job]:
+    def prepare_item(project: Project, get_image: ImageFn = None) -> Job:
+        f = project.current_frame
+        frames = (f, f) if which == "current" else project.active_range
+        title = "Current Frame" if which == "current" else "Active Range"
+        return prepare_detect_blobs(project, frames, get_image=get_image,
+                                    description=f"Detect Blobs [{title}]")
+    return prepare_item
+
+
+#: hook -> ``prepare(project, get_image=None)``: a Job, or a Command for the items
+#: without an algorithm. ``get_image`` is ignored by the items that use no images.
+JOBS: dict[str, Callable[..., Job | Command]] = {
+    "detect_blobs_current": _detect("current"),
+    "detect_blobs_range": _detect("range"),
+    "initialize_brim_v20": _brim("2.0"),
+    "initialize_brim_v11": _brim("1.1"),
+    "initialize_brim_v10": _brim("1.0"),
+    "solve_brim": lambda project, get_image=None: prepare_solve_brim(project),
+    "initialize_3d": lambda project, get_image=None: prepare_initialize_3d(
+        project, project.current_frame),
+    "bundle_current_frame": lambda project, get_image=None: prepare_bundle_frame(
+        project, project.current_frame),
+    "bundle_sequence": lambda project, get_image=None: prepare_bundle_sequence(project),
+    "track_forwards_sequence": _tracking(+1, False),
+    "track_backwards_sequence": _tracking(-1, False),
+    "track_forwards_frame": _tracking(+1, True),
+    "track_backwards_frame": _tracking(-1, True),
+    "initialize_from_rom": _from_rom(False),
+    "initialize_from_rom_brim_only": _from_rom(True),
+}
+
+#: the items that use ``get_image`` (patch tracking, detection of frames with none)
+USES_IMAGES = frozenset({"detect_blobs_current", "detect_blobs_range",
+                         "track_forwards_sequence", "track_backwards_sequence",
+                         "track_forwards_frame", "track_backwards_frame"})
+
+
+def prepare(hook: str, project: Project, get_image: ImageFn = None) -> Job | Command:
+    """Prepare the Process item ``hook`` (calling thread): a Job, or a Command to push.
+
+    Raises
+    ------
+    KeyError
+        No such item.
+    CommandError
+        The item refuses (nothing to act on); the message says why.
+    """
+    return JOBS[hook](project, get_image=get_image)
+
+
+def is_command(prepared: Job | Command) -> bool:
+    """Whether ``prepare`` gave a command to push directly (no worker needed)."""
+    return isinstance(prepared, Command)
+
+
+def run(hook: str, project: Project, progress: ProgressFn = None,
+        get_image: ImageFn = None) -> Command:
+    """Prepare and compute ``hook`` in one call; the command to push."""
+    prepared = prepare(hook, project, get_image)
+    if isinstance(prepared, Command):
+        return prepared
+    return ApplyResult(prepared.compute(progress))
+
+
+# -- the older one-call form: ``name(project, progress=None) -> Command`` -------------------
 def initialize_brim_v20(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Initialize Default Calibration Brim [v2.0]."""
     return InitializeDefaultBrim(project, "2.0")
@@ -51,34 +160,18 @@ def solve_brim(project: Project, progress: ProgressFn = None) -> Command:
     finds the correspondences itself.
     """
     f = project.current_frame
-    brim = np.flatnonzero(project.points.kind == KIND_BRIM)
-    if len(brim) and np.any(project.points.detection[f, brim] >= 0):
-        return SolveBrimManual(project, f)
-    return SolveBrimAuto(project, f)
+    manual = prepare_solve_brim(project, f).mode == "manual"  # cheap: a snapshot
+    return SolveBrimManual(project, f) if manual else SolveBrimAuto(project, f)
 
 
 def initialize_3d(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Initialize 3D at the current frame (seeds: points attached in 2+ cameras)."""
-    return Initialize3D(project, project.current_frame)
+    return run("initialize_3d", project, progress)
 
 
 def bundle_current_frame(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Bundle Current Frame [Unconstrained]."""
-    return BundleCurrentFrame(project, project.current_frame)
-
-
-def _selected_ids(project: Project) -> list[int] | None:
-    ids = sorted(project.selection.points)
-    return ids or None
-
-
-def _track(project: Project, direction: int, single: bool, progress: ProgressFn,
-           get_image: ImageFn) -> Command:
-    from carapost.commands.tracking import TrackCommand
-
-    return TrackCommand(project, direction, single_frame=single,
-                        point_ids=_selected_ids(project), progress=progress,
-                        get_image=get_image)
+    return run("bundle_current_frame", project, progress)
 
 
 def track_forwards_sequence(project: Project, progress: ProgressFn = None,
@@ -88,47 +181,37 @@ def track_forwards_sequence(project: Project, progress: ProgressFn = None,
     With ``get_image(frame, camera)`` (the window passes its take's images), point-cameras
     without a blob are patch tracked and frames without detections are detected first.
     """
-    return _track(project, +1, False, progress, get_image)
+    return run("track_forwards_sequence", project, progress, get_image)
 
 
 def track_backwards_sequence(project: Project, progress: ProgressFn = None,
                              get_image: ImageFn = None) -> Command:
     """Process > Track Backwards [Sequence]."""
-    return _track(project, -1, False, progress, get_image)
+    return run("track_backwards_sequence", project, progress, get_image)
 
 
 def track_forwards_frame(project: Project, progress: ProgressFn = None,
                          get_image: ImageFn = None) -> Command:
     """Process > Track Forwards [Single Frame] (Ctrl+W)."""
-    return _track(project, +1, True, progress, get_image)
+    return run("track_forwards_frame", project, progress, get_image)
 
 
 def track_backwards_frame(project: Project, progress: ProgressFn = None,
                           get_image: ImageFn = None) -> Command:
     """Process > Track Backwards [Single Frame]."""
-    return _track(project, -1, True, progress, get_image)
-
-
-def _from_rom(project: Project, brim_only: bool) -> Command:
-    from carapost.commands.tracking import InitializeFromRom
-
-    if project.rom is None or project.rom.project is None:
-        raise CommandError("Initialize from ROM: no ROM is loaded (Process > Load ROM first)")
-    return InitializeFromRom(project, brim_only=brim_only)
+    return run("track_backwards_frame", project, progress, get_image)
 
 
 def initialize_from_rom(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Initialize from ROM (face and brim)."""
-    return _from_rom(project, False)
+    return run("initialize_from_rom", project, progress)
 
 
 def initialize_from_rom_brim_only(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Initialize from ROM [Brim Only]."""
-    return _from_rom(project, True)
+    return run("initialize_from_rom_brim_only", project, progress)
 
 
 def bundle_sequence(project: Project, progress: ProgressFn = None) -> Command:
     """Process > Bundle Sequence [Unconstrained] over the active range."""
-    from carapost.commands.bundle import BundleSequence
-
-    return BundleSequence(project, progress=progress)
+    return run("bundle_sequence", project, progress)

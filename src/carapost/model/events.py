@@ -45,9 +45,15 @@ class Change:
     frames : tuple of (int, int) or None
         Inclusive frame range affected, None for all / not frame-specific.
     points : ndarray or None
-        Point indices affected, None for all.
+        Point columns (indices into the point arrays at the time of the change) whose
+        per-point arrays changed; None for all or not known more precisely (always None
+        when ``point_list`` changed, as columns then shift).
     cameras : ndarray or None
-        Camera indices affected, None for all.
+        Camera indices affected (detections of those cameras' images), None for all.
+
+    Commands fill these from what their journal saved
+    (:meth:`carapost.commands.stack.Journal.extent`), so a view can redraw only the
+    frames and points named.
     """
 
     parts: frozenset[str]
@@ -57,6 +63,27 @@ class Change:
 
 
 Listener = Callable[[Change], None]
+
+
+def merge_changes(changes: list[Change]) -> Change:
+    """One change covering several: the union of parts, frames, points and cameras.
+
+    ``frames`` becomes the range spanning every change's frames; ``points`` and
+    ``cameras`` the union of the indices. Any change with None on an axis (all, or
+    not known more precisely) makes the merged axis None.
+    """
+    parts = frozenset().union(*(c.parts for c in changes))
+    frames = None
+    if changes and all(c.frames is not None for c in changes):
+        frames = (min(c.frames[0] for c in changes), max(c.frames[1] for c in changes))
+
+    def union(axis: str) -> np.ndarray | None:
+        values = [getattr(c, axis) for c in changes]
+        if not values or any(v is None for v in values):
+            return None
+        return np.unique(np.concatenate([np.atleast_1d(v) for v in values])).astype(np.intp)
+
+    return Change(parts, frames, union("points"), union("cameras"))
 
 
 class EventHub:
@@ -120,8 +147,4 @@ class _Batch:
         if hub._batch_depth or not hub._pending:
             return
         pending, hub._pending = hub._pending, []
-        parts = frozenset().union(*(c.parts for c in pending))
-        frames = None
-        if all(c.frames is not None for c in pending):
-            frames = (min(c.frames[0] for c in pending), max(c.frames[1] for c in pending))
-        hub._dispatch(Change(parts, frames))
+        hub._dispatch(merge_changes(pending))

@@ -6,7 +6,8 @@
 * :class:`LogBridge` is a :class:`logging.Handler` whose records reach the Log pane
   through a queued signal, whatever thread logged them.
 * :class:`JobRunner` runs ``fn(progress)`` on a worker thread and hands the result back
-  on the GUI thread (progress bar, Cancel button and error reporting are the window's).
+  on the GUI thread (progress bar, Cancel button and error reporting are the window's);
+  ``start_job(job, push)`` runs a processing job and pushes its result.
 """
 
 from __future__ import annotations
@@ -17,23 +18,18 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-from carapost.model.events import Change
+from carapost.model.events import Change, merge_changes
 from carapost.model.project import Project
 
+if TYPE_CHECKING:
+    from carapost.commands.recipe import Job
+    from carapost.commands.stack import Command
+
 log = logging.getLogger("carapost.ui")
-
-
-def merge_changes(changes: list[Change]) -> Change:
-    """One change covering several (union of parts, frames and points; None = all)."""
-    parts = frozenset().union(*(c.parts for c in changes))
-    frames = None
-    if all(c.frames is not None for c in changes):
-        frames = (min(c.frames[0] for c in changes), max(c.frames[1] for c in changes))
-    return Change(parts, frames)
 
 
 class ModelBridge(QObject):
@@ -196,6 +192,27 @@ class JobRunner(QObject):
         log.info("%s started", title)
         self._thread.start()
         return True
+
+    def start_job(self, job: Job, push: Callable[[Command], Any], *,
+                  title: str | None = None,
+                  finished: Callable[[Any, bool], None] | None = None) -> bool:
+        """Run a processing job (:mod:`carapost.commands.recipe`): ``job.compute`` on the
+        worker, then ``push(ApplyResult(result))`` on the GUI thread.
+
+        ``finished(result, cancelled)``, when given, runs after the push (or with None
+        when the job returned nothing), e.g. to close a worker's image source.
+        """
+        from carapost.commands.recipe import ApplyResult
+
+        def done(result: Any, cancelled: bool) -> None:
+            try:
+                if result is not None:
+                    push(ApplyResult(result))
+            finally:
+                if finished is not None:
+                    finished(result, cancelled)
+
+        return self.start(title or job.description, job.compute, done)
 
     def cancel(self) -> None:
         """Ask the running job to stop (it returns what it has finished)."""

@@ -56,8 +56,10 @@ COLOUR_NAMES = {CAM4: "dark green", CAM3: "light green", CAM2: "yellow", CAM1: "
                 INTERPOLATED: "red", GAP: "empty"}
 
 
-def point_codes(project: Project, frames: tuple[int, int] | None = None) -> NDArray[np.uint8]:
-    """Continuity code of each point-frame, shape (P, F') for the frames (inclusive).
+def point_codes(project: Project, frames: tuple[int, int] | None = None,
+                columns: NDArray[np.intp] | None = None) -> NDArray[np.uint8]:
+    """Continuity code of each point-frame, shape (P', F') for the frames (inclusive)
+    and point columns (default all).
 
     4+ contributing cameras -> CAM4 ... 1 -> CAM1; a 3D position with no contributing
     camera (interpolated, filtered) -> INTERPOLATED; no 3D position -> GAP.
@@ -65,13 +67,15 @@ def point_codes(project: Project, frames: tuple[int, int] | None = None) -> NDAr
     pts = project.points
     f0, f1 = (0, project.n_frames - 1) if frames is None else frames
     sl = slice(f0, f1 + 1)
-    recon = pts.recon[sl]
+    cols = slice(None) if columns is None else np.asarray(columns, dtype=np.intp)
+    recon = pts.recon[sl][:, cols]
     measured = (recon != RECON_NONE) & (recon != RECON_INTERPOLATED)
     count = np.zeros(recon.shape, np.uint8)
     for c in range(pts.n_cameras):  # one [F, P] pass per camera: faster than sum(-1)
-        count += (pts.source[sl, :, c] != SOURCE_NONE) & ~np.isnan(pts.obs[sl, :, c, 0])
+        count += ((pts.source[sl, :, c] != SOURCE_NONE)
+                  & ~np.isnan(pts.obs[sl, :, c, 0]))[:, cols]
     count *= measured
-    present = ~np.isnan(pts.positions[sl, :, 0])
+    present = ~np.isnan(pts.positions[sl, :, 0][:, cols])
     codes = np.where(count > 0, CAM1 - 1 + np.minimum(count, 4), INTERPOLATED)
     codes = np.where(present, codes, GAP).astype(np.uint8)
     return np.ascontiguousarray(codes.T)
@@ -189,6 +193,7 @@ class ContinuityView(BaseView):
         self.vb.sigResized.connect(self._resized)
         self.vb.sigYRangeChanged.connect(lambda *_: self._update_ticks())
         self.redraw_count = 0
+        self.partial_updates = 0  # code updates limited to the changed point-frames
         self.refresh(None)
 
     def title(self) -> str:  # noqa: D102
@@ -200,16 +205,19 @@ class ContinuityView(BaseView):
         parts = change.parts if change is not None else None
         data_parts = {"points", "point_list", "frames_range", "file"}
         if parts is None or parts & data_parts or self._codes is None:
-            if (parts is not None and parts <= {"points"} and change.frames is not None
-                    and self._codes is not None and self._codes.shape == (p.n_points,
-                                                                          p.n_frames)):
-                f0, f1 = change.frames
-                self._codes[:, f0:f1 + 1] = point_codes(p, (f0, f1))
+            if (parts is not None and parts & data_parts == {"points"}
+                    and change.frames is not None and self._codes is not None
+                    and self._codes.shape == (p.n_points, p.n_frames)):
+                # only some point-frames changed (the journal says which): recompute
+                # those codes; the rows stay as they are
+                self._update_codes(change.frames, change.points)
+                if parts & {"selection", "labels"}:
+                    self._build_rows()
             else:
                 self._codes = (point_codes(p) if p.n_frames else
                                np.zeros((p.n_points, 0), np.uint8))
-            self._cam_codes.clear()
-            self._build_rows()
+                self._cam_codes.clear()
+                self._build_rows()
             x_all = parts is None or bool(parts & {"point_list", "frames_range", "file"})
             if x_all:
                 self.fit()
@@ -221,6 +229,23 @@ class ContinuityView(BaseView):
         self.cursor.setValue(p.current_frame + 0.5)
         if parts is None or not parts <= {"current_frame"}:
             self.render()
+
+    def _update_codes(self, frames: tuple[int, int], columns: NDArray | None) -> None:
+        """Recompute the codes of some frames (inclusive) of some columns (None: all)."""
+        p = self.ctx.project
+        f0, f1 = max(int(frames[0]), 0), min(int(frames[1]), p.n_frames - 1)
+        if f1 < f0:
+            return
+        if columns is None:
+            self._codes[:, f0:f1 + 1] = point_codes(p, (f0, f1))
+            self._cam_codes.clear()
+        else:
+            cols = np.asarray(columns, dtype=np.intp)
+            cols = cols[(cols >= 0) & (cols < p.n_points)]
+            self._codes[cols, f0:f1 + 1] = point_codes(p, (f0, f1), cols)
+            for col in cols:
+                self._cam_codes.pop(int(col), None)
+        self.partial_updates += 1
 
     def _build_rows(self) -> None:
         p = self.ctx.project
