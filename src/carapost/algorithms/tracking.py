@@ -58,8 +58,9 @@ from carapost.algorithms.camera import (
     pixel_rays,
     pixels_to_normalised,
     project,
-    rodrigues_to_matrix,
 )
+from carapost.algorithms.patch import patch_search
+from carapost.algorithms.pose import refine_poses
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 
 log = logging.getLogger("carapost.tracking")
@@ -390,6 +391,9 @@ def resect_cameras(X: ArrayLike, uv: ArrayLike, R: ArrayLike, t: ArrayLike,
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Refine every camera's pose from known 3D points (the brim), Gauss-Newton per camera.
 
+    Tracking's per-frame resection: :func:`carapost.algorithms.pose.refine_poses` with
+    ``linearise="camera"`` on the raw pixel observations.
+
     Parameters
     ----------
     X : array_like, shape (B, 3)
@@ -410,45 +414,11 @@ def resect_cameras(X: ArrayLike, uv: ArrayLike, R: ArrayLike, t: ArrayLike,
     solved : ndarray, shape (C,) bool
         Cameras that were re-solved.
     """
-    X = np.asarray(X, np.float64)
-    R = np.array(R, np.float64)
-    t = np.array(t, np.float64)
     xn = pixels_to_normalised(np.asarray(uv, np.float64), intr)  # (B, C, 2)
-    m = np.isfinite(xn).all(-1) & np.isfinite(X).all(-1)[:, None]
-    solved = m.sum(0) >= min_points
-    if not solved.any():
-        return R, t, solved
-    xn = np.where(m[..., None], xn, 0.0)
-    X0 = np.nan_to_num(X)
-    f = intr.focal[None, :, None]
-    for _ in range(iterations):
-        xc = np.einsum("cij,bj->bci", R, X0) + t[None]  # (B, C, 3)
-        z = xc[..., 2]
-        z = np.where(np.abs(z) > 1e-9, z, 1e-9)
-        r = (xc[..., :2] / z[..., None] - xn) * f  # px-ish residual (B, C, 2)
-        r = np.where(m[..., None], r, 0.0)
-        # d(x/z, y/z)/d(xc) (B, C, 2, 3) times d(xc)/d(omega, tau) = [-[xc]x | I]
-        Jp = np.zeros(xc.shape[:2] + (2, 3))
-        Jp[..., 0, 0] = 1.0 / z
-        Jp[..., 1, 1] = 1.0 / z
-        Jp[..., 0, 2] = -xc[..., 0] / z**2
-        Jp[..., 1, 2] = -xc[..., 1] / z**2
-        Jp *= f[..., None]
-        sk = np.zeros(xc.shape[:2] + (3, 3))
-        sk[..., 0, 1], sk[..., 0, 2] = xc[..., 2], -xc[..., 1]
-        sk[..., 1, 0], sk[..., 1, 2] = -xc[..., 2], xc[..., 0]
-        sk[..., 2, 0], sk[..., 2, 1] = xc[..., 1], -xc[..., 0]
-        J = np.concatenate([Jp @ sk, Jp], axis=-1)  # -[xc]x == sk as built
-        J = np.where(m[..., None, None], J, 0.0)
-        H = np.einsum("bcki,bckj->cij", J, J) + 1e-9 * np.eye(6)
-        g = np.einsum("bcki,bck->ci", J, r)
-        delta = -np.linalg.solve(H[solved], g[solved][..., None])[..., 0]
-        dR = rodrigues_to_matrix(delta[:, :3])
-        R[solved] = dR @ R[solved]
-        t[solved] = np.einsum("cij,cj->ci", dR, t[solved]) + delta[:, 3:]
-        if np.abs(delta).max() < 1e-9:
-            break
-    return R, t, solved
+    out = refine_poses(X, np.swapaxes(xn, 0, 1), R, t, scale=intr.focal,
+                       iterations=iterations, huber_px=None, min_points=min_points,
+                       linearise="camera")
+    return out.R, out.t, out.solved
 
 
 def _pair_distances(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1190,67 +1160,6 @@ class FrameMatcher:
                 drop = np.zeros((rows.size, C), bool)
                 drop[~keep] = True
                 detach(f[rows], drop)
-
-
-# --------------------------------------------------------------------------------------
-# Patch tracking
-# --------------------------------------------------------------------------------------
-
-def patch_search(prev_image: NDArray[Any], image: NDArray[Any], prev_uv: ArrayLike,
-                 pred_uv: ArrayLike, size: int, radius: float
-                 ) -> tuple[NDArray[np.float64], float]:
-    """Find the patch around ``prev_uv`` of ``prev_image`` near ``pred_uv`` in ``image``.
-
-    Parameters
-    ----------
-    prev_image, image : ndarray (H, W)
-        Grey images of the previous and current frame.
-    prev_uv, pred_uv : array_like, shape (2,)
-        Patch centre in the previous image, predicted centre in the current one (px).
-    size : int
-        Patch side (px, made odd).
-    radius : float
-        Search radius (px).
-
-    Returns
-    -------
-    uv : ndarray, shape (2,)
-        Best match (sub-pixel; NaN when the patch does not fit the images).
-    score : float
-        Its normalised cross-correlation (-1..1; -1 when not found).
-    """
-    import cv2
-
-    half = int(size) // 2
-    r = int(math.ceil(radius))
-    H, W = image.shape[:2]
-    px, py = (int(round(v)) for v in prev_uv)
-    cx, cy = (int(round(v)) for v in pred_uv)
-    nan = np.array([np.nan, np.nan])
-    if not (half <= px < W - half and half <= py < prev_image.shape[0] - half):
-        return nan, -1.0
-    tpl = prev_image[py - half:py + half + 1, px - half:px + half + 1].astype(np.float32)
-    x0, x1 = max(cx - r - half, 0), min(cx + r + half + 1, W)
-    y0, y1 = max(cy - r - half, 0), min(cy + r + half + 1, H)
-    win = image[y0:y1, x0:x1].astype(np.float32)
-    if win.shape[0] < tpl.shape[0] or win.shape[1] < tpl.shape[1] or tpl.std() < 1e-3:
-        return nan, -1.0
-    res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
-    _, best, _, loc = cv2.minMaxLoc(res)
-    bx, by = loc
-    dx = dy = 0.0
-    if 0 < bx < res.shape[1] - 1:
-        a, b, c = res[by, bx - 1], res[by, bx], res[by, bx + 1]
-        den = a - 2 * b + c
-        dx = 0.5 * (a - c) / den if den < 0 else 0.0
-    if 0 < by < res.shape[0] - 1:
-        a, b, c = res[by - 1, bx], res[by, bx], res[by + 1, bx]
-        den = a - 2 * b + c
-        dy = 0.5 * (a - c) / den if den < 0 else 0.0
-    uv = np.array([x0 + bx + half + dx, y0 + by + half + dy], dtype=np.float64)
-    if np.hypot(uv[0] - pred_uv[0], uv[1] - pred_uv[1]) > radius:
-        return nan, -1.0
-    return uv, float(best)
 
 
 # --------------------------------------------------------------------------------------
