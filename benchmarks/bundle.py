@@ -32,7 +32,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from carapost.algorithms.bundle import bundle_adjust_bal, bundle_frame, read_bal  # noqa: E402
+from bal import bundle_adjust_bal, read_bal  # noqa: E402  (benchmarks/bal.py)
+from carapost.algorithms.bundle import bundle_frame  # noqa: E402
 from carapost.algorithms.camera import (  # noqa: E402
     CameraIntrinsics,
     project,

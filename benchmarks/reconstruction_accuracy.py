@@ -23,13 +23,13 @@ import numpy as np
 from carapost.algorithms.blobs import BlobParameters, detect_blobs
 from carapost.algorithms.brim import (
     brim_exclusion_mask,
-    resolve_frame_cameras,
     rotation_error_deg,
     solve_brim_auto,
     solve_brim_manual,
 )
-from carapost.algorithms.camera import camera_centres
+from carapost.algorithms.camera import camera_centres, pixels_to_normalised
 from carapost.algorithms.init3d import Init3DParameters, initialize_3d
+from carapost.algorithms.pose import refine_poses
 from carapost.synth.render import render_frame
 from carapost.synth.scene import SynthConfig, build_scene
 
@@ -129,16 +129,17 @@ def main() -> None:
                     add(f"brim_{name}_rotation_error_deg", re)
                     add(f"brim_{name}_success", float(r.success))
                     add(f"brim_{name}_solve_ms", dt * 1000)
-                # per-frame re-solve on the next frame (truth projections as detections)
+                # per-frame re-solve on the next frame as tracking does it (truth brim
+                # projections as observations)
                 f1 = FRAME + 1
-                det1 = [np.concatenate([scene.brim_uv[f1, scene.brim_visible[f1, :, c], c],
-                                        scene.uv[f1, scene.visible[f1, :, c], c]])
-                        for c in range(4)]
+                obs1 = np.where(scene.brim_visible[f1][..., None], scene.brim_uv[f1], np.nan)
+                xn1 = np.swapaxes(pixels_to_normalised(obs1, scene.intrinsics), 0, 1)
                 t0 = time.perf_counter()
                 for _ in range(20):
-                    resolve_frame_cameras(scene.brim3d, scene.intrinsics, man.R, man.t,
-                                          detections=det1)
-                add("brim_resolve_frame_ms", (time.perf_counter() - t0) / 20 * 1000)
+                    refine_poses(scene.brim3d, xn1, man.R, man.t, scale=scene.intrinsics.focal,
+                                 iterations=4, huber_px=None, min_points=6,
+                                 linearise="camera")
+                add("brim_resect_frame_ms", (time.perf_counter() - t0) / 20 * 1000)
             # Initialize 3D with the manually solved cameras
             excl = brim_exclusion_mask(dets, scene.brim3d, man.R, man.t, scene.intrinsics)
             for c in range(4):

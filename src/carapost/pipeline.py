@@ -60,8 +60,8 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
     ValueError
         When too few fixed points are found.
     """
-    from carapost.algorithms.brim import multiview_tracks, triangulate_tracks
     from carapost.algorithms.camera import pixels_to_normalised
+    from carapost.algorithms.multiview import multiview_tracks, triangulate_tracks
 
     intr = project.calibration.intrinsics
     cal = project.calibration

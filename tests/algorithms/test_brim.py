@@ -11,7 +11,6 @@ from carapost.algorithms.brim import (
     BrimSolveParameters,
     brim_exclusion_mask,
     match_by_projection,
-    resolve_frame_cameras,
     rotation_error_deg,
     solve_brim_auto,
     solve_brim_manual,
@@ -198,34 +197,6 @@ def test_manual_solve_wrong_correspondence_is_not_accepted_silently():
     res = solve_brim_manual(dets, corr, scene.brim3d, scene.intrinsics)
     assert not res.success
     assert "cam3" in res.message
-
-
-def test_resolve_frame_cameras_tracks_flex_fast():
-    scene = _scene(frames=2)
-    rng = np.random.default_rng(5)
-    dets0, ident0 = synthetic_detections(scene, 0, rng)
-    res = solve_brim_manual(dets0, four_correspondences(brim_index(ident0, 23)),
-                            scene.brim3d, scene.intrinsics)
-    dets1, ident1 = synthetic_detections(scene, 1, rng)
-    out = resolve_frame_cameras(scene.brim3d, scene.intrinsics, res.R, res.t, detections=dets1)
-    pos, rot = camera_errors(out.R, out.t, scene.cam_R[1], scene.cam_t[1])
-    assert pos.max() < 0.5 and rot.max() < 0.15
-    assert np.all(out.rms_px < 0.1)
-    # from observations directly (NaN = missing), one camera without enough: kept as is
-    obs = np.full((23, 4, 2), np.nan)
-    bidx = brim_index(ident1, 23)
-    for c in range(4):
-        m = bidx[:, c] >= 0
-        obs[m, c] = dets1[c][bidx[m, c]]
-    obs[3:, 2] = np.nan
-    out2 = resolve_frame_cameras(scene.brim3d, scene.intrinsics, res.R, res.t, brim_obs=obs)
-    assert np.array_equal(out2.R[2], res.R[2]) and np.isnan(out2.rms_px[2])
-    import time
-
-    t0 = time.perf_counter()
-    for _ in range(20):
-        resolve_frame_cameras(scene.brim3d, scene.intrinsics, res.R, res.t, brim_obs=obs)
-    assert (time.perf_counter() - t0) / 20 < 0.02
 
 
 def test_match_by_projection_refuses_ambiguous():

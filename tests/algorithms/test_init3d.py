@@ -167,7 +167,8 @@ def test_one_biased_hand_seed_does_not_loosen_the_epipolar_tolerance():
     # not loosen it: with the RMS alone it rose from the floor to ~1.3 px, and a looser
     # tolerance makes more candidate pairs ambiguous (markers seen by one caddy were
     # then left out).
-    from carapost.algorithms.init3d import _normalised, _strict_epipolar
+    from carapost.algorithms.init3d import _strict_epipolar
+    from carapost.algorithms.multiview import normalised_coordinates
 
     scene = _scene(markers="standard", seed=3)
     dets, ident = synthetic_detections(scene, 0, np.random.default_rng(3))
@@ -176,7 +177,7 @@ def test_one_biased_hand_seed_does_not_loosen_the_epipolar_tolerance():
     R, t, intr = scene.cam_R[0], scene.cam_t[0], scene.intrinsics
 
     def tolerance(d):
-        dets_n = [_normalised(np.asarray(d[c], float), intr, c) for c in range(4)]
+        dets_n = [normalised_coordinates(np.asarray(d[c], float), intr, c) for c in range(4)]
         return _strict_epipolar(seeds, dets_n, R, t, intr.focal, ((0, 1), (2, 3)), params)
 
     clean = tolerance(dets)

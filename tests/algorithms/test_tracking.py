@@ -641,13 +641,13 @@ def test_markers_on_the_edge_of_the_set_are_picked_up_again():
 def test_robust_mean_leaves_out_a_neighbour_on_a_wrong_blob():
     """A neighbour solved from a wrong blob pair moves tens of mm; it must not drag the
     3D prediction, while ordinary differences between neighbours are averaged."""
-    from carapost.algorithms.tracking import _robust_mean
+    from carapost.algorithms.tracking.neighbours import robust_mean
 
     moves = np.array([[[0.0, -5.0, -7.0], [0.0, -6.5, -7.0], [0.0, -7.0, -5.0],
                        [27.0, -4.0, 29.0], [0.0, -2.0, -1.0]]])
     valid = np.ones((1, 5), bool)
     w = np.array([[0.4, 0.3, 0.25, 0.3, 0.1]])
-    mean, support = _robust_mean(moves, valid, w, gate=10.0)
+    mean, support = robust_mean(moves, valid, w, gate=10.0)
     keep = [0, 1, 2, 4]
     expect = (w[0, keep, None] * moves[0, keep]).sum(0) / w[0, keep].sum()
     assert np.allclose(mean[0], expect)
@@ -655,7 +655,7 @@ def test_robust_mean_leaves_out_a_neighbour_on_a_wrong_blob():
     # two neighbours only: no median to judge by, both are used
     valid2 = np.zeros((1, 5), bool)
     valid2[0, [0, 3]] = True
-    mean2, support2 = _robust_mean(moves, valid2, w, gate=10.0)
+    mean2, support2 = robust_mean(moves, valid2, w, gate=10.0)
     assert support2[0] == pytest.approx(0.7)
     assert np.allclose(mean2[0], (0.4 * moves[0, 0] + 0.3 * moves[0, 3]) / 0.7)
 
@@ -663,27 +663,27 @@ def test_robust_mean_leaves_out_a_neighbour_on_a_wrong_blob():
 def test_shadows_flags_lost_points_drifted_onto_tracked_markers():
     """A lost point whose carried estimate sits on a tracked marker is a shadow; a lost
     point in its own place, a tracked point and a brim point are not."""
-    from carapost.algorithms.tracking import _shadows, _spacing
+    from carapost.algorithms.tracking.neighbours import marker_spacing, shadows
 
     X = scene_of("speech", 1).points3d[0].copy()
     M = len(X)
-    spacing = _spacing(X)
+    spacing = marker_spacing(X)
     lost = np.zeros(M, bool)
     lost[[3, 7]] = True
     X[3] = X[10] + [0.0, 0.2 * spacing, 0.0]  # drifted onto marker 10
     face = np.ones(M, bool)
-    out = _shadows(X, lost, ~lost, face, spacing)
+    out = shadows(X, lost, ~lost, face, spacing)
     assert out.tolist() == [i == 3 for i in range(M)]
     face[3] = False  # not a face point (brim): never a shadow
-    assert not _shadows(X, lost, ~lost, face, spacing).any()
+    assert not shadows(X, lost, ~lost, face, spacing).any()
     # nothing tracked to lie on
-    assert not _shadows(X, lost, np.zeros(M, bool), np.ones(M, bool), spacing).any()
+    assert not shadows(X, lost, np.zeros(M, bool), np.ones(M, bool), spacing).any()
 
 
 def test_blocked_point_takes_no_blob_but_keeps_a_carried_estimate():
     """match_frame(blocked=...) leaves the blocked point's blobs to the others while its
     neighbour-carried prediction is still formed."""
-    from carapost.algorithms.tracking import FrameMatcher, _pack
+    from carapost.algorithms.tracking import FrameMatcher, pack_detections
 
     scene = scene_of("speech", 2)
     dets = synth_detections(scene, clutter=0, dropout=0.0)
@@ -691,7 +691,7 @@ def test_blocked_point_takes_no_blob_but_keeps_a_carried_estimate():
     X0 = np.concatenate([scene.points3d[0], scene.brim3d])
     kind = np.r_[np.zeros(M, np.int8), np.full(B, KIND_BRIM, np.int8)]
     matcher = FrameMatcher(scene.intrinsics, kind, X0, TrackingParameters())
-    fr = _pack([(d[0], d[1]) for d in dets[1]], 4)
+    fr = pack_detections([(d[0], d[1]) for d in dets[1]], 4)
     axes = np.full((M + B, 4, 2), 5.0)
     p = int(np.flatnonzero(scene.visible[1].sum(-1) == 4)[0])
     free = matcher.match_frame(fr, X0, scene.cam_R[0], scene.cam_t[0], axes)

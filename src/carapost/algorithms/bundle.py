@@ -1,8 +1,11 @@
 """Bundle adjustment: refine cameras (and points, optionally intrinsics) on reprojection error.
 
-All solvers use :func:`scipy.optimize.least_squares` (trust-region reflective) with an
-analytic Jacobian assembled as a sparse matrix, so the normal equations are solved with
-LSMR and nothing dense of size observations x parameters is ever built.
+Two solvers share one analytic Jacobian, built per observation as dense camera and point
+blocks: the default ``solver="schur"`` is Levenberg-Marquardt with the points eliminated
+(:func:`carapost.algorithms.lm.lm_schur`); ``solver="least_squares"`` is
+:func:`scipy.optimize.least_squares` (trust-region reflective) on the same Jacobian
+assembled as a sparse matrix, solved with LSMR. Nothing dense of size observations x
+parameters is ever built.
 
 Camera model (ours)
     ``x_cam = R X + t``; raw pixels through the Vicon radial model (see
@@ -19,19 +22,12 @@ Gauge
     gauge. Without them one camera is held fixed, and after the solve the result is scaled
     about that camera so that the distance between the first two camera centres keeps its
     starting value (a similarity transform leaves every reprojection error unchanged).
-
-BAL
-    :func:`bundle_adjust_bal` solves "Bundle Adjustment in the Large" problems (Snavely's
-    camera: rotation vector, translation, f, k1, k2, camera looking down -z) with the same
-    machinery; :func:`read_bal` reads their text files.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -44,6 +40,12 @@ from carapost.algorithms.camera import (
     camera_centres,
     cross_matrix,
     rodrigues_to_matrix,
+)
+from carapost.algorithms.lm import (
+    JacobianStructure,
+    jacobian_structure,
+    lm_schur,
+    sparse_jacobian,
 )
 
 # --------------------------------------------------------------------------------------
@@ -66,47 +68,6 @@ def left_jacobian(w: ArrayLike) -> NDArray[np.float64]:
     b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / ths**3)
     W = cross_matrix(w)
     return np.eye(3) + a[..., None, None] * W + b[..., None, None] * (W @ W)
-
-
-# --------------------------------------------------------------------------------------
-# Generic sparse problem: observation -> (camera block, point block)
-# --------------------------------------------------------------------------------------
-
-
-class _Structure(NamedTuple):
-    rows: NDArray[np.intp]
-    cols: NDArray[np.intp]
-    select: NDArray[np.bool_]  # which of the dense per-observation entries are free
-    shape: tuple[int, int]
-
-
-def _structure(ci: NDArray[np.intp], pi: NDArray[np.intp], n_cam_par: int,
-               cam_free: NDArray[np.bool_], pt_free: NDArray[np.bool_]) -> _Structure:
-    """Sparsity of a Jacobian whose residual pairs depend on one camera and one point block.
-
-    Per observation the dense entries are laid out ``[2, n_cam_par + 3]``; entries of fixed
-    cameras or points are dropped. Free cameras are numbered first, then free points.
-    """
-    No = ci.shape[0]
-    cam_col = np.cumsum(cam_free) - 1
-    pt_col = np.cumsum(pt_free) - 1
-    n_cam_cols = int(cam_free.sum()) * n_cam_par
-    k = n_cam_par + 3
-    cols = np.empty((No, 2, k), np.intp)
-    cols[:, :, :n_cam_par] = (cam_col[ci] * n_cam_par)[:, None, None] + np.arange(n_cam_par)
-    cols[:, :, n_cam_par:] = (n_cam_cols + pt_col[pi] * 3)[:, None, None] + np.arange(3)
-    rows = np.broadcast_to((2 * np.arange(No))[:, None, None] + np.arange(2)[:, None],
-                           (No, 2, k))
-    select = np.empty((No, 2, k), bool)
-    select[:, :, :n_cam_par] = cam_free[ci][:, None, None]
-    select[:, :, n_cam_par:] = pt_free[pi][:, None, None]
-    shape = (2 * No, n_cam_cols + int(pt_free.sum()) * 3)
-    return _Structure(rows[select], cols[select], select, shape)
-
-
-def _sparse(struct: _Structure, dense: NDArray[np.float64]) -> sp.csr_matrix:
-    """Sparse Jacobian from per-observation dense blocks ``[No, 2, k]``."""
-    return sp.csr_matrix((dense[struct.select], (struct.rows, struct.cols)), shape=struct.shape)
 
 
 # --------------------------------------------------------------------------------------
@@ -214,8 +175,8 @@ class _FrameProblem:
         v = Kc[:, 1, 1] * py + Kc[:, 1, 2] - self.uc[:, 1]
         return np.einsum("nij,nj->ni", self.jinv, np.stack([u, v], -1))
 
-    def jacobian(self, x: NDArray[np.float64], struct: _Structure) -> sp.csr_matrix:
-        return _sparse(struct, self.dense_blocks(*self.split(x)))
+    def jacobian(self, x: NDArray[np.float64], struct: JacobianStructure) -> sp.csr_matrix:
+        return sparse_jacobian(struct, self.dense_blocks(*self.split(x)))
 
     def blocks(self, cam: NDArray[np.float64], X: NDArray[np.float64]
                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -378,7 +339,7 @@ def bundle_frame(
 
     prob = _FrameProblem(ci, pi, uc, jinv, R0, t0, X0, intr.K(), cam_free, pt_free,
                          refine_intrinsics)
-    struct = _structure(ci, pi, prob.n_cam_par, cam_free, pt_free)
+    struct = jacobian_structure(ci, pi, prob.n_cam_par, cam_free, pt_free)
     x0 = prob.x0()
     r0 = prob.residuals(x0)
     rms_before = _rms(r0)
@@ -387,7 +348,7 @@ def bundle_frame(
                             "nothing to refine", None, 1)
     if solver == "schur":
         cam0 = np.zeros((C, prob.n_cam_par))
-        cam, Xs, nfev, _, ok_, msg = _lm_schur(
+        cam, Xs, nfev, _, ok_, msg = lm_schur(
             prob.block_residuals, prob.blocks, cam0, X0.copy(), ci, pi, ftol=ftol,
             max_iter=50 if max_nfev is None else max_nfev, loss=loss, f_scale=f_scale,
             cam_free=cam_free, pt_free=pt_free)
@@ -559,354 +520,3 @@ def bundle_sequence(
         if progress is not None and progress(done, F) is False:
             break
     return SequenceBundleResult(R_out, t_out, X_out, before, after, success, done)
-
-
-# --------------------------------------------------------------------------------------
-# Bundle Adjustment in the Large
-# --------------------------------------------------------------------------------------
-
-
-class BALProblem(NamedTuple):
-    """A BAL problem: ``cameras [Nc, 9]`` (rotation vector, t, f, k1, k2), ``points [Np, 3]``,
-    and per observation the camera index, point index and pixel position ``[No, 2]``."""
-
-    cameras: NDArray[np.float64]
-    points: NDArray[np.float64]
-    camera_index: NDArray[np.intp]
-    point_index: NDArray[np.intp]
-    observations: NDArray[np.float64]
-
-
-def read_bal(path: str | Path) -> BALProblem:
-    """Read a BAL text problem file.
-
-    Raises
-    ------
-    ValueError
-        When the file does not hold the number of values its header announces.
-    """
-    path = Path(path)
-    with open(path, encoding="ascii") as fh:
-        header = fh.readline().split()
-        if len(header) != 3:
-            raise ValueError(f"{path}: first line must be '<cameras> <points> <observations>'")
-        nc, npt, no = (int(v) for v in header)
-        data = np.array(fh.read().split(), dtype=np.float64)
-    expected = 4 * no + 9 * nc + 3 * npt
-    if data.size != expected:
-        raise ValueError(f"{path}: expected {expected} values after the header, found {data.size}")
-    obs = data[: 4 * no].reshape(no, 4)
-    cams = data[4 * no: 4 * no + 9 * nc].reshape(nc, 9)
-    pts = data[4 * no + 9 * nc:].reshape(npt, 3)
-    return BALProblem(cams, pts, obs[:, 0].astype(np.intp), obs[:, 1].astype(np.intp), obs[:, 2:])
-
-
-def bal_residuals(cameras: NDArray[np.float64], points: NDArray[np.float64],
-                  camera_index: NDArray[np.intp], point_index: NDArray[np.intp],
-                  observations: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Snavely-model reprojection residuals ``[No, 2]`` (px)."""
-    cam = cameras[camera_index]
-    P = np.einsum("nij,nj->ni", rodrigues_to_matrix(cam[:, :3]), points[point_index]) + cam[:, 3:6]
-    p = -P[:, :2] / P[:, 2:3]
-    s = (p * p).sum(-1)
-    rho = 1 + s * (cam[:, 7] + s * cam[:, 8])
-    return cam[:, 6:7] * rho[:, None] * p - observations
-
-
-def _bal_jacobian(cameras: NDArray[np.float64], points: NDArray[np.float64],
-                  ci: NDArray[np.intp], pi: NDArray[np.intp]) -> NDArray[np.float64]:
-    """Dense per-observation Jacobian blocks ``[No, 2, 12]`` (camera 9, point 3)."""
-    cam = cameras[ci]
-    Rn = rodrigues_to_matrix(cam[:, :3])
-    RX = np.einsum("nij,nj->ni", Rn, points[pi])
-    P = RX + cam[:, 3:6]
-    iz = 1.0 / P[:, 2]
-    p = -P[:, :2] * iz[:, None]
-    s = (p * p).sum(-1)
-    f, k1, k2 = cam[:, 6], cam[:, 7], cam[:, 8]
-    rho = 1 + s * (k1 + s * k2)
-    drho = k1 + 2 * k2 * s
-    No = P.shape[0]
-    dp_dP = np.zeros((No, 2, 3))
-    dp_dP[:, 0, 0] = -iz
-    dp_dP[:, 1, 1] = -iz
-    dp_dP[:, 0, 2] = -p[:, 0] * iz
-    dp_dP[:, 1, 2] = -p[:, 1] * iz
-    dproj_dp = f[:, None, None] * (rho[:, None, None] * np.eye(2)
-                                   + 2 * drho[:, None, None] * p[:, :, None] * p[:, None, :])
-    A = dproj_dp @ dp_dP
-    J = np.empty((No, 2, 12))
-    J[:, :, 0:3] = -A @ cross_matrix(RX) @ left_jacobian(cam[:, :3])
-    J[:, :, 3:6] = A
-    J[:, :, 6] = rho[:, None] * p
-    J[:, :, 7] = (f * s)[:, None] * p
-    J[:, :, 8] = (f * s * s)[:, None] * p
-    J[:, :, 9:12] = A @ Rn
-    return J
-
-
-class BALResult(NamedTuple):
-    """Result of :func:`bundle_adjust_bal`: refined arrays, costs (0.5 sum r^2), RMS (px)."""
-
-    cameras: NDArray[np.float64]
-    points: NDArray[np.float64]
-    cost_initial: float
-    cost_final: float
-    rms_initial: float
-    rms_final: float
-    nfev: int
-    njev: int
-    seconds: float
-    success: bool
-    message: str
-
-
-def bal_sparsity(problem: BALProblem) -> sp.csr_matrix:
-    """0/1 sparsity of the BAL Jacobian (for a finite-difference ``jac_sparsity``)."""
-    nc, npt = problem.cameras.shape[0], problem.points.shape[0]
-    struct = _structure(problem.camera_index, problem.point_index, 9, np.ones(nc, bool),
-                        np.ones(npt, bool))
-    return sp.csr_matrix((np.ones(struct.rows.size, np.int8), (struct.rows, struct.cols)),
-                         shape=struct.shape)
-
-
-def _block_sum(blocks: NDArray[np.float64], index: NDArray[np.intp], n: int
-               ) -> NDArray[np.float64]:
-    """Sum ``blocks [N, ...]`` into ``[n, ...]`` by ``index`` (bincount per entry)."""
-    shape = blocks.shape[1:]
-    m = int(np.prod(shape))
-    flat = (index[:, None] * m + np.arange(m)).ravel()
-    return np.bincount(flat, weights=blocks.reshape(-1), minlength=n * m).reshape((n,) + shape)
-
-
-def _robust(loss: str, s: NDArray[np.float64], delta: float
-            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Robust cost ``rho(s)`` and weight ``rho'(s)`` of squared observation errors ``s``."""
-    d2 = delta * delta
-    if loss == "linear":
-        return s, np.ones_like(s)
-    if loss == "huber":
-        root = np.sqrt(s)
-        inlier = root <= delta
-        return (np.where(inlier, s, 2 * delta * root - d2),
-                np.where(inlier, 1.0, delta / np.maximum(root, 1e-300)))
-    if loss == "soft_l1":
-        q = np.sqrt(1 + s / d2)
-        return 2 * d2 * (q - 1), 1 / q
-    if loss == "cauchy":
-        return d2 * np.log1p(s / d2), 1 / (1 + s / d2)
-    raise ValueError(f"loss must be 'linear', 'huber', 'soft_l1' or 'cauchy', got {loss!r}")
-
-
-def _lm_schur(
-    fun: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
-    blocks: Callable[[NDArray[np.float64], NDArray[np.float64]],
-                     tuple[NDArray[np.float64], NDArray[np.float64]]],
-    cams: NDArray[np.float64], pts: NDArray[np.float64], ci: NDArray[np.intp],
-    pi: NDArray[np.intp], *, ftol: float, max_iter: int, loss: str = "linear",
-    f_scale: float = 1.0, cam_free: NDArray[np.bool_] | None = None,
-    pt_free: NDArray[np.bool_] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], int, int, bool, str]:
-    """Levenberg-Marquardt with the Schur complement on the camera parameters.
-
-    ``fun(cams, pts)`` gives residuals ``[No, 2]``; ``blocks(cams, pts)`` the camera and
-    point Jacobian blocks ``[No, 2, k]`` and ``[No, 2, 3]`` of each observation. The point
-    part of ``J^T J`` is block diagonal and inverted in batch; the reduced camera system
-    ``U - W V^-1 W^T`` (one sparse product) is small and dense and solved by Cholesky.
-    A robust loss on each observation's squared error is handled by iteratively
-    re-weighted least squares. Stops when an accepted step lowers the cost by less than
-    ``ftol`` times the cost (scipy's ``ftol`` rule). Fixed cameras / points keep their
-    values (their blocks are replaced by identities with zero gradient).
-    """
-    import scipy.linalg as sla
-
-    Nc, k = cams.shape
-    Np = pts.shape[0]
-    No = ci.shape[0]
-    cam_free = np.ones(Nc, bool) if cam_free is None else cam_free
-    pt_free = np.ones(Np, bool) if pt_free is None else pt_free
-    c_on = cam_free[ci][:, None, None]
-    p_on = pt_free[pi][:, None, None]
-    # Sparsity of W (camera params x point params), fixed across iterations.
-    w_rows = ((ci * k)[:, None, None] + np.arange(k)[:, None]).repeat(3, 2).ravel()
-    w_cols = ((pi * 3)[:, None, None] + np.arange(3)[None, :]).repeat(k, 1).ravel()
-    wt_rows = w_cols.reshape(No, k, 3).transpose(0, 2, 1).ravel()
-    wt_cols = w_rows.reshape(No, k, 3).transpose(0, 2, 1).ravel()
-    eye_k, eye_3 = np.eye(k), np.eye(3)
-    # CSR templates: the position of every dense entry in the CSR data arrays, so W and
-    # W V^-1 are built without a COO conversion each time (valid when every camera sees a
-    # point at most once; otherwise fall back to COO, which sums duplicates).
-    unique_pairs = np.unique(ci * Np + pi).size == No
-
-    def template(rows: NDArray[np.intp], cols: NDArray[np.intp], shape: tuple[int, int]
-                 ) -> tuple[sp.csr_matrix, NDArray[np.intp]] | None:
-        if not unique_pairs:
-            return None
-        m = sp.csr_matrix((np.arange(1, rows.size + 1, dtype=np.float64), (rows, cols)),
-                          shape=shape)
-        m.sort_indices()
-        return m, (m.data.astype(np.intp) - 1)
-
-    def build(tmpl: tuple[sp.csr_matrix, NDArray[np.intp]] | None, data: NDArray[np.float64],
-              rows: NDArray[np.intp], cols: NDArray[np.intp], shape: tuple[int, int]
-              ) -> sp.csr_matrix:
-        if tmpl is None:
-            return sp.csr_matrix((data, (rows, cols)), shape=shape)
-        m, src = tmpl
-        return sp.csr_matrix((data[src], m.indices, m.indptr), shape=shape)
-
-    y_shape, wt_shape = (Nc * k, Np * 3), (Np * 3, Nc * k)
-    y_tmpl = template(w_rows, w_cols, y_shape)
-    wt_tmpl = template(wt_rows, wt_cols, wt_shape)
-    # Observations sorted by camera: U is one small product per camera.
-    by_cam = np.argsort(ci, kind="stable")
-    cam_bounds = np.concatenate([[0], np.cumsum(np.bincount(ci, minlength=Nc))])
-
-    def robust_cost(r: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        rho, w = _robust(loss, (r * r).sum(-1), f_scale)
-        return 0.5 * float(rho.sum()), w
-
-    r = fun(cams, pts)
-    cost, wts = robust_cost(r)
-    lam = 1e-5
-    nfev = njev = 1
-    message, success = "maximum number of iterations reached", False
-    for _ in range(max_iter):
-        Jc, Jp = blocks(cams, pts)
-        njev += 1
-        sw = np.sqrt(wts)[:, None]
-        rw = r * sw
-        Jc = np.where(c_on, Jc * sw[:, :, None], 0.0)
-        Jp = np.where(p_on, Jp * sw[:, :, None], 0.0)
-        JcT = Jc.transpose(0, 2, 1)
-        JpT = Jp.transpose(0, 2, 1)
-        Jc_sorted = Jc[by_cam].reshape(-1, k)
-        U = np.stack([Jc_sorted[2 * a:2 * b].T @ Jc_sorted[2 * a:2 * b]
-                      for a, b in zip(cam_bounds[:-1], cam_bounds[1:], strict=True)])
-        U[~cam_free] = eye_k
-        V = _block_sum(JpT @ Jp, pi, Np)
-        V[~pt_free] = eye_3
-        W = JcT @ Jp  # [No, k, 3]
-        gc = _block_sum((JcT @ rw[:, :, None])[:, :, 0], ci, Nc)
-        gp = _block_sum((JpT @ rw[:, :, None])[:, :, 0], pi, Np)
-        Wt = build(wt_tmpl, W.transpose(0, 2, 1).ravel(), wt_rows, wt_cols, wt_shape)
-        while True:
-            Ud = U + lam * (np.einsum("cii->ci", U)[:, :, None] * eye_k + 1e-9 * eye_k)
-            Vd = V + lam * (np.einsum("pii->pi", V)[:, :, None] * eye_3 + 1e-9 * eye_3)
-            Vinv = np.linalg.inv(Vd)
-            Y = W @ Vinv[pi]  # [No, k, 3]
-            Ys = build(y_tmpl, Y.ravel(), w_rows, w_cols, y_shape)
-            S = -(Ys @ Wt).toarray()
-            S.reshape(Nc, k, Nc, k)[np.arange(Nc), :, np.arange(Nc), :] += Ud
-            rhs = -gc.ravel() + Ys @ gp.ravel()
-            try:
-                dc = sla.cho_solve(sla.cho_factor(S, check_finite=False), rhs,
-                                   check_finite=False).reshape(Nc, k)
-            except (np.linalg.LinAlgError, ValueError):
-                lam *= 10.0
-                if lam > 1e12:
-                    return cams, pts, nfev, njev, False, "reduced camera system is singular"
-                continue
-            WTdc = _block_sum((W.transpose(0, 2, 1) @ dc[ci][:, :, None])[:, :, 0], pi, Np)
-            dp = np.einsum("pij,pj->pi", Vinv, -gp - WTdc)
-            cams_n, pts_n = cams + dc, pts + dp
-            r_n = fun(cams_n, pts_n)
-            nfev += 1
-            cost_n, wts_n = robust_cost(r_n)
-            if np.isfinite(cost_n) and cost_n < cost:
-                lam = max(lam / 5.0, 1e-12)
-                break
-            lam *= 5.0
-            if lam > 1e12:
-                return cams, pts, nfev, njev, True, "no further decrease of the cost"
-        dF = cost - cost_n
-        cams, pts, r, cost, wts = cams_n, pts_n, r_n, cost_n, wts_n
-        if dF < ftol * cost:
-            message, success = "`ftol` termination condition is satisfied.", True
-            break
-    return cams, pts, nfev, njev, success, message
-
-
-def bundle_adjust_bal(
-    problem: BALProblem,
-    *,
-    solver: str = "schur",
-    jacobian: str = "analytic",
-    loss: str = "linear",
-    f_scale: float = 1.0,
-    max_nfev: int | None = None,
-    ftol: float = 1e-4,
-    x_scale: str = "jac",
-) -> BALResult:
-    """Bundle-adjust a BAL problem.
-
-    Parameters
-    ----------
-    problem : BALProblem
-    solver : {"schur", "least_squares"}
-        ``"schur"``: Levenberg-Marquardt on the analytic Jacobian with the points
-        eliminated (Schur complement; linear loss only). ``"least_squares"``:
-        :func:`scipy.optimize.least_squares` (TRF, LSMR).
-    jacobian : {"analytic", "fd"}
-        For ``least_squares``: the analytic sparse Jacobian, or scipy's finite differences
-        with ``jac_sparsity`` (the reference).
-    loss, f_scale, max_nfev, ftol, x_scale
-        As in :func:`scipy.optimize.least_squares` (``max_nfev`` bounds the number of
-        iterations of the Schur solver).
-
-    Returns
-    -------
-    BALResult
-    """
-    if jacobian not in ("analytic", "fd"):
-        raise ValueError(f"jacobian must be 'analytic' or 'fd', got {jacobian!r}")
-    if solver not in ("schur", "least_squares"):
-        raise ValueError(f"solver must be 'schur' or 'least_squares', got {solver!r}")
-    if solver == "schur" and (loss != "linear" or jacobian != "analytic"):
-        raise ValueError("solver 'schur' supports loss='linear' with the analytic Jacobian")
-    nc, npt = problem.cameras.shape[0], problem.points.shape[0]
-    ci, pi, obs = problem.camera_index, problem.point_index, problem.observations
-
-    def split(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return x[: 9 * nc].reshape(nc, 9), x[9 * nc:].reshape(npt, 3)
-
-    def fun(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        cams, pts = split(x)
-        return bal_residuals(cams, pts, ci, pi, obs).ravel()
-
-    struct = _structure(ci, pi, 9, np.ones(nc, bool), np.ones(npt, bool))
-
-    def jac(x: NDArray[np.float64]) -> sp.csr_matrix:
-        cams, pts = split(x)
-        return _sparse(struct, _bal_jacobian(cams, pts, ci, pi))
-
-    x0 = np.concatenate([problem.cameras.ravel(), problem.points.ravel()])
-    r0 = fun(x0)
-    t0 = time.perf_counter()
-    if solver == "schur":
-        def blocks(cams: NDArray[np.float64], pts: NDArray[np.float64]
-                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            J = _bal_jacobian(cams, pts, ci, pi)
-            return J[:, :, :9], J[:, :, 9:]
-
-        cams, pts, nfev, njev, ok, msg = _lm_schur(
-            lambda c, p: bal_residuals(c, p, ci, pi, obs), blocks, problem.cameras.copy(),
-            problem.points.copy(), ci, pi, ftol=ftol,
-            max_iter=100 if max_nfev is None else max_nfev)
-        seconds = time.perf_counter() - t0
-        r1 = bal_residuals(cams, pts, ci, pi, obs).ravel()
-        return BALResult(cams, pts, 0.5 * float(r0 @ r0), 0.5 * float(r1 @ r1), _rms(r0),
-                         _rms(r1), nfev, njev, seconds, ok, msg)
-    if jacobian == "analytic":
-        sol = least_squares(fun, x0, jac=jac, method="trf", loss=loss, f_scale=f_scale,
-                            x_scale=x_scale, tr_solver="lsmr", ftol=ftol, max_nfev=max_nfev)
-    else:
-        sol = least_squares(fun, x0, jac_sparsity=bal_sparsity(problem), method="trf",
-                            loss=loss, f_scale=f_scale, x_scale=x_scale, tr_solver="lsmr",
-                            ftol=ftol, max_nfev=max_nfev)
-    seconds = time.perf_counter() - t0
-    cams, pts = split(sol.x)
-    r1 = fun(sol.x)
-    return BALResult(cams, pts, 0.5 * float(r0 @ r0), 0.5 * float(r1 @ r1), _rms(r0), _rms(r1),
-                     int(sol.nfev), int(sol.njev or 0), seconds, bool(sol.success),
-                     str(sol.message))

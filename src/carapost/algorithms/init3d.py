@@ -34,17 +34,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from carapost.algorithms.brim import (
-    _bundle_options,
-    _fundamental,
-    _midpoints,
-    _normalised,
-    _rays,
+from carapost.algorithms.brim import BUNDLE_OPTIONS
+from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.multiview import (
+    camera_rays,
+    essential_matrix,
     multiview_tracks,
+    normalised_coordinates,
+    ray_midpoints,
     symmetric_epipolar_distance,
     triangulate_tracks,
 )
-from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.params import INITIALIZE_3D, param, validate
 
 log = logging.getLogger("carapost.init3d")
@@ -222,16 +222,16 @@ def _grow_pair(a: int, b: int, dets_n: Sequence[NDArray], usable: list[NDArray],
     empty = (np.zeros((0, C), dtype=np.intp), np.zeros((0, 3)))
     if not usable[a].any() or not usable[b].any() or len(start_X) == 0:
         return empty
-    E = _fundamental(R[a], t[a], R[b], t[b])
+    E = essential_matrix(R[a], t[a], R[b], t[b])
     dist = symmetric_epipolar_distance(dets_n[a], dets_n[b], E, focal[a], focal[b])
     dist[~usable[a]] = np.inf
     dist[:, ~usable[b]] = np.inf
     ia, ib = np.nonzero(dist < params.max_symmetric_epipolar_distance)
     if ia.size == 0:
         return empty
-    ca, da = _rays(dets_n[a][ia], R[a], t[a])
-    cb, db = _rays(dets_n[b][ib], R[b], t[b])
-    X = _midpoints(ca, da, cb, db)
+    ca, da = camera_rays(dets_n[a][ia], R[a], t[a])
+    cb, db = camera_rays(dets_n[b][ib], R[b], t[b])
+    X = ray_midpoints(ca, da, cb, db)
     sa, sb = ((X - ca) * da).sum(1), ((X - cb) * db).sum(1)
     front = (sa > 0) & (sb > 0) & (sa < params.max_range) & (sb < params.max_range)
     ia, ib, X = ia[front], ib[front], X[front]
@@ -336,7 +336,7 @@ def _strict_epipolar(tracks: NDArray, dets_n: Sequence[NDArray], R: NDArray, t: 
         m = (tracks[:, a] >= 0) & (tracks[:, b] >= 0)
         if not m.any():
             continue
-        E = _fundamental(R[a], t[a], R[b], t[b])
+        E = essential_matrix(R[a], t[a], R[b], t[b])
         d = symmetric_epipolar_distance(dets_n[a][tracks[m, a]], dets_n[b][tracks[m, b]], E,
                                         focal[a], focal[b])
         e.append(np.diag(d))
@@ -514,7 +514,7 @@ def initialize_3d(
     for a, b in caddies:
         if not (0 <= a < C and 0 <= b < C and a != b):
             raise ValueError(f"caddy ({a}, {b}) is not a pair of cameras 0-{C - 1}")
-    dets_n = [_normalised(dets[c], intr, c) for c in range(C)]
+    dets_n = [normalised_coordinates(dets[c], intr, c) for c in range(C)]
     focal = intr.focal
     state = _State(dets_n)
 
@@ -641,7 +641,7 @@ def initialize_3d(
         fixed[: len(model)] = True
         bres = bundle_frame(obs, np.concatenate([model, X]), R, t, intr,
                             fixed_points_mask=fixed, loss="huber", f_scale=1.0, max_nfev=50,
-                            **_bundle_options(bundle_frame))
+                            **BUNDLE_OPTIONS)
         if np.isfinite(bres.rms_after) and bres.rms_after <= bres.rms_before + 1e-9:
             R, t = bres.R, bres.t
             X, res, rep = triangulate_tracks(state.tracks, dets_n, R, t, focal)

@@ -17,19 +17,18 @@ with the Initialize From ROM Parameters as search radii:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.codes import KIND_BRIM, PointArrays
 from carapost.algorithms.params import INITIALIZE_FROM_ROM, param, validate
 from carapost.algorithms.tracking import (
-    KIND_BRIM,
     FrameDetections,
     FrameMatcher,
     TrackingParameters,
-    _pack,
+    pack_detections,
 )
 
 
@@ -74,32 +73,11 @@ class RomParameters:
         validate(self)
 
 
-class RomResult(NamedTuple):
-    """Per ROM point, its match in the new frame.
-
-    Attributes
-    ----------
-    positions : (P, 3) float32, NaN where not found
-    recon : (P,) int8
-    residual : (P,) float32
-    obs : (P, C, 2) float32
-    source, detection, quality : (P, C)
-    R, t : (C, 3, 3), (C, 3)
-        Cameras of the new frame.
-    structure : (P, 3)
-        The ROM positions (the brim model for brim points).
-    """
-
-    positions: NDArray[np.float32]
-    recon: NDArray[np.int8]
-    residual: NDArray[np.float32]
-    obs: NDArray[np.float32]
-    source: NDArray[np.int8]
-    detection: NDArray[np.int32]
-    quality: NDArray[np.float16]
-    R: NDArray[np.float64]
-    t: NDArray[np.float64]
-    structure: NDArray[np.float64]
+#: Per ROM point, its match in the new frame: the shared point-array record
+#: (:class:`carapost.algorithms.codes.PointArrays`) for one frame, so without the frame
+#: axis, with ``structure`` the ROM positions (the brim model for brim points) and
+#: ``R, t`` (C, 3, 3), (C, 3) the cameras of the new frame.
+RomResult = PointArrays
 
 
 def initialize_from_rom(
@@ -145,7 +123,7 @@ def initialize_from_rom(
     P = X.shape[0]
     R = np.asarray(rom_R, np.float64).copy()
     t = np.asarray(rom_t, np.float64).copy()
-    fr = _pack(detections, C)
+    fr = pack_detections(detections, C)
     no_axes = np.full((P, C, 2), np.nan)
     matcher = FrameMatcher(intr, kind, X, tp)
     brim = kind == KIND_BRIM
@@ -177,4 +155,4 @@ def initialize_from_rom(
     return RomResult(pos.astype(np.float32), out["recon"].astype(np.int8),
                      out["residual"].astype(np.float32), out["obs"].astype(np.float32),
                      out["source"].astype(np.int8), out["detection"].astype(np.int32),
-                     out["quality"].astype(np.float16), R, t, X.copy())
+                     out["quality"].astype(np.float16), R, t, structure=X.copy())

@@ -26,47 +26,30 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.codes import (  # defined once there, re-exported here
+    CAMERA_ARRAYS,  # noqa: F401
+    KIND_BRIM,  # noqa: F401
+    KIND_FACE,
+    POINT_ARRAYS,
+    RECON_FILTERED,  # noqa: F401
+    RECON_INTERPOLATED,  # noqa: F401
+    RECON_NAMES,  # noqa: F401
+    RECON_NONE,  # noqa: F401
+    RECON_SINGLE_SENSOR,  # noqa: F401
+    RECON_TRIANGULATED,  # noqa: F401
+    SOURCE_BLOB,  # noqa: F401
+    SOURCE_KEYFRAME,  # noqa: F401
+    SOURCE_MANUAL,  # noqa: F401
+    SOURCE_NAMES,  # noqa: F401
+    SOURCE_NONE,  # noqa: F401
+    SOURCE_PATCH,  # noqa: F401
+    SOURCE_TARGET,  # noqa: F401
+)
 from carapost.model.events import EventHub
-
-# Reconstruction kinds of a 3D sample.
-RECON_NONE = 0
-RECON_TRIANGULATED = 1
-RECON_SINGLE_SENSOR = 2
-RECON_INTERPOLATED = 3
-RECON_FILTERED = 4
-RECON_NAMES = {0: "none", 1: "triangulated", 2: "single sensor", 3: "interpolated", 4: "filtered"}
-
-# Sources of a 2D observation.
-SOURCE_NONE = 0
-SOURCE_BLOB = 1
-SOURCE_PATCH = 2
-SOURCE_KEYFRAME = 3
-SOURCE_TARGET = 4
-SOURCE_MANUAL = 5
-SOURCE_NAMES = {0: "none", 1: "blob", 2: "patch", 3: "keyframe", 4: "target track", 5: "manual"}
-
-# Point kinds.
-KIND_FACE = 0
-KIND_BRIM = 1
 
 # Blob colours.
 COLOUR_BLACK = 0
 COLOUR_WHITE = 1
-
-#: Per-point arrays and their trailing shapes / dtypes / fill values, in save order.
-POINT_ARRAYS: dict[str, tuple[str, Any]] = {
-    "positions": ("float32", np.nan),
-    "recon": ("int8", RECON_NONE),
-    "residual": ("float32", np.nan),
-    "obs": ("float32", np.nan),
-    "source": ("int8", SOURCE_NONE),
-    "detection": ("int32", -1),
-    "quality": ("float16", 0.0),
-    "keyframe": ("bool", False),
-}
-
-#: Arrays with a camera axis.
-CAMERA_ARRAYS = ("obs", "source", "detection", "quality", "keyframe")
 
 
 @dataclass

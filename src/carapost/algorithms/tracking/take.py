@@ -1,0 +1,328 @@
+"""Tracking a whole take in two passes: :func:`track_take`, and the spawner.
+
+Forwards from the start frame to the end, then backwards from the start frame with the
+points found on the way, then identity repair (:mod:`carapost.algorithms.tracking.identity`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.codes import KIND_BRIM, KIND_FACE, RECON_NONE, RECON_TRIANGULATED
+from carapost.algorithms.tracking.identity import (
+    absorb,
+    drop_isolated,
+    remove_hops,
+    split_hops,
+    stitch,
+)
+from carapost.algorithms.tracking.params import TrackingParameters
+from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
+from carapost.algorithms.tracking.sequence import Spawner, track
+
+
+def make_spawner(
+    intr: CameraIntrinsics,
+    caddies: Sequence[tuple[int, int]] | None = None,
+    init_params: Any = None,
+    *,
+    brim_model: ArrayLike | None = None,
+    size_ratio: float = 2.0,
+    min_views: int = 2,
+) -> Spawner:
+    """A :data:`Spawner` that runs Initialize 3D on the detections no point uses.
+
+    The points tracked in the frame with two or more cameras are the seeds (so growth
+    starts from them and nothing is created twice); detections used by other points, and
+    with ``brim_model`` those in the brim's image region, are left out.
+
+    Parameters
+    ----------
+    intr : CameraIntrinsics
+    caddies : sequence of (int, int), optional
+        Camera pairs of one caddy (default (0, 1), (2, 3), ...).
+    init_params : Init3DParameters, optional
+        Initialize 3D parameters (the final bundle adjustment is always off here).
+    brim_model : array_like, shape (B, 3), optional
+        Brim structure (mm): detections around its projection are never face markers.
+    size_ratio : float
+        A found marker's blobs must be within this factor of the median blob size of the
+        tracked markers in the same camera (nostrils, eyes and the like are bigger).
+    min_views : int
+        Fewest cameras a found marker must be seen by.
+
+    Returns
+    -------
+    Spawner
+    """
+    from dataclasses import replace
+
+    from carapost.algorithms.brim import brim_exclusion_mask
+    from carapost.algorithms.init3d import Init3DParameters, initialize_3d
+
+    C = intr.n_cameras
+    cad = tuple(caddies) if caddies is not None else tuple(
+        (i, i + 1) for i in range(0, C - 1, 2))
+    ip = replace(init_params or Init3DParameters(), bundle_adjust=False)
+    bm = None if brim_model is None else np.asarray(brim_model, np.float64).reshape(-1, 3)
+    empty = (np.zeros((0, 3)), np.zeros((0, C), np.intp))
+
+    def spawn(frame: int, dets: FrameDetections, used: NDArray[np.bool_],
+              positions: NDArray[np.float64], detection: NDArray[np.intp],
+              R: NDArray[np.float64], t: NDArray[np.float64]
+              ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        cen = [np.asarray(d[0], np.float64).reshape(-1, 2) for d in dets]
+        seed = np.isfinite(positions).all(-1) & ((detection >= 0).sum(1) >= 2)
+        seeds = detection[seed]
+        exclude = []
+        for c in range(C):
+            m = np.zeros(len(cen[c]), bool)
+            u = used[c, :len(cen[c])]
+            m[: u.size] = u
+            s = seeds[:, c]
+            m[s[s >= 0]] = False
+            exclude.append(m)
+        if bm is not None:
+            region = brim_exclusion_mask(cen, bm, R, t, intr)
+            exclude = [e | r for e, r in zip(exclude, region, strict=True)]
+        free = sum(int((~e).sum()) for e in exclude) - int((seeds >= 0).sum())
+        if free < min_views:
+            return empty
+        try:
+            res = initialize_3d(cen, R, t, intr, caddies=cad,
+                                seeds=[list(r) for r in seeds] or None,
+                                exclude_mask=exclude, params=ip)
+        except ValueError:
+            return empty
+        if not res.success or len(res.points) <= res.n_seeds:
+            return empty
+        X = res.points[res.n_seeds:]
+        dn = res.detections[res.n_seeds:]
+        ok = np.isfinite(X).all(-1) & ((dn >= 0).sum(1) >= min_views)
+        if size_ratio > 0:
+            for c in range(C):
+                ax = dets[c][1]
+                if ax is None or not len(seeds):
+                    continue
+                ax = np.asarray(ax, np.float64).reshape(-1, 2)
+                s = seeds[:, c][seeds[:, c] >= 0]
+                if s.size < 3:
+                    continue
+                ref = float(np.median(ax[s].max(1)))
+                has = dn[:, c] >= 0
+                a = ax[np.maximum(dn[:, c], 0)].max(1)
+                ok &= ~has | ((a <= size_ratio * ref) & (a >= ref / size_ratio))
+        return X[ok], dn[ok]
+
+    return spawn
+
+
+def track_take(
+    detections: Callable[[int], FrameDetections],
+    initial: InitialState,
+    R: ArrayLike,
+    t: ArrayLike,
+    intr: CameraIntrinsics,
+    params: TrackingParameters | None = None,
+    *,
+    start: int,
+    n_frames: int,
+    spawn: Spawner | None = None,
+    spawn_interval: int = 1,
+    resolve_cameras: bool = True,
+    progress: Callable[[int, int], bool] | None = None,
+    min_frames: int = 10,
+    merge_mm: float = 1.0,
+    get_image: Callable[[int, int], NDArray[Any]] | None = None,
+) -> TrackResult:
+    """Track a whole take from one initialised frame, finding missed markers on the way.
+
+    1. From ``start`` to the last frame (to frame 0 when ``start`` is the last frame),
+       with ``spawn`` finding markers no point has yet (and reviving lost points).
+    2. Over the whole take the other way, with every point, guided by the first pass: a
+       point restarts wherever the first pass had it, so each marker is tracked back
+       from where it was found to where it first appears.
+    3. Join: the first pass where it has a point, else the second one. Then every point
+       is split where it hops to another marker relative to its neighbours' motion
+       (:func:`hop_segments`; the pieces become points of their own), found points that
+       double an earlier one (median distance below ``merge_mm``) are merged into it,
+       pieces of one marker that never coexist are joined when the joined track has no
+       hop, what still hops is cleared, and found points triangulated in fewer than
+       ``min_frames`` frames are dropped.
+
+    Parameters
+    ----------
+    detections, initial, R, t, intr, params, spawn, spawn_interval, resolve_cameras
+        As for :func:`track`.
+    get_image : callable, optional
+        ``get_image(frame, camera)`` -> grey image: patch tracking in both passes.
+    start : int
+        Frame holding ``initial``.
+    n_frames : int
+        Frames in the take.
+    progress : callable, optional
+        ``progress(done, total)`` over both passes; False cancels (``cancelled`` set).
+    min_frames : int
+    merge_mm : float
+
+    Returns
+    -------
+    TrackResult
+        Arrays for every frame ``0..n_frames - 1`` (``first`` 0, ``last`` n_frames - 1);
+        the ``start`` row of the initial points holds ``initial``.
+    """
+    params = TrackingParameters() if params is None else params
+    F = int(n_frames)
+    if not 0 <= start < F:
+        raise ValueError(f"start frame {start} is outside the take (0-{F - 1})")
+    P = np.asarray(initial.positions).shape[0]
+    kind0 = np.asarray(initial.kind, np.int8)
+    C = intr.n_cameras
+    L = F - 1
+    end1, end2 = (L, 0) if start < L else (0, L)
+    total = abs(end1 - start) + L
+
+    def prog(offset: int) -> Callable[[int, int], bool] | None:
+        if progress is None:
+            return None
+        return lambda d, n: progress(offset + d, total)
+
+    names = ("positions", "recon", "residual", "obs", "source", "detection", "quality")
+    fills = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan,
+             "source": 0, "detection": -1, "quality": 0}
+    shapes = {"positions": (3,), "recon": (), "residual": (), "obs": (C, 2), "source": (C,),
+              "detection": (C,), "quality": (C,)}
+    dtypes = {"positions": np.float32, "recon": np.int8, "residual": np.float32,
+              "obs": np.float32, "source": np.int8, "detection": np.int32,
+              "quality": np.float16}
+
+    def empty(p: int) -> dict[str, NDArray[Any]]:
+        return {k: np.full((F, p) + shapes[k], fills[k], dtypes[k]) for k in names}
+
+    Rall = np.zeros((F, C, 3, 3))
+    tall = np.zeros((F, C, 3))
+    R0 = np.asarray(R, np.float64)
+    t0 = np.asarray(t, np.float64)
+    Rs, ts = (R0[start], t0[start]) if R0.ndim == 4 else (R0, t0)
+    Rall[start], tall[start] = Rs, ts
+    # ---- first pass: forwards to the end (backwards when starting at the last frame) ----
+    P1 = P
+    fwd = None
+    cancelled = False
+    done = 0
+    if start != end1:
+        fwd = track(detections, initial, R, t, intr, params, start=start, stop=end1,
+                    resolve_cameras=resolve_cameras, progress=prog(0), spawn=spawn,
+                    spawn_interval=spawn_interval, get_image=get_image)
+        P1 = P + fwd.n_new
+        cancelled = fwd.cancelled
+        done += fwd.frames_done
+    A = empty(P1)
+    X_start = np.asarray(initial.positions, np.float64)
+    A["positions"][start, :P] = X_start
+    A["recon"][start, :P] = np.where(np.isfinite(X_start).all(-1), RECON_TRIANGULATED,
+                                     RECON_NONE)
+    if initial.obs is not None:
+        A["obs"][start, :P] = initial.obs
+    if fwd is not None and fwd.frames_done:
+        sl = slice(fwd.first, fwd.last + 1)
+        for k in names:
+            A[k][sl] = getattr(fwd, k)
+        Rall[sl], tall[sl] = fwd.R, fwd.t
+    kind1 = np.r_[kind0, np.full(P1 - P, KIND_FACE, np.int8)]
+    step1 = 1 if end1 >= start else -1
+    last = start if fwd is None else start + step1 * fwd.frames_done
+    lo, hi = min(start, last), max(start, last)
+    if cancelled or last == end2:
+        return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
+                            merge_mm)
+    # ---- second pass over the whole take the other way, guided by the first -------------
+    guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
+                     A["positions"].astype(np.float64), np.nan)
+    guide[:, kind1 == KIND_BRIM] = np.nan
+    Xl = A["positions"][last].astype(np.float64)
+    brim = kind1 == KIND_BRIM
+    Xl[brim] = np.r_[X_start, np.full((P1 - P, 3), np.nan)][brim]
+    init_b = InitialState(Xl, kind1, A["obs"][last].astype(np.float64))
+    bwd = track(detections, init_b, Rall[last], tall[last], intr, params, start=last,
+                stop=end2, resolve_cameras=resolve_cameras, progress=prog(abs(end1 - start)),
+                spawn=spawn if 0 < start < L else None, spawn_interval=spawn_interval,
+                guide=guide, get_image=get_image)
+    done += bwd.frames_done
+    P2 = P1 + bwd.n_new
+    B = empty(P2)
+    for k in names:
+        B[k][:, :P1] = A[k]
+    if bwd.frames_done:
+        sl = slice(bwd.first, bwd.last + 1)
+        fr2 = np.arange(bwd.first, bwd.last + 1)
+        # the second pass fills what the first did not have (and every frame beyond start)
+        beyond = fr2 < start if end2 <= start else fr2 > start
+        fill = (B["recon"][sl] == RECON_NONE)
+        fill[:, :P1] |= beyond[:, None]
+        fill[:, P1:] = True
+        for k in names:
+            cur = B[k][sl]
+            new = getattr(bwd, k)
+            m = fill.reshape(fill.shape + (1,) * (cur.ndim - 2))
+            B[k][sl] = np.where(m, new, cur)
+        Rall[sl][beyond], tall[sl][beyond] = bwd.R[beyond], bwd.t[beyond]
+        lo, hi = min(lo, bwd.first), max(hi, bwd.last)
+    kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
+    return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
+                        merge_mm)
+
+
+def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
+                 done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
+                 merge_mm: float) -> TrackResult:
+    """Clean the joined passes and build the result.
+
+    1. Split every point where it hops to another marker (:func:`hop_segments`): the
+       pieces on another identity become points of their own.
+    2. Merge found points (and pieces) into an earlier point they double (median distance
+       below ``merge_mm`` where both exist), then join pieces of one marker that never
+       coexist (:func:`stitch`).
+    3. Clear what still hops, drop found points triangulated in fewer than ``min_frames``
+       frames and found points far from every other point (:func:`drop_isolated`).
+    """
+    keep = np.ones(A["positions"].shape[1], bool)
+    A, kind, keep = split_hops(A, kind, keep)
+    _merge_doubles(A, kind, keep, P, merge_mm)
+    stitch(A, kind, keep, P, merge_mm)
+    remove_hops(A, kind, keep)
+    tri = (A["recon"] == RECON_TRIANGULATED).sum(0)
+    keep[P:] &= tri[P:] >= min_frames
+    drop_isolated(A, kind, keep, P)
+    sl = slice(first, last + 1)
+    o = {k: v[sl][:, keep] for k, v in A.items()}
+    return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
+                       o["detection"], o["quality"], R[sl], t[sl], first=first, last=last,
+                       frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()))
+
+
+def _merge_doubles(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
+                   P: int, merge_mm: float) -> None:
+    """Merge each found point into the earlier point it doubles (median distance)."""
+    X = A["positions"].astype(np.float64)
+    face = np.flatnonzero(kind != KIND_BRIM)
+    for q in range(P, X.shape[1]):
+        if not keep[q] or kind[q] == KIND_BRIM:
+            continue
+        others = face[(face < q) & keep[face]]
+        if others.size == 0:
+            continue
+        d = np.linalg.norm(X[:, others] - X[:, q:q + 1], axis=-1)  # (F, n)
+        both = np.isfinite(d)
+        cnt = both.sum(0)
+        med = np.array([np.median(d[both[:, j], j]) if cnt[j] else np.inf
+                        for j in range(others.size)])
+        j = int(np.argmin(med))
+        if med[j] <= merge_mm:
+            absorb(A, X, others[j], q)
+            keep[q] = False
