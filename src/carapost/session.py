@@ -317,11 +317,12 @@ class Session:
         value
             New value; checked against the property's type and range.
         """
-        from carapost.model.properties import specs_in_section
+        from carapost.model.properties import UnknownPropertyError, specs_in_section
 
-        specs = specs_in_section(section)
-        if not specs:
-            raise CommandError(f"Set property: there is no section {section!r}")
+        try:
+            specs = specs_in_section(section)
+        except UnknownPropertyError as exc:
+            raise CommandError(f"Set property: {exc}") from None
         by_label = {s.label.lower(): s.key for s in specs}
         keys = {s.key for s in specs}
         k = key if key in keys else by_label.get(str(key).lower())
