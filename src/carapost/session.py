@@ -583,18 +583,19 @@ class Session:
     # ====================================================================================
     # Process
     # ====================================================================================
-    def _run(self, make: Callable[[ProgressFn | None], Command | None],
-             progress: ProgressFn | None = None) -> Command | None:
+    def _run(self, make: Callable[[ProgressFn | None], Command],
+             progress: ProgressFn | None = None) -> Command:
         """Compute a processing action and push its result as one History entry.
 
-        Every Process method goes through here: ``make(progress)`` does the work (today
-        the command's constructor computes) and returns the command to push. A
-        cancelled run that finished some work is pushed too (as the window does) and
-        logged; the command's ``cancelled`` attribute (or its computation's) says so.
+        Every Process method goes through here, so the processing-command recipe
+        (prepare on the caller's thread, compute on a worker, apply one result command)
+        replaces this one method: today ``make(progress)`` builds the command, whose
+        constructor computes, and the result is pushed. Commands that do not report
+        progress yet ignore ``progress``. A cancelled run that finished some work is
+        pushed too (as the window does) and logged; the command's ``cancelled``
+        attribute (or its computation's) says so.
         """
         command = make(progress)
-        if command is None:
-            return None
         comp = getattr(command, "computation", None)
         if getattr(command, "cancelled", False) or getattr(comp, "cancelled", False):
             log.warning("%s: cancelled; the finished part is kept", command.description)
