@@ -48,45 +48,46 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_c3d(args: argparse.Namespace) -> int:
-    from carapost.api import export_c3d, open_project
+    from carapost.session import Session
 
-    project = open_project(args.project)
-    export_c3d(project, args.output, frame_range=args.range, include_brim=args.brim,
-               stabilized=args.stabilized)
+    with Session.open(args.project) as session:
+        session.export_c3d(args.output, frame_range=args.range, include_brim=args.brim,
+                           stabilized=args.stabilized)
     print(f"wrote {args.output}")
     return 0
 
 
 def _cmd_export_fbx(args: argparse.Namespace) -> int:
-    from carapost.api import export_fbx, open_project
+    from carapost.session import Session
 
-    project = open_project(args.project)
-    export_fbx(project, args.output, frame_range=args.range, include_brim=args.brim,
-               up_axis=args.up, include_cameras=args.cameras, include_sticks=args.sticks)
+    with Session.open(args.project) as session:
+        session.export_fbx(args.output, frame_range=args.range, include_brim=args.brim,
+                           up_axis=args.up, include_cameras=args.cameras,
+                           include_sticks=args.sticks)
     print(f"wrote {args.output}")
     return 0
 
 
 def _cmd_export_xcp(args: argparse.Namespace) -> int:
-    from carapost.api import export_xcp, open_project
+    from carapost.session import Session
 
-    project = open_project(args.project)
-    export_xcp(project, args.output, frame=args.frame)
+    with Session.open(args.project) as session:
+        session.export_xcp(args.output, frame=args.frame)
     print(f"wrote {args.output}")
     return 0
 
 
 def _cmd_import(args: argparse.Namespace) -> int:
-    from carapost.api import import_take, save_project
+    from carapost.session import Session
 
-    project = import_take(args.take)
-    out = save_project(project, args.output)
+    with Session.import_take(args.take) as session:
+        out = session.save(args.output)
     print(f"wrote {out}")
     return 0
 
 
 def _cmd_process(args: argparse.Namespace) -> int:
-    from carapost.api import process_take
+    from carapost.pipeline import process_take
 
     result = process_take(
         args.take,

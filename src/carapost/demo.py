@@ -5,7 +5,7 @@ carapost version and length into the user cache folder
 (``$XDG_CACHE_HOME/carapost/demo-<version>-<frames>``, by default ``~/.cache/...``) and
 reused afterwards. With a display the main window opens on the imported project;
 without one (or with ``--headless``) the headless pipeline runs on it
-(`carapost.api.process_take`: import, whatever processing stages exist, save, export)
+(`carapost.pipeline.process_take`: import, detect, solve, initialise, track, save, export)
 and the paths of the results are printed, followed by an evaluation against the
 take's ground truth when the project holds 3D points.
 """
@@ -51,7 +51,7 @@ def ensure_demo_take(frames: int) -> tuple[Path, Path | None]:
     Returns
     -------
     take : Path
-        What `carapost.api.import_take` accepts (a camera file or the take folder).
+        What `carapost.Session.import_take` accepts (a camera file or the take folder).
     truth : Path or None
         The take's ``truth.npz`` when the generator wrote one.
 
@@ -121,10 +121,10 @@ def _process(take: Path, project_path: Path, results: Path) -> dict:
             _say(f"  {pct} %")
         return True
 
-    from carapost import api
+    from carapost.pipeline import process_take
 
-    return api.process_take(take, output=project_path, c3d=results / "demo.c3d",
-                            fbx=results / "demo.fbx", progress=progress)
+    return process_take(take, output=project_path, c3d=results / "demo.c3d",
+                        fbx=results / "demo.fbx", progress=progress)
 
 
 def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = None) -> int:
@@ -149,8 +149,6 @@ def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = Non
     ValueError
         For a bad number of frames.
     """
-    from carapost import api
-
     frames = int(frames)
     if frames < 2:
         raise ValueError(f"--frames must be at least 2, got {frames}")
@@ -189,9 +187,12 @@ def run_demo(*, headless: bool = False, frames: int = 120, out: str | None = Non
     for kind in ("c3d", "fbx"):
         print(f"{kind.upper() + ':':<12} {result[kind]}")
     if truth is not None and truth.is_file():
-        project = api.open_project(result["project"])
+        from carapost.session import Session
+        from carapost.synth.evaluation import evaluate
+
+        project = Session.open(result["project"]).project
         if project.n_points:
-            report = api.evaluate(project, truth)
+            report = evaluate(project, truth)
             eval_path = results / "evaluation.json"
             eval_path.write_text(json.dumps(report, indent=1), encoding="utf-8")
             print(f"Evaluation:  {eval_path} (RMSE {report['rmse_mm']:.3f} mm, "

@@ -19,26 +19,35 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.io.atomic import check_output_path
+from carapost.export import check_output
 from carapost.io.errors import CaraFileError
 from carapost.model.project import KIND_BRIM, KIND_FACE, Project
 
+if TYPE_CHECKING:
+    from carapost.session import Session
+
 log = logging.getLogger("carapost.pipeline")
 
-__all__ = ["process_take", "brim_from_take"]
-
-
-def _check_output(path: str | Path, suffix: str) -> Path:
-    p = Path(path)
-    if p.suffix.lower() != suffix:
-        raise CaraFileError(p, f"the output must be a {suffix} file")
-    return check_output_path(p)
+__all__ = [
+    "PROCESS_EXPORT",
+    "PROCESS_FBX_EXPORT",
+    "TakeInputs",
+    "brim_from_take",
+    "calibrate",
+    "check_take_inputs",
+    "detect_all",
+    "initialise",
+    "process_take",
+    "track_all",
+    "write_outputs",
+]
 
 
 def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
@@ -112,6 +121,166 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
     return labels, xyz
 
 
+#: What ``carapost process`` exports: every frame, face points only, Y up, no cameras or
+#: sticks (its outputs before the Export properties existed; a batch run should not
+#: depend on the Properties a take was imported with).
+PROCESS_EXPORT: dict[str, Any] = {"frame_range": "all", "include_brim": False}
+PROCESS_FBX_EXPORT: dict[str, Any] = {**PROCESS_EXPORT, "up_axis": "y",
+                                      "include_cameras": False, "include_sticks": False}
+
+
+@dataclass
+class TakeInputs:
+    """The checked inputs of one `process_take` run (see `check_take_inputs`)."""
+
+    take: Path
+    output: Path
+    c3d: Path | None = None
+    fbx: Path | None = None
+    rom: Path | None = None
+    brim_model: tuple[list[str], NDArray[np.float64]] | None = None
+    brim_svg: Path | None = None
+    brim_source: str = "take"
+
+
+def check_take_inputs(take_path: str | Path, *, output: str | Path,
+                      rom: str | Path | None = None, brim: str | Path | None = None,
+                      c3d: str | Path | None = None,
+                      fbx: str | Path | None = None) -> TakeInputs:
+    """Check every input and output of `process_take` before any work.
+
+    Raises
+    ------
+    CaraFileError
+        A missing take, ROM or brim file, a brim model that cannot be read, or an
+        output that cannot be written (wrong extension, missing folder).
+    """
+    from carapost.io.take_import import read_brim_csv
+
+    take = Path(take_path)
+    if not take.exists():
+        raise CaraFileError(take, "no such file or folder")
+    inputs = TakeInputs(take=take, output=check_output(output, ".cara"),
+                        c3d=check_output(c3d, ".c3d") if c3d else None,
+                        fbx=check_output(fbx, ".fbx") if fbx else None,
+                        rom=Path(rom) if rom else None)
+    if inputs.rom is not None:
+        if not inputs.rom.is_file():
+            raise CaraFileError(inputs.rom, "ROM project not found")
+        if inputs.rom.suffix.lower() != ".cara":
+            raise CaraFileError(inputs.rom, "a ROM must be a .cara project")
+    if brim is not None:
+        bp = Path(brim)
+        if not bp.is_file():
+            raise CaraFileError(bp, "brim model not found")
+        if bp.suffix.lower() == ".csv":
+            inputs.brim_model = read_brim_csv(bp)
+        elif bp.suffix.lower() == ".svg":
+            inputs.brim_svg = bp
+        else:
+            raise CaraFileError(bp, "a brim model must be a .csv or .svg file")
+        inputs.brim_source = str(bp)
+    return inputs
+
+
+def _stage(what: str, call: Callable[[], Any]) -> Any:
+    """Run one Session call; a refusal becomes ``ValueError("<what>: reason")``."""
+    from carapost.commands.stack import CommandError
+
+    try:
+        return call()
+    except CommandError as exc:
+        raise ValueError(f"{what}: {exc}" if what else str(exc)) from None
+
+
+def detect_all(session: Session, progress: Callable[[int, int], bool] | None = None) -> None:
+    """Stage: Detect Blobs in every frame of every camera.
+
+    Raises
+    ------
+    ValueError
+        Detection refused, or no marker found anywhere.
+    RuntimeError
+        Cancelled through ``progress``.
+    """
+    project = session.project
+    cmd = _stage("Detect Blobs", lambda: session.detect_blobs(
+        "all", cameras=range(project.n_cameras), progress=progress))
+    if getattr(cmd, "cancelled", False):
+        raise RuntimeError("cancelled during blob detection; nothing was written")
+    if project.detections.total == 0:
+        raise ValueError(f"{project.take.metadata.get('take_folder') or project.take.name}: "
+                         "no markers were found in any image (check the Blob Parameters "
+                         "or the videos)")
+
+
+def calibrate(session: Session, inputs: TakeInputs) -> str:
+    """Stage: load the ROM, or set the brim model and solve it at frame 0.
+
+    Returns where the brim model came from (``inputs.brim_source`` or "triangulated
+    from the take").
+    """
+    project = session.project
+    source = inputs.brim_source
+    if inputs.rom is not None:
+        _stage("", lambda: session.load_rom(inputs.rom))
+    if project.calibration.intrinsics is not None and inputs.rom is None:
+        if inputs.brim_svg is not None:
+            session.import_brim(inputs.brim_svg)
+        else:
+            model = inputs.brim_model
+            if model is None:
+                try:
+                    model = brim_from_take(project)
+                except ValueError as exc:
+                    raise ValueError(f"brim: {exc}") from None
+                source = "triangulated from the take"
+            session.set_brim_model(*model, description="Set Calibration Brim")
+        _stage("Solve Calibration Brim [Automatic]",
+               lambda: session.solve_brim(frame=0, method="automatic"))
+    return source
+
+
+def initialise(session: Session, inputs: TakeInputs) -> int:
+    """Stage: Initialize from ROM or Initialize 3D at frame 0; returns the face points
+    initialised."""
+    project = session.project
+    session.current_frame = 0
+    if inputs.rom is not None:
+        _stage("initialisation", lambda: session.initialize_from_rom(frame=0))
+    else:
+        _stage("initialisation", lambda: session.initialize_3d(frame=0))
+    face = project.points.kind == KIND_FACE
+    n_init = int(np.isfinite(project.points.positions[0, face, 0]).sum())
+    if n_init == 0:
+        raise ValueError("initialisation found no face marker at frame 0")
+    return n_init
+
+
+def track_all(session: Session, *, patch_tracking: bool = False,
+              progress: Callable[[int, int], bool] | None = None) -> None:
+    """Stage: track the whole take from frame 0 (forwards finding missed markers, then
+    backwards), over an active range set to the whole take."""
+    F = session.project.n_frames
+    session.set_active_range(0, F - 1)
+    if F > 1:
+        cmd = _stage("tracking", lambda: session.track_take(
+            frame=0, use_images=patch_tracking, progress=progress))
+        if cmd.computation.cancelled:
+            raise RuntimeError("cancelled during tracking; nothing was written")
+
+
+def write_outputs(session: Session, inputs: TakeInputs) -> dict[str, str | None]:
+    """Stage: save the project, then the exports (each file atomically)."""
+    written = session.save(inputs.output)
+    result: dict[str, str | None] = {"project": str(written), "c3d": None, "fbx": None}
+    if inputs.c3d is not None:
+        result["c3d"] = str(session.export_c3d(inputs.c3d, **PROCESS_EXPORT))
+    if inputs.fbx is not None:
+        result["fbx"] = str(session.export_fbx(inputs.fbx, **PROCESS_FBX_EXPORT))
+    return result
+
+
 def process_take(
     take_path: str | Path,
     *,
@@ -125,6 +294,10 @@ def process_take(
 ) -> dict[str, Any]:
     """Process a take headlessly: import, detect, solve, initialise, track, save, export.
 
+    Each stage is one function of this module over a `carapost.Session` (so a batch
+    runner can reuse them): `check_take_inputs`, `Session.import_take`, `detect_all`,
+    `calibrate`, `initialise`, `track_all`, `write_outputs`.
+
     Parameters
     ----------
     take_path : str or Path
@@ -137,7 +310,7 @@ def process_take(
     brim : str or Path, optional
         Brim model: ``.csv`` (label,x,y,z in mm, optional header) or ``.svg``.
     c3d, fbx : str or Path, optional
-        Also export the face points here.
+        Also export the face points here (every frame, `PROCESS_EXPORT`).
     progress : callable, optional
         ``progress(done, total)`` over the detection and tracking frames; False cancels
         (raises ``RuntimeError``, nothing written).
@@ -164,151 +337,51 @@ def process_take(
         The take cannot be processed (no XCP and no ROM, no markers found, brim not
         solvable, nothing initialised); the message says which stage and why.
     """
-    from carapost.commands.process import (
-        DetectBlobs,
-        ImportBrimSvg,
-        Initialize3D,
-        SetBrimModel,
-        SolveBrimAuto,
-    )
-    from carapost.commands.stack import CommandError, CommandStack
-    from carapost.commands.tracking import InitializeFromRom, LoadRom, TrackTakeCommand
-    from carapost.io.cara import save_project
-    from carapost.io.take_import import import_take, read_brim_csv
-    from carapost.io.video import TakeFrames
+    from carapost.io.take_import import read_brim_csv
+    from carapost.session import Session
 
-    # ---- check every input and output before any work -----------------------------------
-    take_path = Path(take_path)
-    if not take_path.exists():
-        raise CaraFileError(take_path, "no such file or folder")
-    out = _check_output(output, ".cara")
-    c3d_path = _check_output(c3d, ".c3d") if c3d else None
-    fbx_path = _check_output(fbx, ".fbx") if fbx else None
-    rom_path = Path(rom) if rom else None
-    if rom_path is not None:
-        if not rom_path.is_file():
-            raise CaraFileError(rom_path, "ROM project not found")
-        if rom_path.suffix.lower() != ".cara":
-            raise CaraFileError(rom_path, "a ROM must be a .cara project")
-    brim_model: tuple[list[str], NDArray] | None = None
-    brim_svg: Path | None = None
-    brim_source = "take"
-    if brim is not None:
-        bp = Path(brim)
-        if not bp.is_file():
-            raise CaraFileError(bp, "brim model not found")
-        if bp.suffix.lower() == ".csv":
-            brim_model = read_brim_csv(bp)
-        elif bp.suffix.lower() == ".svg":
-            brim_svg = bp
-        else:
-            raise CaraFileError(bp, "a brim model must be a .csv or .svg file")
-        brim_source = str(bp)
-
+    inputs = check_take_inputs(take_path, output=output, rom=rom, brim=brim, c3d=c3d,
+                               fbx=fbx)
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
-    project = import_take(take_path)
-    stack = CommandStack(project)
+    # the brim model is chosen below (--brim, the take's, or triangulated), not at import
+    session = Session.import_take(inputs.take, take_brim=False)
+    project = session.project
     seconds["import"] = time.perf_counter() - t0
-    if project.calibration.intrinsics is None and rom_path is None:
-        raise ValueError(f"{take_path}: the take has no XCP calibration and no ROM was given; "
-                         "the cameras cannot be solved (add <take>.xcp or --rom ROM.cara)")
+    if project.calibration.intrinsics is None and inputs.rom is None:
+        raise ValueError(f"{inputs.take}: the take has no XCP calibration and no ROM was "
+                         "given; the cameras cannot be solved (add <take>.xcp or --rom "
+                         "ROM.cara)")
     F, C = project.n_frames, project.n_cameras
-    if brim_model is None and brim_svg is None and project.take.metadata.get("brim_file"):
-        brim_model = read_brim_csv(project.take.metadata["brim_file"])
-        brim_source = str(project.take.metadata["brim_file"])
+    brim_file = project.take.metadata.get("brim_file")
+    if inputs.brim_model is None and inputs.brim_svg is None and brim_file:
+        inputs.brim_model = read_brim_csv(brim_file)
+        inputs.brim_source = str(brim_file)
 
-    frames = TakeFrames(project.take, strict=True)
-    try:
-        def stage_progress(offset: int, total: int) -> Callable[[int, int], bool] | None:
-            if progress is None:
-                return None
-            return lambda d, n: progress(offset + d, total)
+    total = 3 * F  # detection, then the forward and backward tracking passes
 
-        total = 3 * F  # detection, then the forward and backward tracking passes
-        # ---- detect blobs in every frame ----------------------------------------------
+    def detect_progress(d: int, n: int) -> bool:
+        return progress(d * F // max(n, 1), total)  # type: ignore[misc]
+
+    def track_progress(d: int, n: int) -> bool:
+        return progress(F + d, total)  # type: ignore[misc]
+
+    with session:  # closes the videos before anything is written
         t0 = time.perf_counter()
-        try:
-            cmd = DetectBlobs(project, (0, F - 1), cameras=range(C),
-                              get_image=frames.get,
-                              progress=(None if progress is None else
-                                        (lambda d, n: progress(d * F // max(n, 1), total))))
-        except CommandError as exc:
-            raise ValueError(f"Detect Blobs: {exc}") from None
-        if getattr(cmd, "cancelled", False):
-            raise RuntimeError("cancelled during blob detection; nothing was written")
-        stack.push(cmd)
+        detect_all(session, None if progress is None else detect_progress)
         seconds["detect"] = time.perf_counter() - t0
-        if project.detections.total == 0:
-            raise ValueError(f"{take_path}: no markers were found in any image (check the "
-                             "Blob Parameters or the videos)")
-
-        # ---- ROM, calibration and brim --------------------------------------------------
         t0 = time.perf_counter()
-        if rom_path is not None:
-            try:
-                stack.push(LoadRom(project, rom_path))
-            except CommandError as exc:
-                raise ValueError(str(exc)) from None
-        if project.calibration.intrinsics is not None and rom_path is None:
-            if brim_svg is not None:
-                stack.push(ImportBrimSvg(project, brim_svg))
-            else:
-                if brim_model is None:
-                    try:
-                        brim_model = brim_from_take(project)
-                    except ValueError as exc:
-                        raise ValueError(f"brim: {exc}") from None
-                    brim_source = "triangulated from the take"
-                cmd = SetBrimModel(*brim_model, description="Set Calibration Brim")
-                stack.push(cmd)
-            try:
-                stack.push(SolveBrimAuto(project, frame=0))
-            except CommandError as exc:
-                raise ValueError(f"Solve Calibration Brim [Automatic]: {exc}") from None
+        brim_source = calibrate(session, inputs)
         seconds["brim"] = time.perf_counter() - t0
-
-        # ---- initialise ---------------------------------------------------------------
         t0 = time.perf_counter()
-        project.set_current_frame(0)
-        try:
-            if rom_path is not None:
-                stack.push(InitializeFromRom(project, frame=0))
-            else:
-                stack.push(Initialize3D(project, frame=0))
-        except CommandError as exc:
-            raise ValueError(f"initialisation: {exc}") from None
-        face = project.points.kind == KIND_FACE
-        n_init = int(np.isfinite(project.points.positions[0, face, 0]).sum())
-        if n_init == 0:
-            raise ValueError("initialisation found no face marker at frame 0")
+        n_init = initialise(session, inputs)
         seconds["initialise"] = time.perf_counter() - t0
-
-        # ---- track the whole take (forwards, finding missed markers, then backwards) ----
         t0 = time.perf_counter()
-        project.set_active_range((0, F - 1))
-        if F > 1:
-            try:
-                cmd = TrackTakeCommand(project, 0, progress=stage_progress(F, total),
-                                       get_image=frames.get if patch_tracking else None)
-            except CommandError as exc:
-                raise ValueError(f"tracking: {exc}") from None
-            if cmd.computation.cancelled:
-                raise RuntimeError("cancelled during tracking; nothing was written")
-            stack.push(cmd)
+        track_all(session, patch_tracking=patch_tracking,
+                  progress=None if progress is None else track_progress)
         seconds["track"] = time.perf_counter() - t0
-    finally:
-        frames.close()
 
-    # ---- write everything (each file atomically) -----------------------------------------
-    from carapost import api
-
-    written = save_project(project, out)
-    result: dict[str, Any] = {"project": str(written), "c3d": None, "fbx": None}
-    if c3d_path is not None:
-        result["c3d"] = str(api.export_c3d(project, c3d_path))
-    if fbx_path is not None:
-        result["fbx"] = str(api.export_fbx(project, fbx_path))
+    result: dict[str, Any] = dict(write_outputs(session, inputs))
     face = project.points.kind == KIND_FACE
     has = np.isfinite(project.points.positions[:, face, 0])
     result.update({
@@ -316,8 +389,8 @@ def process_take(
         "brim_points": int((project.points.kind == KIND_BRIM).sum()),
         "initialised": n_init,
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
-        "brim_source": brim_source if rom_path is None else "ROM",
+        "brim_source": brim_source if inputs.rom is None else "ROM",
         "seconds": {k: round(v, 2) for k, v in seconds.items()},
     })
-    log.info("Processed %s: %s", take_path, result)
+    log.info("Processed %s: %s", inputs.take, result)
     return result

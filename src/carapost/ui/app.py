@@ -48,16 +48,18 @@ def application(argv: list[str] | None = None) -> QApplication:
 
 
 def open_path(window, path: str) -> bool:
-    """Open a ``.cara`` project, or import a take from any other file."""
+    """Open a ``.cara`` project, or import a take from any other file.
+
+    A take is imported by `carapost.Session.import_take`, so ``carapost gui take.json``
+    builds the same project as File > Import Camera Files (brim model of the take
+    included).
+    """
     if Path(path).suffix.lower() == ".cara":
         return window.open_project(path)
-    try:
-        from carapost.io.take_import import import_take
-    except ImportError:
-        window.report_error("Open", f"{path}: only .cara projects can be opened (take import "
-                            "is not available yet)")
-        return False
-    window.runner.start("Import Camera Files", lambda progress: import_take(path),
+    from carapost.session import Session
+
+    window.runner.start("Import Camera Files",
+                        lambda progress: Session.import_take(path).project,
                         lambda project, cancelled: project is not None
                         and window.set_project(project))
     return True
