@@ -79,7 +79,8 @@ class BlobDetections(NamedTuple):
             np.zeros(0, np.float32),
         )
 
-    def __len__(self) -> int:  # noqa: D105 - number of detections, not of fields
+    def __len__(self) -> int:
+        """Number of detections (not of fields, as for other named tuples)."""
         return int(self.centre.shape[0])
 
     @staticmethod
