@@ -93,3 +93,13 @@ def test_pool_restarts_with_another_number_of_workers(pool):
 def test_keep_freed_memory_is_applied_once():
     first = keep_freed_memory()
     assert keep_freed_memory() is first
+
+
+@pytest.mark.parametrize("module", ["carapost.parallel", "carapost._runtime"])
+def test_examples_of_the_docstrings(module):
+    # These modules are outside the doctest paths of the pytest configuration.
+    import doctest
+    import importlib
+
+    res = doctest.testmod(importlib.import_module(module), optionflags=doctest.ELLIPSIS)
+    assert res.attempted > 0 and res.failed == 0

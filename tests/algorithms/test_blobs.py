@@ -612,6 +612,16 @@ def test_detector_imports_no_harness_and_loads_its_model_from_package_data():
     assert out.stdout.strip() == "[]"
 
 
+
+@pytest.mark.parametrize("module", ["carapost.synth.blob_images", "carapost.synth.blob_eval"])
+def test_examples_of_the_harness_docstrings(module):
+    # carapost.synth is outside the doctest paths of the pytest configuration.
+    import doctest
+    import importlib
+
+    res = doctest.testmod(importlib.import_module(module), optionflags=doctest.ELLIPSIS)
+    assert res.attempted > 0 and res.failed == 0
+
 # ------------------------------------------------------------------ real photos
 
 
