@@ -6,7 +6,7 @@ cores). Prints one JSON object per line: {"metric": ..., "value": ..., "unit": .
 Face images come from ``carapost.synth`` (1280x720, 4 cameras, standard set: 89 face
 markers plus ~20 brim dots per view; dense156: 156). Truth blobs are the visible face
 markers and brim dots; their projected semi-major axes are computed from the scene
-geometry (see ``carapost.algorithms._blob_eval.projected_ellipses``).
+geometry (see ``carapost.synth.blob_eval.projected_ellipses``).
 """
 
 from __future__ import annotations
@@ -22,19 +22,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from carapost.algorithms._blob_eval import (
-    SynthScore,
-    circlegrid_files,
-    circlegrid_photo,
-    synth_scene,
-    synth_view,
-)
 from carapost.algorithms.blobs import (
     BlobDetections,
     BlobParameters,
     detect_blobs,
     detect_blobs_batch,
     preview_blobs,
+)
+from carapost.synth.blob_eval import (
+    SynthScore,
+    circlegrid_files,
+    circlegrid_photo,
+    synth_scene,
+    synth_view,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,7 +2,7 @@
 
 Renders views of ``carapost.synth`` takes (all marker sets and motion presets, noise,
 optical and motion blur, highlights, merged pair) plus images of the detector's own
-renderer ``carapost.algorithms._blob_synth`` (white markers, dark exposure), collects
+renderer ``carapost.synth.blob_images`` (white markers, dark exposure), collects
 every blob candidate with its features (measured ones and the appearance of its
 surroundings), labels it true when it lies on a truth marker centre, and fits two
 small neural networks (one hidden layer of ``MODEL_HIDDEN`` tanh units, log-loss with
@@ -30,14 +30,6 @@ import cv2
 import numpy as np
 from scipy.optimize import minimize
 
-from carapost.algorithms import blobs
-from carapost.algorithms._blob_eval import _match, synth_scene, synth_view
-from carapost.algorithms._blob_synth import (
-    _ellipse_coverage,
-    _paint,
-    match_to_truth,
-    render_face,
-)
 from carapost.algorithms.blobs import (
     BLACK,
     FEATURE_NAMES,
@@ -45,9 +37,17 @@ from carapost.algorithms.blobs import (
     MODEL_INPUTS,
     MODEL_KINDS,
     WHITE,
-    _Net,
+    ScoreNet,
     blob_candidates,
     net_logit,
+)
+from carapost.algorithms.blobs.score import load_model, use_model
+from carapost.synth.blob_eval import match_nearest, synth_scene, synth_view
+from carapost.synth.blob_images import (
+    ellipse_coverage,
+    match_to_truth,
+    paint,
+    render_face,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,8 +91,8 @@ def _touching_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
     img = skin + np.linspace(-1, 1, w)[None, :] * rng.uniform(0, 25) + np.zeros((h, 1))
     cx, cy = rng.uniform(80, 140), rng.uniform(60, 100)
     fa, fb, fth = rng.uniform(12, 26), rng.uniform(7, 14), rng.uniform(-np.pi / 2, np.pi / 2)
-    x0, y0, cov = _ellipse_coverage(cx, cy, fa, fb, fth)
-    _paint(img, x0, y0, cov, skin * rng.uniform(0.15, 0.5))
+    x0, y0, cov = ellipse_coverage(cx, cy, fa, fb, fth)
+    paint(img, x0, y0, cov, skin * rng.uniform(0.15, 0.5))
     centres, minors = [], []
     for _ in range(int(rng.integers(2, 5))):
         # A marker just outside the feature's outline, gap -0.5 to 1.5 px.
@@ -110,8 +110,8 @@ def _touching_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
         mth = np.arctan2(uy, ux) + np.pi / 2  # long axis along the feature's outline
         if not (8 < mx < w - 8 and 8 < my < h - 8):
             continue
-        x0, y0, cov = _ellipse_coverage(mx, my, a, b, mth)
-        _paint(img, x0, y0, cov, skin * rng.uniform(0.05, 0.3))
+        x0, y0, cov = ellipse_coverage(mx, my, a, b, mth)
+        paint(img, x0, y0, cov, skin * rng.uniform(0.05, 0.3))
         centres.append((mx, my))
         minors.append(b)
     img += rng.standard_normal(img.shape) * rng.uniform(1.0, 4.0)
@@ -150,12 +150,12 @@ def _dot_grid_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
             y = h / 2 + u * np.sin(rot) + v * np.cos(rot)
             if not (r + 4 < x < w - r - 4 and r + 4 < y < h - r - 4):
                 continue
-            x0, y0, cov = _ellipse_coverage(x, y, r, r * squeeze, rot + np.pi / 2)
-            _paint(img, x0, y0, cov, ink)
+            x0, y0, cov = ellipse_coverage(x, y, r, r * squeeze, rot + np.pi / 2)
+            paint(img, x0, y0, cov, ink)
             if inner > 0:  # ink or lighting not even: a darker middle
-                x0, y0, cov = _ellipse_coverage(x, y, inner * r, inner * r * squeeze,
+                x0, y0, cov = ellipse_coverage(x, y, inner * r, inner * r * squeeze,
                                                 rot + np.pi / 2)
-                _paint(img, x0, y0, cov, ink * inner_level)
+                paint(img, x0, y0, cov, ink * inner_level)
             centres.append((x, y))
             minors.append(r * squeeze)
     img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.5, 2.5))
@@ -168,7 +168,7 @@ def _dot_grid_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
 def _label(c, centre: np.ndarray, minor: np.ndarray, spread: np.ndarray) -> np.ndarray:
     """True for candidates on a truth blob centre (one candidate per blob)."""
     tol = np.clip(0.5 * minor, 1.0, 3.0) + spread
-    d2t, _ = _match(c.centre, centre, tol)
+    d2t, _ = match_nearest(c.centre, centre, tol)
     return d2t >= 0
 
 
@@ -313,7 +313,7 @@ def main() -> None:
     args = ap.parse_args()
 
     try:
-        blobs._model()
+        load_model()
     except RuntimeError:
         # The shipped model does not fit the detector's features (they changed): the
         # detector only uses it to choose between two copies of one blob seen on two
@@ -322,10 +322,10 @@ def main() -> None:
         # collection uses the new model, as the detector will.
         print("blob_model.json does not fit the detector's features: collecting with a "
               "neutral model; run this script again once it has written the new one")
-        neutral = tuple(_Net(np.zeros(MODEL_INPUTS[k]), np.ones(MODEL_INPUTS[k]),
+        neutral = tuple(ScoreNet(np.zeros(MODEL_INPUTS[k]), np.ones(MODEL_INPUTS[k]),
                              np.zeros((MODEL_INPUTS[k], MODEL_HIDDEN)), np.zeros(MODEL_HIDDEN),
                              np.zeros(MODEL_HIDDEN), 0.0) for k in MODEL_KINDS)
-        blobs._model = lambda: neutral
+        use_model(neutral)
     if args.data is not None and args.data.exists():
         z = np.load(args.data)
         x_tr, y_tr, x_te, y_te = z["x_tr"], z["y_tr"], z["x_te"], z["y_te"]
@@ -347,7 +347,7 @@ def main() -> None:
         scale = f_tr.std(axis=0) + 1e-9
         w1, b1, w2, b2 = fit_net((f_tr - mean) / scale, y_tr[tr].astype(float),
                                  l2=args.l2, seed=args.init_seed)
-        net = _Net(mean, scale, w1, b1, w2, float(b2))
+        net = ScoreNet(mean, scale, w1, b1, w2, float(b2))
         p[te] = 1 / (1 + np.exp(-np.clip(net_logit(net, x_te[te]), -40, 40)))
         print(f"{kind}: train {int(tr.sum())} candidates ({y_tr[tr].mean():.1%} true), "
               f"test {int(te.sum())}")

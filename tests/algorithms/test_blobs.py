@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from carapost.algorithms._blob_eval import (
+from carapost.algorithms.blobs import (
+    BlobDetections,
+    BlobParameters,
+    detect_blobs,
+    detect_blobs_batch,
+    preview_blobs,
+)
+from carapost.synth.blob_eval import (
     FaceScore,
     SynthScore,
     circlegrid_files,
@@ -14,14 +21,7 @@ from carapost.algorithms._blob_eval import (
     synth_scene,
     synth_view,
 )
-from carapost.algorithms._blob_synth import _ellipse_coverage, _paint, render_face
-from carapost.algorithms.blobs import (
-    BlobDetections,
-    BlobParameters,
-    detect_blobs,
-    detect_blobs_batch,
-    preview_blobs,
-)
+from carapost.synth.blob_images import ellipse_coverage, paint, render_face
 
 
 def _scene(rng, n=12, size=(160, 240), bg=180.0, fg=30.0, radius=(4.5, 9.0), ratio=(0.5, 1.0),
@@ -37,8 +37,8 @@ def _scene(rng, n=12, size=(160, 240), bg=180.0, fg=30.0, radius=(4.5, 9.0), rat
         a = rng.uniform(*radius)
         b = a * rng.uniform(*ratio)
         th = rng.uniform(-np.pi / 2, np.pi / 2)
-        x0, y0, cov = _ellipse_coverage(cx, cy, a, b, th)
-        _paint(img, x0, y0, cov, fg)
+        x0, y0, cov = ellipse_coverage(cx, cy, a, b, th)
+        paint(img, x0, y0, cov, fg)
         centres.append((cx, cy))
         axes.append((a, b))
         angles.append(th)
@@ -271,11 +271,6 @@ def test_carapost_synth_take_regression():
     assert s["false_per_image_background"] <= 0.25
 
 
-@pytest.mark.xfail(reason="0.991 on this one frame (4 cameras), one marker above the "
-                          "target: a single frame is too small a sample to hold it to 0.99; "
-                          "test_acceptance_targets_over_the_benchmark_views checks the target "
-                          "over 96 views (see docs/benchmarks.md)",
-                   strict=False)
 def test_carapost_synth_take_meets_the_recall_target():
     s = _synth_score("standard", "speech", [30]).summary()
     assert s["recall"] >= RECALL_TARGET
@@ -297,8 +292,8 @@ def test_shading_gradient_does_not_bias_the_centre(rng):
     truth = []
     for k, cx in enumerate((42.3, 61.7, 80.2)):
         cy = 20.4 + 20 * k
-        x0, y0, cov = _ellipse_coverage(cx, cy, 5.0, 4.0, 0.3)
-        _paint(img, x0, y0, cov, 20.0)
+        x0, y0, cov = ellipse_coverage(cx, cy, 5.0, 4.0, 0.3)
+        paint(img, x0, y0, cov, 20.0)
         truth.append((cx, cy))
     img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
     det = detect_blobs(img, BlobParameters())
@@ -307,13 +302,29 @@ def test_shading_gradient_does_not_bias_the_centre(rng):
     assert dist.max() < 0.1
 
 
+# The cells that miss a target today (one run of the whole matrix): three noise 5 cells
+# miss the recall (0.985-0.989) or the centre p95 (0.25-0.26 px), the fast motion-blur
+# cells the recall (0.984). Strict: a cell that starts passing fails the run until its
+# mark is removed.
+_MISSING_CELLS = {("noise", "speech", "dense156"), ("noise", "fast", "standard"),
+                  ("noise", "fast", "dense156"), ("motion_blur", "fast", "standard"),
+                  ("motion_blur", "fast", "dense156")}
+
+
+def _matrix_cells() -> list:
+    cells = []
+    for option in ["none", "noise", "motion_blur", "merge_pair", "highlights"]:
+        for preset in ["speech", "fast"]:
+            for markers in ["standard", "dense156"]:
+                marks = ([pytest.mark.xfail(reason="below a target today (see docs/benchmarks.md)")]
+                         if (option, preset, markers) in _MISSING_CELLS else [])
+                cells.append(pytest.param(markers, preset, option, marks=marks,
+                                          id=f"{option}-{preset}-{markers}"))
+    return cells
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(reason="15 of the 20 cells meet every target; three noise 5 cells "
-                          "miss the recall (0.985-0.989) or the centre p95 (0.25-0.26 px), "
-                          "the fast motion-blur cells the recall (0.984)", strict=False)
-@pytest.mark.parametrize("markers", ["standard", "dense156"])
-@pytest.mark.parametrize("preset", ["speech", "fast"])
-@pytest.mark.parametrize("option", ["none", "noise", "motion_blur", "merge_pair", "highlights"])
+@pytest.mark.parametrize(("markers", "preset", "option"), _matrix_cells())
 def test_carapost_synth_takes_all_options(markers, preset, option):
     kw = {"none": {}, "noise": {"noise": 5.0}, "motion_blur": {"motion_blur": True},
           "merge_pair": {"merge_pair": True}, "highlights": {"highlights": True}}[option]
@@ -353,8 +364,8 @@ def test_blob_cut_by_the_image_corner_keeps_its_centre(rng):
     img = np.full((60, 80), 180.0)
     truth = np.array([(7.3, 6.6), (72.6, 53.2), (40.2, 30.4)])
     for cx, cy in truth:
-        x0, y0, cov = _ellipse_coverage(cx, cy, 5.0, 4.5, 0.2)
-        _paint(img, x0, y0, cov, 30.0)
+        x0, y0, cov = ellipse_coverage(cx, cy, 5.0, 4.5, 0.2)
+        paint(img, x0, y0, cov, 30.0)
     img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
     det = detect_blobs(img, BlobParameters())
     assert len(det) == 3
@@ -369,8 +380,8 @@ def test_blob_touching_the_image_border_is_kept(rng):
     img = np.full((100, 160), 170.0)
     truth = (50.3, 11.2)  # its top is 0.26 px above the centre of row 0
     for cx, cy, th in ((*truth, 1.45), (120.0, 6.0, 1.45)):
-        x0, y0, cov = _ellipse_coverage(cx, cy, 11.5, 8.5, th)
-        _paint(img, x0, y0, cov, 30.0)
+        x0, y0, cov = ellipse_coverage(cx, cy, 11.5, 8.5, th)
+        paint(img, x0, y0, cov, 30.0)
     img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
     det = detect_blobs(img, BlobParameters())
     assert len(det) == 1
@@ -382,14 +393,15 @@ def test_compiled_refinement_matches_the_numpy_reference(rng, monkeypatch):
     # candidates (to float rounding), including seeds whose patch leaves the image and
     # seeds refined on reduced levels.
     from carapost.algorithms import blobs
+    from carapost.algorithms.blobs import refine
 
     s = render_face(rng, preset="speech", noise=3.0)
     img = s.image.astype(np.float64)
-    x0, y0, cov = _ellipse_coverage(3.2, 40.4, 4.0, 3.0, 0.3)  # its ring leaves the image
-    _paint(img, x0, y0, cov, 20.0)
+    x0, y0, cov = ellipse_coverage(3.2, 40.4, 4.0, 3.0, 0.3)  # its ring leaves the image
+    paint(img, x0, y0, cov, 20.0)
     img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     got = blobs.blob_candidates(img, 0, 4.0, 80.0)
-    monkeypatch.setattr(blobs, "USE_JIT", False)
+    monkeypatch.setattr(refine, "USE_JIT", False)
     ref = blobs.blob_candidates(img, 0, 4.0, 80.0)
     assert len(got.centre) == len(ref.centre) > 50
     assert ref.axes[:, 0].max() > 12  # some seeds were refined on a reduced level
@@ -420,8 +432,8 @@ def test_context_features_see_a_dark_patch_beside_a_blob(rng):
     from carapost.algorithms import blobs
 
     img = np.full((80, 80), 170.0)
-    x0, y0, cov = _ellipse_coverage(40.3, 40.6, 6.0, 4.0, 0.0)
-    _paint(img, x0, y0, cov, 30.0)
+    x0, y0, cov = ellipse_coverage(40.3, 40.6, 6.0, 4.0, 0.0)
+    paint(img, x0, y0, cov, 30.0)
     shadow = img.copy()
     shadow[36:46, 52:58] = 60.0  # 6 px beyond the blob's major axis end
     k = blobs.FEATURE_NAMES.index("context_asym_major")
@@ -440,8 +452,8 @@ def test_blob_cut_by_the_image_border_is_dropped(rng):
     # shape is not its own) gives no detection; a whole one beside it does.
     img = np.full((100, 160), 170.0)
     for cx, cy in ((50.0, 99.0), (110.3, 60.2)):
-        x0, y0, cov = _ellipse_coverage(cx, cy, 9.0, 6.0, 0.0)
-        _paint(img, x0, y0, cov, 30.0)
+        x0, y0, cov = ellipse_coverage(cx, cy, 9.0, 6.0, 0.0)
+        paint(img, x0, y0, cov, 30.0)
     img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
     det = detect_blobs(img, BlobParameters())
     assert len(det) == 1
@@ -453,12 +465,12 @@ def _markers_by_a_nostril(rng):
     out = []
     for gap in (0.0, 0.5, 1.0):
         img = np.full((120, 160), 170.0)
-        x0, y0, cov = _ellipse_coverage(70.0, 60.0, 22.0, 12.0, 0.0)
-        _paint(img, x0, y0, cov, 45.0)
+        x0, y0, cov = ellipse_coverage(70.0, 60.0, 22.0, 12.0, 0.0)
+        paint(img, x0, y0, cov, 45.0)
         truth = np.array([(70.0 + 22 + 5.0 + gap, 60.3), (70.4, 60 - 12 - 4.5 - gap)])
         for cx, cy in truth:
-            x0, y0, cov = _ellipse_coverage(cx, cy, 5.0, 4.2, 0.4)
-            _paint(img, x0, y0, cov, 25.0)
+            x0, y0, cov = ellipse_coverage(cx, cy, 5.0, 4.2, 0.4)
+            paint(img, x0, y0, cov, 25.0)
         img = np.clip(np.rint(img + rng.standard_normal(img.shape) * 1.5), 0, 255)
         out.append((img.astype(np.uint8), truth))
     return out
@@ -466,9 +478,9 @@ def _markers_by_a_nostril(rng):
 
 def test_markers_by_a_nostril_need_the_split_seeds(rng, monkeypatch):
     # Without cutting over-size regions again, the joined region gives no candidate.
-    from carapost.algorithms import blobs
+    from carapost.algorithms.blobs import seeds
 
-    monkeypatch.setattr(blobs, "SPLIT_SEEDS", False)
+    monkeypatch.setattr(seeds, "SPLIT_SEEDS", False)
     found = 0
     for img, truth in _markers_by_a_nostril(rng):
         det = detect_blobs(img, BlobParameters())
@@ -488,8 +500,8 @@ def test_marker_on_a_dark_crease_is_found(rng):
     line = cv2.GaussianBlur(line, (5, 5), 1.0)
     img -= 70.0 * line
     truth = np.array([(80.3, 51.6)])
-    x0, y0, cov = _ellipse_coverage(*truth[0], 5.5, 4.0, 0.3)
-    _paint(img, x0, y0, cov, 20.0)
+    x0, y0, cov = ellipse_coverage(*truth[0], 5.5, 4.0, 0.3)
+    paint(img, x0, y0, cov, 20.0)
     img = np.clip(np.rint(img + rng.standard_normal(img.shape)), 0, 255).astype(np.uint8)
     det = detect_blobs(img, BlobParameters())
     assert len(det) >= 1
@@ -580,6 +592,46 @@ def test_batch_empty_and_bad_workers():
     with pytest.raises(ValueError, match="workers"):
         detect_blobs_batch(lambda k: None, [1], BlobParameters(), workers=0)
 
+
+def test_shutdown_workers_stops_the_processes_and_a_later_batch_restarts_them():
+    from carapost.algorithms.blobs import shutdown_workers
+
+    img = _scene(np.random.default_rng(2))[0]
+    assert len(detect_blobs_batch(lambda k: img, range(2), BlobParameters(),
+                                  processes=True)) == 2
+    shutdown_workers()
+    shutdown_workers()  # a second call is a no-op
+    out = detect_blobs_batch(lambda k: img, range(2), BlobParameters(), processes=True)
+    assert all(len(v) == 12 for v in out.values())
+
+
+# ------------------------------------------------------------------ packaging
+
+
+def test_detector_imports_no_harness_and_loads_its_model_from_package_data():
+    # The product detector never imports the synthetic-image harnesses (carapost.synth),
+    # and its weights come from the package resources.
+    import subprocess
+    import sys
+
+    code = ("import sys; import carapost.algorithms.blobs as b; "
+            "from carapost.algorithms.blobs.score import load_model; "
+            "assert len(load_model()) == len(b.MODEL_KINDS); "
+            "print(sorted(m for m in sys.modules if m.startswith('carapost.synth')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
+
+
+
+@pytest.mark.parametrize("module", ["carapost.synth.blob_images", "carapost.synth.blob_eval"])
+def test_examples_of_the_harness_docstrings(module):
+    # carapost.synth is outside the doctest paths of the pytest configuration.
+    import doctest
+    import importlib
+
+    res = doctest.testmod(importlib.import_module(module), optionflags=doctest.ELLIPSIS)
+    assert res.attempted > 0 and res.failed == 0
 
 # ------------------------------------------------------------------ real photos
 

@@ -1,13 +1,15 @@
 """Small synthetic face-image renderer with exact marker truth, for the blob detector.
 
 This is the blob detector's own ground-truth generator (used by its training script,
-tests and benchmark). It draws a shaded, textured skin-coloured face with facial
+tests and benchmark; moved here from ``carapost.algorithms._blob_synth``: the product
+packages never import it). It draws a shaded, textured skin-coloured face with facial
 features that look a bit like blobs (eyebrows, eyes, nostrils, mouth, hair, pores), a
 calibration brim strip with black dots, and painted markers as exactly anti-aliased
 ellipses (supersampled 8x8 per pixel). The truth centre of every marker is its
 geometric centre in the OpenCV pixel-centre convention.
 
-Not a public API: ``carapost.synth`` is the project's general take generator.
+Not part of the product API: the rest of ``carapost.synth`` is the project's general
+take generator.
 """
 
 from __future__ import annotations
@@ -61,12 +63,34 @@ class SynthImage:
     blurred: bool
 
 
-def _ellipse_coverage(
+def ellipse_coverage(
     cx: float, cy: float, a: float, b: float, theta: float, ss: int = 8
 ) -> tuple[int, int, np.ndarray]:
     """Exact-ish pixel coverage of an ellipse by ``ss x ss`` supersampling.
 
-    Returns the top-left integer pixel (x0, y0) of the patch and the coverage patch.
+    Parameters
+    ----------
+    cx, cy : float
+        Centre (px, pixel-centre convention).
+    a, b : float
+        Semi-axes (px).
+    theta : float
+        Angle of the ``a`` axis from +x towards +y (rad).
+    ss : int
+        Sub-samples per pixel along each axis.
+
+    Returns
+    -------
+    x0, y0 : int
+        Top-left pixel of the patch.
+    cov : ndarray [n, n] float
+        Covered fraction of each pixel of the patch (0-1).
+
+    Examples
+    --------
+    >>> x0, y0, cov = ellipse_coverage(10.0, 10.0, 3.0, 3.0, 0.0)
+    >>> (x0, y0), round(float(cov.sum()), 1)  # ~ pi r^2
+    ((5, 5), 28.2)
     """
     ext = int(np.ceil(a)) + 2
     x0 = int(np.floor(cx)) - ext
@@ -86,9 +110,13 @@ def _ellipse_coverage(
     return x0, y0, cov
 
 
-def _paint(img: np.ndarray, x0: int, y0: int, cov: np.ndarray, target: np.ndarray | float,
-           alpha: float = 1.0) -> None:
-    """Blend ``target`` into ``img`` with weight ``alpha * cov`` (clipped to the image)."""
+def paint(img: np.ndarray, x0: int, y0: int, cov: np.ndarray, target: np.ndarray | float,
+          alpha: float = 1.0) -> None:
+    """Blend ``target`` into ``img`` with weight ``alpha * cov`` (clipped to the image).
+
+    ``img`` is a float image [H, W] changed in place; ``(x0, y0, cov)`` as returned by
+    :func:`ellipse_coverage`; ``target`` a grey level or an array shaped like ``cov``.
+    """
     h, w = img.shape
     n0, n1 = cov.shape
     ya, yb = max(0, y0), min(h, y0 + n0)
@@ -207,8 +235,8 @@ def render_face(
     py = rng.uniform(fcy - fb, fcy + fb, n_pores)
     for x, y in zip(px, py, strict=True):
         r = rng.uniform(0.6, 2.0)
-        x0, y0, cov = _ellipse_coverage(x, y, r, r * rng.uniform(0.6, 1), rng.uniform(0, np.pi))
-        _paint(img, x0, y0, cov, img[int(min(max(y, 0), h - 1)), int(min(max(x, 0), w - 1))]
+        x0, y0, cov = ellipse_coverage(x, y, r, r * rng.uniform(0.6, 1), rng.uniform(0, np.pi))
+        paint(img, x0, y0, cov, img[int(min(max(y, 0), h - 1)), int(min(max(x, 0), w - 1))]
                * 0.85, alpha=rng.uniform(0.2, 0.6))
 
     region_map = np.where(face > 0.5, REGION_FACE, REGION_BACKGROUND).astype(np.uint8)
@@ -302,7 +330,7 @@ def render_face(
     marker_refl = rng.uniform(0.08, 0.3)
     colours, visible = [], []
     for (cx, cy), (a, b), th, reg in zip(centres, axes, angles, regions, strict=True):
-        x0, y0, cov = _ellipse_coverage(cx, cy, a, b, th)
+        x0, y0, cov = ellipse_coverage(cx, cy, a, b, th)
         yc = int(np.clip(cy, 0, h - 1))
         xc = int(np.clip(cx, 0, w - 1))
         local = min(base[yc, xc], 255.0)
@@ -314,7 +342,7 @@ def render_face(
         colours.append(1 if is_white else 0)
         # A white marker on a saturated highlight cannot be seen at all.
         visible.append(abs(target - local) >= 20.0)
-        _paint(img, x0, y0, cov, target)
+        paint(img, x0, y0, cov, target)
 
     if psf_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), psf_sigma)

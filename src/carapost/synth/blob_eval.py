@@ -1,6 +1,9 @@
-"""Accuracy measurements for the blob detector (shared by its tests and benchmark).
+"""Accuracy measurements for the blob detector against synthetic truth and real dot-grid
+photos (shared by its tests, ``benchmarks/blobs.py`` and ``scripts/train_blob_model.py``;
+moved here from ``carapost.algorithms._blob_eval``: the product packages never import
+it).
 
-Not a public API.
+Not part of the product API.
 """
 
 from __future__ import annotations
@@ -12,7 +15,12 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from carapost.algorithms._blob_synth import (
+from carapost.algorithms.blobs import BlobDetections, BlobParameters, detect_blobs
+
+# The point kind codes have one home; model.project for now (a shared
+# carapost.algorithms.codes module is planned: import them from there once it exists).
+from carapost.model.project import KIND_BRIM, KIND_FACE
+from carapost.synth.blob_images import (
     REGION_BACKGROUND,
     REGION_BRIM,
     REGION_FACE,
@@ -20,7 +28,6 @@ from carapost.algorithms._blob_synth import (
     SynthImage,
     match_to_truth,
 )
-from carapost.algorithms.blobs import BlobDetections, BlobParameters, detect_blobs
 
 #: (file name prefix, patternSize, flags) of the real dot-grid photos in shared/fixtures.
 CIRCLEGRID_PATTERNS = (
@@ -167,8 +174,6 @@ def circlegrid_files(folder: Path) -> list[tuple[Path, tuple[int, int], int]]:
 
 # --------------------------------------------------------------------------- carapost.synth
 
-KIND_FACE = 0
-KIND_BRIM = 1
 #: Rim points per disc for the projected-ellipse computation.
 _RIM_POINTS = 64
 
@@ -358,7 +363,7 @@ class SynthScore(_Tally):
         ds = np.flatnonzero(det.colour == 0)
         self.detections += len(ds)
         tol = np.clip(0.5 * v.axes[:, 1], 1.0, 3.0) + v.spread
-        d2t, t2d = _match(det.centre[ds].astype(np.float64), v.centre, tol)
+        d2t, t2d = match_nearest(det.centre[ds].astype(np.float64), v.centre, tol)
         major = 2 * v.axes[:, 0]  # Min / Max Radius bound the full major axis
         need = (major >= lo) & (major <= hi) & ~v.touching & ~v.cut
         self.expected += int(need.sum())
@@ -407,9 +412,32 @@ class SynthScore(_Tally):
         }
 
 
-def _match(det: np.ndarray, truth: np.ndarray, tol: np.ndarray
+def match_nearest(det: np.ndarray, truth: np.ndarray, tol: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
-    """One-to-one nearest matching within a per-truth tolerance (closest pairs first)."""
+    """One-to-one nearest matching within a per-truth tolerance (closest pairs first).
+
+    Parameters
+    ----------
+    det : ndarray [N, 2]
+        Detected centres (px).
+    truth : ndarray [M, 2]
+        Truth centres (px).
+    tol : ndarray [M]
+        Largest distance (px) at which a detection matches each truth centre.
+
+    Returns
+    -------
+    det_to_truth : ndarray [N] int64, truth index or -1
+    truth_to_det : ndarray [M] int64, detection index or -1
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d2t, t2d = match_nearest(np.array([[0.0, 0.0], [5.0, 5.0]]),
+    ...                          np.array([[0.5, 0.0], [9.0, 9.0]]), np.array([1.0, 1.0]))
+    >>> d2t.tolist(), t2d.tolist()
+    ([0, -1], [0, -1])
+    """
     d2t = np.full(len(det), -1, np.int64)
     t2d = np.full(len(truth), -1, np.int64)
     if len(det) == 0 or len(truth) == 0:

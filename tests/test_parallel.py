@@ -1,0 +1,105 @@
+"""Tests for carapost.parallel (the generic worker pool) and carapost._runtime."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from carapost import parallel
+from carapost._runtime import keep_freed_memory
+
+
+@pytest.fixture(scope="module")
+def pool():
+    p = parallel.ProcessPool(preload=["numpy"])
+    yield p
+    p.shutdown()
+
+
+def _arrays(n: int) -> dict[int, np.ndarray]:
+    # Every third array is larger than the first one (the slot size): it is pickled
+    # instead of copied into shared memory.
+    return {k: np.full((8, 8) if k % 3 == 2 else (4, 4), float(k)) for k in range(n)}
+
+
+@pytest.mark.parametrize("processes", [False, True])
+def test_results_progress_and_order_of_fetching(pool, processes):
+    arrays = _arrays(11)
+    fetched, seen = [], []
+
+    def get(k):
+        fetched.append(k)
+        return arrays[k]
+
+    out = parallel.map_arrays(get, list(arrays), np.sum, workers=2,
+                              pool=pool if processes else None, chunk=3,
+                              progress=lambda done, total: seen.append((done, total)))
+    assert fetched == list(arrays)  # on the calling thread, in order
+    assert {k: float(v) for k, v in out.items()} == {k: float(a.sum())
+                                                      for k, a in arrays.items()}
+    assert seen == [(i, 11) for i in range(1, 12)]
+
+
+def test_task_arguments_reach_the_workers(pool):
+    out = parallel.map_arrays(lambda k: np.arange(4.0) + k, range(5), np.round, (1,),
+                              pool=pool)
+    assert sorted(out) == list(range(5))
+    np.testing.assert_array_equal(out[3], [3.0, 4.0, 5.0, 6.0])
+
+
+def test_cancel_keeps_finished_arrays():
+    calls = []
+
+    def progress(done, total):
+        calls.append(done)
+        return done < 3
+
+    out = parallel.map_arrays(lambda k: np.zeros(3), range(50), np.sum, workers=2,
+                              progress=progress)
+    assert 3 <= len(out) < 50
+    assert calls[-1] == 3  # no progress after the cancel
+
+
+def test_errors_of_check_and_task_reach_the_caller(pool):
+    def check(a):
+        if a.ndim != 2:
+            raise ValueError("not 2-D")
+
+    with pytest.raises(ValueError, match="not 2-D"):
+        parallel.map_arrays(lambda k: np.zeros(3), range(3), np.sum, pool=pool, check=check)
+    with pytest.raises(np.linalg.LinAlgError):
+        parallel.map_arrays(lambda k: np.zeros((2, 3)), range(3), np.linalg.inv, pool=pool)
+    # The pool still works after the errors.
+    out = parallel.map_arrays(lambda k: np.ones((2, 2)), range(3), np.sum, pool=pool)
+    assert {float(v) for v in out.values()} == {4.0}
+
+
+def test_empty_and_bad_arguments():
+    assert parallel.map_arrays(lambda k: None, [], np.sum) == {}
+    with pytest.raises(ValueError, match="workers"):
+        parallel.map_arrays(lambda k: None, [1], np.sum, workers=0)
+    with pytest.raises(ValueError, match="chunk"):
+        parallel.map_arrays(lambda k: None, [1], np.sum, chunk=0)
+
+
+def test_pool_restarts_with_another_number_of_workers(pool):
+    first = pool.executor(2)
+    assert pool.executor(2) is first
+    assert pool.executor(1) is not first
+    out = parallel.map_arrays(lambda k: np.ones(2), range(4), np.sum, workers=1, pool=pool)
+    assert len(out) == 4
+
+
+def test_keep_freed_memory_is_applied_once():
+    first = keep_freed_memory()
+    assert keep_freed_memory() is first
+
+
+@pytest.mark.parametrize("module", ["carapost.parallel", "carapost._runtime"])
+def test_examples_of_the_docstrings(module):
+    # These modules are outside the doctest paths of the pytest configuration.
+    import doctest
+    import importlib
+
+    res = doctest.testmod(importlib.import_module(module), optionflags=doctest.ELLIPSIS)
+    assert res.attempted > 0 and res.failed == 0
