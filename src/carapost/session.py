@@ -2,9 +2,9 @@
 
 A `Session` holds one `Project`, the `CommandStack` of its History and a source of
 camera images (the take's videos, opened on first use). It has one method per File,
-Edit and Process action of the main window; each method builds and pushes the same
-command the window pushes, so a script's History matches the window's and every
-action undoes as one step::
+Edit and Process action of the main window. The window itself holds a Session per open
+project and every menu item calls it, so a script's History matches the window's and
+every action undoes as one step::
 
     from carapost import Session
 
@@ -23,6 +23,15 @@ the project is unchanged) or :class:`~carapost.io.errors.CaraFileError` (a file 
 missing or unreadable; the message names it). Processing methods take an optional
 ``progress(done, total) -> bool`` callback; returning False cancels, and what was
 finished is kept as one History entry, as in the window.
+
+Process actions follow the recipe of :mod:`carapost.commands.recipe` in two public
+steps, which the window uses to compute on its worker thread::
+
+    job = s.prepare("detect_blobs", frames="current")   # or s.prepare_detect_blobs(...)
+    result = job.compute(progress)                      # any thread, no project access
+    s.apply(result)                                     # one History entry
+
+``s.detect_blobs(...)`` is ``s.run(s.prepare_detect_blobs(...), progress)``.
 """
 
 from __future__ import annotations
@@ -37,13 +46,15 @@ from numpy.typing import NDArray
 
 from carapost.commands import edit
 from carapost.commands import file as file_commands
+from carapost.commands.recipe import ApplyResult, Job, Result
 from carapost.commands.stack import Command, CommandError, CommandStack, HistoryEntry
 from carapost.export import ExportOptions
 from carapost.model.project import Project, new_project
 
 log = logging.getLogger("carapost.session")
 
-__all__ = ["ImageFn", "ProgressFn", "RelocateCallback", "Session", "read_take"]
+__all__ = ["PROCESS_ACTIONS", "ImageFn", "ProgressFn", "RelocateCallback", "Session",
+           "read_take"]
 
 #: ``progress(done, total) -> bool``; returning False cancels.
 ProgressFn = Callable[[int, int], bool]
@@ -51,6 +62,10 @@ ProgressFn = Callable[[int, int], bool]
 ImageFn = Callable[[int, int], NDArray[np.uint8]]
 #: Called with (camera name or "take", missing path); returns a replacement or None.
 RelocateCallback = Callable[[str, str], "str | None"]
+#: The Process actions of :meth:`Session.prepare` (each has ``prepare_<action>`` and a
+#: synchronous method of the same name).
+PROCESS_ACTIONS = ("detect_blobs", "solve_brim", "initialize_3d", "bundle_current_frame",
+                   "bundle_sequence", "track", "track_take", "initialize_from_rom")
 
 
 def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
@@ -119,18 +134,24 @@ class Session:
     # ====================================================================================
     @classmethod
     def open(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
-             get_image: ImageFn | None = None) -> Session:
+             get_image: ImageFn | None = None, source: str | Path | None = None) -> Session:
         """File > Open: a session on a ``.cara`` project (a fresh History).
 
         Videos that moved are looked for beside the project, then ``relocate(camera,
         missing_path)`` is asked (see `relocate_files` to fix them afterwards).
+        ``source``: read this file instead (the recovered autosave copy of ``path``); the
+        project belongs to ``path`` and stays modified until it is saved.
         """
         from carapost.io.cara import load_project
 
-        project = load_project(path, relocate=relocate)
+        recovered = source is not None and Path(source) != Path(path)
+        project = load_project(source if recovered else path, relocate=relocate)
         project.path = str(Path(path).absolute())
         project.modified = False
-        return cls(project, get_image=get_image)
+        session = cls(project, get_image=get_image)
+        if recovered:  # the autosave copy differs from the file until it is saved
+            session.stack.mark_unsaved()
+        return session
 
     @classmethod
     def import_take(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
@@ -294,6 +315,15 @@ class Session:
     def reset_active_range(self) -> Command:
         """View > Reset Active Range (Ctrl+3): the whole take."""
         return self._push(lambda: edit.SetRange.reset_active(self.project))
+
+    def set_range_bound(self, which: str) -> Command:
+        """View > Set Active Range Start / End (Ctrl+1 / Ctrl+2) at the current frame,
+        Set View Range to Active Range, Reset View Range: ``which`` is "active_start",
+        "active_end", "view_to_active" or "reset_view"."""
+        ctor = getattr(edit.SetRange, _one_of(which, ("active_start", "active_end",
+                                                      "view_to_active", "reset_view"),
+                                              "Set range"))
+        return self._push(lambda: ctor(self.project))
 
     def set_view_range(self, first: int, last: int) -> Command:
         """Set the view range, inclusive frames."""
@@ -550,6 +580,10 @@ class Session:
         """Labelling pane: rename a label (and the point that carries it)."""
         return self._push(lambda: file_commands.RenameLabel(self.project, old, new))
 
+    def assign_label(self, point_id: int, label: str) -> Command:
+        """Labelling pane click: the point takes the label."""
+        return self._push(lambda: edit.AssignLabel(self.project, int(point_id), label))
+
     def clear_all_labels(self) -> Command:
         """Edit > Clear All Labels."""
         return self._push(lambda: edit.ClearAllLabels(self.project))
@@ -581,29 +615,72 @@ class Session:
                                                              clockwise=clockwise))
 
     # ====================================================================================
-    # Process
+    # Process: prepare (snapshot, caller's thread) -> compute (any thread) -> apply
     # ====================================================================================
-    def _run(self, make: Callable[[ProgressFn | None], Command],
-             progress: ProgressFn | None = None) -> Command:
-        """Compute a processing action and push its result as one History entry.
+    def prepare(self, action: str, /, **options: Any) -> Job:
+        """Step 1 of a Process action: validate and snapshot, on the calling thread.
 
-        Every Process method goes through here, so the processing-command recipe
-        (prepare on the caller's thread, compute on a worker, apply one result command)
-        replaces this one method: today ``make(progress)`` builds the command, whose
-        constructor computes, and the result is pushed. Commands that do not report
-        progress yet ignore ``progress``. A cancelled run that finished some work is
-        pushed too (as the window does) and logged; the command's ``cancelled``
-        attribute (or its computation's) says so.
+        ``session.prepare("track", direction="backwards")`` is
+        ``session.prepare_track(direction="backwards")``; ``action`` is one of
+        :data:`PROCESS_ACTIONS` and ``options`` are those of the synchronous method of
+        that name (without ``progress``). The job holds no reference to the project:
+        run ``job.compute(progress)`` anywhere (the window: its worker thread), then
+        :meth:`apply` the result::
+
+            job = session.prepare("detect_blobs", frames="current")
+            result = job.compute(progress)       # worker thread
+            session.apply(result)                # one History entry
+
+        Image actions (``detect_blobs``, ``track``, ``track_take``) take ``get_image``
+        too: an image source for the thread that computes (default: the session's).
+
+        Raises
+        ------
+        CommandError
+            Unknown action, or the action refuses (the message says why).
         """
-        command = make(progress)
-        comp = getattr(command, "computation", None)
-        if getattr(command, "cancelled", False) or getattr(comp, "cancelled", False):
-            log.warning("%s: cancelled; the finished part is kept", command.description)
-        return self.stack.push(command)
+        if action not in PROCESS_ACTIONS:
+            raise CommandError(f"prepare: {action!r} is not a Process action (one of "
+                               f"{', '.join(PROCESS_ACTIONS)})")
+        return getattr(self, f"prepare_{action}")(**options)
+
+    def apply(self, result: Result) -> ApplyResult:
+        """Step 3: push a computed result as one History entry (``ApplyResult``).
+
+        A cancelled job's result is pushed too (what was finished is kept, as in the
+        window) and logged.
+        """
+        if not isinstance(result, Result):
+            raise TypeError(f"apply needs a Result, got {type(result).__name__}")
+        command = ApplyResult(result)
+        if result.cancelled:
+            log.warning("%s: cancelled; the finished part is kept", result.description)
+            if "cancelled" not in command.description:  # the History says so
+                command.description += " (cancelled: partial)"
+        return self.stack.push(command)  # type: ignore[return-value]
+
+    def run(self, job: Job, progress: ProgressFn | None = None) -> ApplyResult:
+        """Steps 2 and 3 here: ``apply(job.compute(progress))``. Every synchronous
+        Process method is ``run(prepare_<action>(...), progress)``."""
+        return self.apply(job.compute(progress))
+
+    def prepare_detect_blobs(self, frames: str | Sequence[int] = "current",
+                             cameras: Iterable[int] | None = None, *, workers: int = 2,
+                             get_image: ImageFn | None = None) -> Job:
+        """Prepare :meth:`detect_blobs` (see :meth:`prepare`)."""
+        from carapost.commands.process import prepare_detect_blobs
+
+        rng = self._frames_arg(frames, "Detect Blobs")
+        images = get_image if get_image is not None else self._image_fn("Detect Blobs")
+        cams = None if cameras is None else [int(c) for c in cameras]
+        title = {"current": "Current Frame", "active": "Active Range"}.get(
+            frames.strip().lower() if isinstance(frames, str) else "")
+        return prepare_detect_blobs(self.project, rng, cams, images, workers,
+                                    f"Detect Blobs [{title}]" if title else None)
 
     def detect_blobs(self, frames: str | Sequence[int] = "current",
                      cameras: Iterable[int] | None = None, *,
-                     progress: ProgressFn | None = None, workers: int = 2) -> Command:
+                     progress: ProgressFn | None = None, workers: int = 2) -> ApplyResult:
         """Process > Detect Blobs [Current Frame] / [Active Range] with the Blob Parameters.
 
         Parameters
@@ -617,30 +694,26 @@ class Session:
         workers : int
             Detector threads.
         """
-        from carapost.commands.process import DetectBlobs
-
-        rng = self._frames_arg(frames, "Detect Blobs")
-        get_image = self._image_fn("Detect Blobs")
-        cams = None if cameras is None else [int(c) for c in cameras]
-        return self._run(lambda pr: DetectBlobs(self.project, rng, cameras=cams,
-                                                get_image=get_image, progress=pr,
-                                                workers=workers), progress)
+        return self.run(self.prepare_detect_blobs(frames, cameras, workers=workers),
+                        progress)
 
     def load_rom(self, path: str | Path) -> Command:
         """Process > Load ROM: keep a ``.cara`` project to initialise this take from."""
-        from carapost.commands.tracking import LoadRom
+        from carapost.commands.rom import LoadRom
 
         return self._push(lambda: LoadRom(self.project, path))
 
-    def initialize_from_rom(self, brim_only: bool = False, frame: int | None = None, *,
-                            progress: ProgressFn | None = None) -> Command:
-        """Process > Initialize from ROM (``brim_only``: [Brim Only]) at the current frame."""
-        from carapost.commands.tracking import InitializeFromRom
+    def prepare_initialize_from_rom(self, brim_only: bool = False,
+                                    frame: int | None = None) -> Job:
+        """Prepare :meth:`initialize_from_rom` (see :meth:`prepare`)."""
+        from carapost.commands.rom import prepare_rom_initialisation
 
-        if self.project.rom is None or self.project.rom.project is None:
-            raise CommandError("Initialize from ROM: no ROM is loaded (load_rom first)")
-        return self._run(lambda pr: InitializeFromRom(self.project, brim_only=brim_only,
-                                                      frame=frame), progress)
+        return prepare_rom_initialisation(self.project, brim_only=brim_only, frame=frame)
+
+    def initialize_from_rom(self, brim_only: bool = False, frame: int | None = None, *,
+                            progress: ProgressFn | None = None) -> ApplyResult:
+        """Process > Initialize from ROM (``brim_only``: [Brim Only]) at the current frame."""
+        return self.run(self.prepare_initialize_from_rom(brim_only, frame), progress)
 
     def initialize_default_brim(self, version: str = "2.0") -> Command:
         """Process > Initialize Default Calibration Brim [v2.0 / v1.1 / v1.0]."""
@@ -648,9 +721,30 @@ class Session:
 
         return self._push(lambda: InitializeDefaultBrim(self.project, version))
 
+    def prepare_solve_brim(self, frame: int | None = None, method: str = "auto",
+                           correspondences: Mapping[int, Sequence[tuple[int, int]]]
+                           | None = None) -> Job:
+        """Prepare :meth:`solve_brim` (see :meth:`prepare`)."""
+        from carapost.commands.process import (
+            prepare_solve_brim,
+            prepare_solve_brim_auto,
+            prepare_solve_brim_manual,
+        )
+
+        how = _one_of(method, ("auto", "manual", "automatic"), "Solve Calibration Brim: "
+                      "method")
+        p = self.project
+        f = p.current_frame if frame is None else int(frame)
+        if how == "manual" or (how == "auto" and correspondences is not None):
+            return prepare_solve_brim_manual(p, f, correspondences)
+        if correspondences is not None:
+            raise CommandError("Solve Calibration Brim [Automatic]: correspondences are "
+                               "for the manual solve")
+        return prepare_solve_brim(p, f) if how == "auto" else prepare_solve_brim_auto(p, f)
+
     def solve_brim(self, frame: int | None = None, method: str = "auto",
                    correspondences: Mapping[int, Sequence[tuple[int, int]]] | None = None,
-                   *, progress: ProgressFn | None = None) -> Command:
+                   *, progress: ProgressFn | None = None) -> ApplyResult:
         """Process > Solve Calibration Brim at ``frame`` (default: the current frame).
 
         Parameters
@@ -661,51 +755,69 @@ class Session:
             geometry; "auto" (the menu's rule): manual when brim points are attached
             at the frame, else automatic.
         """
-        from carapost.commands.process import SolveBrimAuto, SolveBrimManual
-        from carapost.model.project import KIND_BRIM
+        return self.run(self.prepare_solve_brim(frame, method, correspondences), progress)
 
-        how = _one_of(method, ("auto", "manual", "automatic"), "Solve Calibration Brim: "
-                      "method")
-        p = self.project
-        f = p.current_frame if frame is None else int(frame)
-        if how == "auto":
-            brim = np.flatnonzero(p.points.kind == KIND_BRIM)
-            attached = (len(brim) and 0 <= f < p.n_frames
-                        and np.any(p.points.detection[f, brim] >= 0))
-            how = "manual" if attached or correspondences is not None else "automatic"
-        if how == "manual":
-            return self._run(lambda pr: SolveBrimManual(p, f, correspondences), progress)
-        if correspondences is not None:
-            raise CommandError("Solve Calibration Brim [Automatic]: correspondences are "
-                               "for the manual solve")
-        return self._run(lambda pr: SolveBrimAuto(p, f), progress)
+    def prepare_initialize_3d(self, frame: int | None = None,
+                              seeds: Sequence[Sequence[int]] | None = None) -> Job:
+        """Prepare :meth:`initialize_3d` (see :meth:`prepare`)."""
+        from carapost.commands.process import prepare_initialize_3d
+
+        return prepare_initialize_3d(self.project, frame, seeds)
 
     def initialize_3d(self, frame: int | None = None,
                       seeds: Sequence[Sequence[int]] | None = None, *,
-                      progress: ProgressFn | None = None) -> Command:
+                      progress: ProgressFn | None = None) -> ApplyResult:
         """Process > Initialize 3D at ``frame`` (default: the current frame)."""
-        from carapost.commands.process import Initialize3D
+        return self.run(self.prepare_initialize_3d(frame, seeds), progress)
 
-        return self._run(lambda pr: Initialize3D(self.project, frame, seeds), progress)
+    def prepare_bundle_current_frame(self, frame: int | None = None) -> Job:
+        """Prepare :meth:`bundle_current_frame` (see :meth:`prepare`)."""
+        from carapost.commands.process import prepare_bundle_frame
+
+        return prepare_bundle_frame(self.project, frame)
 
     def bundle_current_frame(self, frame: int | None = None, *,
-                             progress: ProgressFn | None = None) -> Command:
+                             progress: ProgressFn | None = None) -> ApplyResult:
         """Process > Bundle Current Frame [Unconstrained]."""
-        from carapost.commands.process import BundleCurrentFrame
+        return self.run(self.prepare_bundle_current_frame(frame), progress)
 
-        return self._run(lambda pr: BundleCurrentFrame(self.project, frame), progress)
-
-    def bundle_sequence(self, frames: str | Sequence[int] = "active", *,
-                        progress: ProgressFn | None = None) -> Command:
-        """Process > Bundle Sequence [Unconstrained] (over the active range by default)."""
-        from carapost.commands.bundle import BundleSequence
+    def prepare_bundle_sequence(self, frames: str | Sequence[int] = "active") -> Job:
+        """Prepare :meth:`bundle_sequence` (see :meth:`prepare`)."""
+        from carapost.commands.bundle import prepare_bundle_sequence
 
         rng = self._frames_arg(frames, "Bundle Sequence [Unconstrained]")
-        return self._run(lambda pr: BundleSequence(self.project, rng, progress=pr), progress)
+        return prepare_bundle_sequence(self.project, rng)
+
+    def bundle_sequence(self, frames: str | Sequence[int] = "active", *,
+                        progress: ProgressFn | None = None) -> ApplyResult:
+        """Process > Bundle Sequence [Unconstrained] (over the active range by default)."""
+        return self.run(self.prepare_bundle_sequence(frames), progress)
+
+    def prepare_track(self, direction: str | int = "forwards", *, single_frame: bool = False,
+                      point_ids: Iterable[int] | None = None, frame: int | None = None,
+                      use_images: bool = True, get_image: ImageFn | None = None) -> Job:
+        """Prepare :meth:`track` (see :meth:`prepare`)."""
+        from carapost.commands.tracking import prepare_tracking
+
+        if isinstance(direction, str):
+            d = _one_of(direction, ("forwards", "backwards"), "Track: direction")
+            step = 1 if d == "forwards" else -1
+        elif int(direction) in (1, -1):
+            step = int(direction)
+        else:
+            raise CommandError(f"Track: direction must be 'forwards' or 'backwards', got "
+                               f"{direction!r}")
+        ids = sorted(self.project.selection.points) if point_ids is None else \
+            [int(i) for i in point_ids]
+        if get_image is None and use_images and self.has_images:
+            get_image = self.get_image
+        return prepare_tracking(self.project, step, single_frame=single_frame,
+                                point_ids=ids or None, frame=frame,
+                                get_image=get_image if use_images else None)
 
     def track(self, direction: str | int = "forwards", *, single_frame: bool = False,
               point_ids: Iterable[int] | None = None, frame: int | None = None,
-              use_images: bool = True, progress: ProgressFn | None = None) -> Command:
+              use_images: bool = True, progress: ProgressFn | None = None) -> ApplyResult:
         """Process > Track Forwards / Backwards [Sequence] or [Single Frame] (Ctrl+W).
 
         Parameters
@@ -722,36 +834,30 @@ class Session:
             blob, detection of frames without detections), as the window does when
             the take has videos.
         """
-        from carapost.commands.tracking import TrackCommand
+        return self.run(self.prepare_track(direction, single_frame=single_frame,
+                                           point_ids=point_ids, frame=frame,
+                                           use_images=use_images), progress)
 
-        if isinstance(direction, str):
-            d = _one_of(direction, ("forwards", "backwards"), "Track: direction")
-            step = 1 if d == "forwards" else -1
-        elif int(direction) in (1, -1):
-            step = int(direction)
-        else:
-            raise CommandError(f"Track: direction must be 'forwards' or 'backwards', got "
-                               f"{direction!r}")
-        ids = sorted(self.project.selection.points) if point_ids is None else \
-            [int(i) for i in point_ids]
-        get_image = self.get_image if use_images and self.has_images else None
-        return self._run(lambda pr: TrackCommand(self.project, step, single_frame=single_frame,
-                                                 point_ids=ids or None, progress=pr,
-                                                 get_image=get_image, frame=frame), progress)
+    def prepare_track_take(self, frame: int | None = None, *, find_markers: bool = True,
+                           use_images: bool = False, get_image: ImageFn | None = None) -> Job:
+        """Prepare :meth:`track_take` (see :meth:`prepare`)."""
+        from carapost.commands.tracking import prepare_take_tracking
+
+        if use_images and get_image is None:
+            get_image = self._image_fn("Track Take")
+        return prepare_take_tracking(self.project, frame, find_markers=find_markers,
+                                     get_image=get_image if use_images else None)
 
     def track_take(self, frame: int | None = None, *, find_markers: bool = True,
-                   use_images: bool = False, progress: ProgressFn | None = None) -> Command:
+                   use_images: bool = False, progress: ProgressFn | None = None
+                   ) -> ApplyResult:
         """Track the whole take from an initialised frame, finding missed markers.
 
         What ``carapost process`` does after Initialize 3D (forwards, then backwards).
         ``use_images`` turns on patch tracking (slower: every image is decoded again).
         """
-        from carapost.commands.tracking import TrackTakeCommand
-
-        get_image = self._image_fn("Track Take") if use_images else None
-        return self._run(lambda pr: TrackTakeCommand(self.project, frame, progress=pr,
-                                                     find_markers=find_markers,
-                                                     get_image=get_image), progress)
+        return self.run(self.prepare_track_take(frame, find_markers=find_markers,
+                                                use_images=use_images), progress)
 
     # ====================================================================================
     # queries

@@ -1,8 +1,9 @@
 """Docked panes: Labelling, History, Selected Point, Log, Properties, Selection, Tracker.
 
 Each pane gets the window's :class:`~carapost.ui.context.ActionContext`, listens to its
-change signals itself and changes the project only through the context (``ctx.push``
-and the handlers of :mod:`carapost.ui.handlers`).
+change signals itself and changes the project only through the handlers of
+:mod:`carapost.ui.handlers` and the context (``ctx.set_properties``), which call the
+open project's Session.
 """
 
 from __future__ import annotations
@@ -34,9 +35,9 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from carapost.commands import edit
 from carapost.model.events import Change
 from carapost.model.properties import SECTIONS, TARGET_TRACKER, specs_in_section
+from carapost.session import Session
 from carapost.ui.actions import NOT_AVAILABLE, requirement_met
 from carapost.ui.bridge import LogEntry
 from carapost.ui.context import ActionContext
@@ -77,7 +78,7 @@ class LabellingPane(QWidget):
         self.list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         layout.addWidget(self.list)
         self.clear_button.clicked.connect(
-            lambda: edit_menu.command(edit.ClearAllLabels, ctx))
+            lambda: edit_menu.session_action(Session.clear_all_labels, ctx))
         self.delete_button.clicked.connect(lambda: edit_menu.delete_selected_labels(ctx))
         self.list.itemClicked.connect(lambda item: edit_menu.assign_label(ctx, item.text()))
         self.list.itemDoubleClicked.connect(
@@ -205,7 +206,8 @@ class PropertiesPane(QWidget):
         self.restore_button = QPushButton("Restore Properties To Defaults")
         layout.addWidget(self.restore_button)
         self.restore_button.clicked.connect(
-            lambda: edit_menu.command(edit.RestorePropertiesToDefaults, ctx))
+            lambda: edit_menu.session_action(Session.restore_properties_to_defaults,
+                                             ctx))
         self.editors: dict[str, QWidget] = {}
         self._updating = False
         shown = sections or tuple(s for s in SECTIONS if s != TARGET_TRACKER)
