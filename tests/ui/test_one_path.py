@@ -168,15 +168,21 @@ def test_relocate_refuses_a_video_of_another_size_from_every_entry_point(make_wi
 # ------------------------------------------------------------------------------ process
 
 
-def test_process_items_run_the_recipe_on_the_worker(make_window, qtbot, synth_take,
-                                                    monkeypatch):
-    s = Session.import_take(synth_take)
-    with s:  # initialise frame 0 by script, as far as tracking needs
+def initialised_session(take: Path) -> Session:
+    """A session on the take with blobs, a solved brim and Initialize 3D at frame 0
+    (the state tracking starts from), made by script."""
+    s = Session.import_take(take)
+    with s:
         s.detect_blobs("all")
         s.solve_brim(frame=0, method="automatic")
         s.initialize_3d(frame=0)
-    p = s.project
-    p.set_current_frame(0)
+    s.current_frame = 0
+    return s
+
+
+def test_process_items_run_the_recipe_on_the_worker(make_window, qtbot, synth_take,
+                                                    monkeypatch):
+    p = initialised_session(synth_take).project
     w = make_window(p)
     session = w.context.session
     computed_on: list[threading.Thread] = []

@@ -9,13 +9,37 @@ entry on the GUI thread. Default brims and Load ROM change the project at once.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
+from carapost.commands.recipe import Job
 from carapost.commands.stack import CommandError
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.file import CARA_FILTER
+from carapost.ui.settings import preference
 
 log = logging.getLogger("carapost.ui")
+
+#: the user preference (Tracker pane, this computer) that makes the views follow tracking
+FOLLOW_TRACKING = "tracker_update_2d_view_every_frame"
+
+
+def follow_tracking(ctx: ActionContext, job: Job) -> Callable[[], None]:
+    """With Update 2D View Every Frame on, the views show each frame as it is tracked
+    (the current frame follows the job's progress); returns the function that stops it.
+
+    Slower, as the guide says: every frame's images are decoded for the views too.
+    """
+    start, stop = getattr(job, "start", None), getattr(job, "stop", None)
+    if start is None or stop is None or not preference(ctx.settings, FOLLOW_TRACKING):
+        return lambda: None
+    step, span = (1 if stop >= start else -1), abs(stop - start)
+
+    def show(done: int, total: int) -> None:
+        ctx.set_frame(start + step * min(int(done), span))
+
+    ctx.runner.progressed.connect(show)
+    return lambda: ctx.runner.progressed.disconnect(show)
 
 
 def run(ctx: ActionContext, action: str, title: str, images: bool = False,
@@ -58,9 +82,15 @@ def run(ctx: ActionContext, action: str, title: str, images: bool = False,
         close()
         ctx.report_error(title, str(exc), show=False)
         return False
-    started = ctx.runner.start_job(job, ctx.apply, title=title, finished=close)
-    if not started:
+    unfollow = follow_tracking(ctx, job) if action == "track" else (lambda: None)
+
+    def finished(*_: Any) -> None:
+        unfollow()
         close()
+
+    started = ctx.runner.start_job(job, ctx.apply, title=title, finished=finished)
+    if not started:
+        finished()
     return started
 
 
