@@ -246,3 +246,16 @@ def test_menus_built_from_the_table(make_window):
     assert "Interpolate Gaps" in titles and "Track Forwards [Sequence]" in titles
     panels = [a.text() for a in w.menus["View/Panels"].actions()]
     assert panels == pane_names()
+
+
+def test_third_party_licences_list_the_runtime_dependencies():
+    """Help > Show 3rd Party Licenses names what pyproject ships, not test packages."""
+    import tomllib
+
+    from carapost.ui.handlers.help import THIRD_PARTY
+
+    root = Path(__file__).resolve().parents[2]
+    deps = tomllib.loads((root / "pyproject.toml").read_text())["project"]["dependencies"]
+    shipped = {re.split(r"[<>=!~ ]", d, maxsplit=1)[0].lower() for d in deps}
+    listed = {name.split(" ")[0].lower() for name, _ in THIRD_PARTY}
+    assert listed == shipped and "ezc3d" not in listed

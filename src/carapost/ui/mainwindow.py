@@ -305,7 +305,7 @@ class MainWindow(QMainWindow):
         s.setValue("display/options", self.context.view.options.to_dict())
         s.sync()
 
-    def closeEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def closeEvent(self, ev) -> None:
         if not file_menu.maybe_save(self.context):
             ev.ignore()
             return
