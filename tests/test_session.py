@@ -361,3 +361,55 @@ def test_one_definition_of_caddy():
     assert caddy_groups(4, {"caddies": [[0, 1], [1, 2]]}) == ((0, 1), (2, 3))  # invalid
     s = Session(copy.deepcopy(new_project(2, 6)))
     assert s.caddies == ((0, 1), (2, 3), (4, 5))
+
+
+# ----------------------------------------------------------------------------- two steps
+
+
+def test_two_step_form_is_the_synchronous_method(synth_take):
+    """prepare (snapshot) -> compute (any thread) -> apply gives what the one-call
+    method gives: the same History entry and bit-identical data."""
+    import threading
+
+    from carapost.commands.recipe import Job, Result
+    from carapost.session import PROCESS_ACTIONS
+
+    a, b = Session.import_take(synth_take), Session.import_take(synth_take)
+    with a, b:
+        job = a.prepare("detect_blobs", frames="current")
+        assert isinstance(job, Job) and a.history() == []  # nothing changed yet
+        out: list[Result] = []
+        worker = threading.Thread(target=lambda: out.append(job.compute(None)))
+        worker.start()
+        worker.join()
+        a.apply(out[0])
+        b.detect_blobs("current")
+        for s in (a, b):
+            s.solve_brim(frame=0, method="automatic")
+        assert isinstance(a.prepare("initialize_3d", frame=0), Job)
+        a.run(a.prepare_initialize_3d(frame=0))
+        b.initialize_3d(frame=0)
+    assert snapshot(a.project) == snapshot(b.project)
+    assert [h.description for h in a.history()] == [h.description for h in b.history()] \
+        == ["Detect Blobs [Current Frame]", "Solve Calibration Brim [Automatic] [frame 0]",
+            "Initialize 3D [frame 0]"]
+    assert all(hasattr(Session, f"prepare_{name}") and hasattr(Session, name)
+               for name in PROCESS_ACTIONS)
+    with pytest.raises(CommandError, match="not a Process action"):
+        a.prepare("merge")
+    with pytest.raises(TypeError):
+        a.apply("not a result")
+
+
+def test_open_a_recovered_autosave_stays_unsaved(tmp_path, rng):
+    from carapost.io.cara import autosave_project
+
+    s = Session(make_project(rng))
+    path = s.save(tmp_path / "a.cara")
+    s.set_active_range(3, 7)
+    auto = autosave_project(s.project)
+    recovered = Session.open(path, source=auto)
+    assert recovered.project.active_range == (3, 7)  # the autosave's data
+    assert recovered.project.path == str(path.absolute())  # belongs to the file
+    assert recovered.project.modified and not recovered.stack.is_clean
+    assert Session.open(path).project.active_range != (3, 7)
