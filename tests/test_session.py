@@ -66,27 +66,10 @@ def project_state(p: Project) -> dict:
 
 
 def test_import_take_is_one_path(synth_take):
-    """Session.import_take == api.import_take == the loader of ``carapost gui take``."""
-    pytest.importorskip("PySide6")
-    from carapost.ui.app import open_path
-
-    class Window:  # what open_path uses of the main window
-        project: Project | None = None
-
-        def start(self, title, job, done):
-            done(job(lambda d, n: True), False)
-
-        def set_project(self, project):
-            self.project = project
-
-        runner = property(lambda self: self)
-
-    window = Window()
-    assert open_path(window, str(synth_take))
+    """Session.import_take == api.import_take (the window's loaders: tests/ui)."""
     session = Session.import_take(synth_take)
     via_api = api.import_take(synth_take)
-    state = project_state(session.project)
-    assert state == project_state(via_api) == project_state(window.project)
+    assert project_state(session.project) == project_state(via_api)
     # the brim model of the take is there (the step `carapost gui` used to skip)
     assert (session.project.points.kind == KIND_BRIM).sum() > 0
     assert session.history() == []
@@ -196,7 +179,6 @@ def _video(path: Path, size: tuple[int, int], n: int = 4) -> Path:
 
 def test_relocate_files_refuses_a_video_of_another_size_everywhere(tmp_path):
     from carapost.commands.file import RelocateFiles
-    from carapost.ui.uicommands import RelocateVideos
 
     for c in ("cam0", "cam1"):
         _video(tmp_path / f"T_{c}.mkv", (64, 48))
@@ -207,9 +189,8 @@ def test_relocate_files_refuses_a_video_of_another_size_everywhere(tmp_path):
         s.relocate_files({1: small})
     with pytest.raises(CommandError, match="32x24"):
         api.relocate_files(s.project, {"cam1": small})
-    with pytest.raises(CommandError, match="32x24"):  # the window's command
-        RelocateVideos(s.project, {1: str(small)})
-    assert RelocateVideos is RelocateFiles
+    with pytest.raises(CommandError, match="32x24"):  # the command they push
+        RelocateFiles(s.project, {1: str(small)})
     with pytest.raises(CaraFileError, match="nope.mkv"):
         s.relocate_files({0: tmp_path / "nope.mkv"})
     with pytest.raises(CommandError, match="no camera named"):
@@ -380,3 +361,55 @@ def test_one_definition_of_caddy():
     assert caddy_groups(4, {"caddies": [[0, 1], [1, 2]]}) == ((0, 1), (2, 3))  # invalid
     s = Session(copy.deepcopy(new_project(2, 6)))
     assert s.caddies == ((0, 1), (2, 3), (4, 5))
+
+
+# ----------------------------------------------------------------------------- two steps
+
+
+def test_two_step_form_is_the_synchronous_method(synth_take):
+    """prepare (snapshot) -> compute (any thread) -> apply gives what the one-call
+    method gives: the same History entry and bit-identical data."""
+    import threading
+
+    from carapost.commands.recipe import Job, Result
+    from carapost.session import PROCESS_ACTIONS
+
+    a, b = Session.import_take(synth_take), Session.import_take(synth_take)
+    with a, b:
+        job = a.prepare("detect_blobs", frames="current")
+        assert isinstance(job, Job) and a.history() == []  # nothing changed yet
+        out: list[Result] = []
+        worker = threading.Thread(target=lambda: out.append(job.compute(None)))
+        worker.start()
+        worker.join()
+        a.apply(out[0])
+        b.detect_blobs("current")
+        for s in (a, b):
+            s.solve_brim(frame=0, method="automatic")
+        assert isinstance(a.prepare("initialize_3d", frame=0), Job)
+        a.run(a.prepare_initialize_3d(frame=0))
+        b.initialize_3d(frame=0)
+    assert snapshot(a.project) == snapshot(b.project)
+    assert [h.description for h in a.history()] == [h.description for h in b.history()] \
+        == ["Detect Blobs [Current Frame]", "Solve Calibration Brim [Automatic] [frame 0]",
+            "Initialize 3D [frame 0]"]
+    assert all(hasattr(Session, f"prepare_{name}") and hasattr(Session, name)
+               for name in PROCESS_ACTIONS)
+    with pytest.raises(CommandError, match="not a Process action"):
+        a.prepare("merge")
+    with pytest.raises(TypeError):
+        a.apply("not a result")
+
+
+def test_open_a_recovered_autosave_stays_unsaved(tmp_path, rng):
+    from carapost.io.cara import autosave_project
+
+    s = Session(make_project(rng))
+    path = s.save(tmp_path / "a.cara")
+    s.set_active_range(3, 7)
+    auto = autosave_project(s.project)
+    recovered = Session.open(path, source=auto)
+    assert recovered.project.active_range == (3, 7)  # the autosave's data
+    assert recovered.project.path == str(path.absolute())  # belongs to the file
+    assert recovered.project.modified and not recovered.stack.is_clean
+    assert Session.open(path).project.active_range != (3, 7)

@@ -266,7 +266,7 @@ def track_all(session: Session, *, patch_tracking: bool = False,
     if F > 1:
         cmd = _stage("tracking", lambda: session.track_take(
             frame=0, use_images=patch_tracking, progress=progress))
-        if cmd.computation.cancelled:
+        if cmd.cancelled:
             raise RuntimeError("cancelled during tracking; nothing was written")
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from PySide6.QtGui import QKeySequence
 
+from carapost.session import PROCESS_ACTIONS, Session
 from carapost.ui import actions as table
 from carapost.ui.context import ActionContext
 from carapost.ui.docks import pane_names
@@ -173,17 +174,26 @@ def test_every_enabled_entry_has_a_real_callable():
         bound = sig.bind(*args, "ctx", *extra, **kwargs)  # TypeError if it cannot be called
         ctx_param = next(name for name, value in bound.arguments.items() if value == "ctx")
         assert sig.parameters[ctx_param].annotation in (ActionContext, "ActionContext"), spec.id
-        for value in (*args, *kwargs.values()):
-            # bound commands and Process hooks are the real objects, not names
-            assert not isinstance(value, str) or spec.id.startswith(
-                ("file.", "edit.detach", "edit.stop", "process.blobs")) or fn.__name__ == \
-                "run_process", (spec.id, value)
-        if fn.__name__ == "run_process":
-            hook = args[0]
-            assert callable(hook) and hook.__module__ == "carapost.commands.menu", spec.id
-            assert args[1] == spec.title
-        if fn.__name__ == "command":
-            assert callable(args[0]) and args[0].__module__ == "carapost.commands.edit"
+        if fn.__name__ == "session_action":
+            # a real (unbound) Session method, and options it accepts
+            method = args[0]
+            assert method.__qualname__ == f"Session.{method.__name__}", spec.id
+            assert getattr(Session, method.__name__) is method
+            inspect.signature(method).bind("session", **kwargs)
+        elif fn.__name__ == "run":
+            # a Session Process action whose prepare step takes the bound options
+            assert fn.__module__ == "carapost.ui.handlers.process"
+            assert kwargs["action"] in PROCESS_ACTIONS and kwargs["title"] == spec.title
+            options = {k: v for k, v in kwargs.items() if k not in ("action", "title",
+                                                                      "images")}
+            if kwargs["images"]:
+                options["get_image"] = None
+            prepare = getattr(Session, f"prepare_{kwargs['action']}")
+            inspect.signature(prepare).bind("session", **options)
+        else:
+            for value in (*args, *kwargs.values()):  # no method looked up by name
+                assert not isinstance(value, str) or spec.id.startswith(
+                    ("file.", "edit.detach", "edit.stop", "process.brim")), (spec.id, value)
 
 
 def test_unimplemented_guide_items_are_listed_disabled(make_window):
@@ -236,3 +246,16 @@ def test_menus_built_from_the_table(make_window):
     assert "Interpolate Gaps" in titles and "Track Forwards [Sequence]" in titles
     panels = [a.text() for a in w.menus["View/Panels"].actions()]
     assert panels == pane_names()
+
+
+def test_third_party_licences_list_the_runtime_dependencies():
+    """Help > Show 3rd Party Licenses names what pyproject ships, not test packages."""
+    import tomllib
+
+    from carapost.ui.handlers.help import THIRD_PARTY
+
+    root = Path(__file__).resolve().parents[2]
+    deps = tomllib.loads((root / "pyproject.toml").read_text())["project"]["dependencies"]
+    shipped = {re.split(r"[<>=!~ ]", d, maxsplit=1)[0].lower() for d in deps}
+    listed = {name.split(" ")[0].lower() for name, _ in THIRD_PARTY}
+    assert listed == shipped and "ezc3d" not in listed

@@ -1,12 +1,12 @@
-"""JobRunner.start_job: a processing job computed on the worker, its result pushed."""
+"""JobRunner.start_job: a processing job computed on the worker, its result applied."""
 
 from __future__ import annotations
 
 import threading
 
 from carapost.commands.process import prepare_detect_blobs
-from carapost.commands.stack import CommandStack
 from carapost.model.project import new_project
+from carapost.session import Session
 from carapost.ui.bridge import JobRunner
 from tests.commands.test_process import _disc_image
 
@@ -20,16 +20,17 @@ def test_start_job_computes_on_the_worker_and_pushes_on_the_gui_thread(qtbot):
         return _disc_image([(40 + 5 * f, 40)])
 
     job = prepare_detect_blobs(p, (0, 1), get_image=get_image, workers=1)
-    stack = CommandStack(p)
+    session = Session(p)
+    stack = session.stack
     pushed_on = []
 
-    def push(cmd):
+    def apply(result):
         pushed_on.append(threading.current_thread())
-        return stack.push(cmd)
+        return session.apply(result)
 
     closed = []
     runner = JobRunner()
-    assert runner.start_job(job, push, finished=lambda r, c: closed.append(c))
+    assert runner.start_job(job, apply, finished=lambda r, c: closed.append(c))
     qtbot.waitUntil(lambda: not runner.busy, timeout=20000)
     assert stack.undo_text() == "Detect Blobs [frames 0-1]" and closed == [False]
     assert threading.main_thread() not in threads

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import logging
-import sys
 import threading
 import time
-import types
 
 import numpy as np
 import pytest
@@ -20,7 +18,6 @@ from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import inspect as inspect_menu
 from carapost.ui.handlers import navigation
-from carapost.ui.handlers import process as process_menu
 from tests.ui.helpers import drag, history_rows, image_to_widget, log_rows, send_mouse
 
 pytestmark = pytest.mark.gui
@@ -244,16 +241,19 @@ def test_detect_blobs_current_frame_finds_the_dots(make_window, demo, qtbot):
 
 def test_process_failure_logged_red_and_shown_once(make_window, demo, qtbot, monkeypatch):
     p, frames = demo
-    module = types.ModuleType("carapost.commands.menu")
+    from carapost.commands.recipe import Job
+    from carapost.session import Session
 
-    def initialize_3d(project, progress):
-        progress(1, 2)
-        raise RuntimeError("no seed points")
+    class Failing(Job):
+        description = "Initialize 3D"
 
-    module.initialize_3d = initialize_3d
-    monkeypatch.setitem(sys.modules, "carapost.commands.menu", module)
+        def compute(self, progress=None):
+            progress(1, 2)
+            raise RuntimeError("no seed points")
+
+    monkeypatch.setattr(Session, "prepare_initialize_3d", lambda self, **kw: Failing())
     w = make_window(p, frames)
-    process_menu.run_process(module.initialize_3d, "Initialize 3D", False, w.context)
+    w.action("process.init3d").trigger()
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=5000)
     settle(qtbot, w)
     assert len(w.dialogs.errors) == 1 and "no seed points" in w.dialogs.errors[0][1]

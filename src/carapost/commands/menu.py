@@ -1,20 +1,22 @@
-"""Process-menu entry points, one per menu item, following the processing recipe.
+"""The Process items as a table of ``prepare`` functions over a bare project.
 
-``JOBS[hook](project, get_image=None) -> Job`` prepares the item on the calling (GUI)
-thread: it validates and snapshots what the item acts on (the current frame, the active
-range, the selected points, all points when none is selected). The window then runs
-``job.compute(progress)`` on a worker and pushes ``ApplyResult(result)``:
+The window, the CLI, ``carapost process`` and scripts go through
+:class:`carapost.Session` (``session.prepare(action, ...)``, ``job.compute``,
+``session.apply``), which calls the same ``prepare_*`` functions of
+:mod:`carapost.commands.process`, :mod:`~carapost.commands.tracking`,
+:mod:`~carapost.commands.rom` and :mod:`~carapost.commands.bundle`. This module keeps
+the older hook-named form for code that holds a project without a session:
 
     job = menu.prepare("track_forwards_sequence", project, get_image=frames.require)
-    runner.start(title, job.compute, lambda result, cancelled: stack.push(ApplyResult(result)))
+    stack.push(ApplyResult(job.compute(progress)))
 
-Items that change the project without an algorithm (the default brims) have no job:
-``prepare`` returns the command itself (:func:`is_command` tells), which the window
-pushes directly.
+``JOBS[hook](project, get_image=None) -> Job`` validates and snapshots what the item
+acts on (the current frame, the active range, the selected points, all points when none
+is selected). Items that change the project without an algorithm (the default brims)
+have no job: ``prepare`` returns the command itself (:func:`is_command` tells).
 
-The functions named after the hooks (``initialize_3d(project, progress)`` ...) are the
-older form, still used by the window and tests: they prepare and compute in one call
-and return the command to push.
+The functions named after the hooks (``initialize_3d(project, progress)`` ...) prepare
+and compute in one call and return the command to push.
 """
 
 from __future__ import annotations

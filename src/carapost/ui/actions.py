@@ -8,9 +8,13 @@ written in this table and the handler modules (:mod:`carapost.ui.handlers`), nev
 looked up by name. Items of the reference guide that carapost does not implement have
 no callable: they are listed, disabled, with the tooltip :data:`NOT_AVAILABLE`.
 
-Process items call the entry points of :mod:`carapost.commands.menu`
-(``fn(project, progress=..., [get_image=...]) -> Command``) on the worker thread; the
-command they return is pushed on the GUI thread as one undo entry.
+Every item that changes the project calls the open project's
+:class:`~carapost.session.Session`: Edit and View items bind the unbound Session method
+(``_do(Session.merge)``), Process items name the Session Process action and its options
+(``_proc(..., "track", direction="backwards")``), which
+:func:`carapost.ui.handlers.process.run` prepares on the GUI thread, computes on the
+worker and applies as one undo entry. A script calling the same Session method does
+exactly what the menu item does.
 """
 
 from __future__ import annotations
@@ -21,8 +25,7 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-from carapost.commands import edit
-from carapost.commands import menu as process_hooks
+from carapost.session import Session
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
@@ -81,20 +84,28 @@ class ActionSpec:
         return self.callback is not None
 
 
-def _cmd(factory: edit_menu.CommandFactory) -> Callback:
-    """Push ``factory(project)`` (an Edit command class or classmethod constructor)."""
-    return partial(edit_menu.command, factory)
+def _do(action: edit_menu.SessionAction, **options: Any) -> Callback:
+    """Call the Session method ``action`` (unbound: ``Session.merge``) with ``options``."""
+    return partial(edit_menu.session_action, action, **options)
 
 
-def _proc(id_: str, title: str, hook: process_menu.ProcessHook | None, shortcut: str = "",
-          separator: bool = False, images: bool = False) -> ActionSpec:
-    """A Process item running ``hook`` of :mod:`carapost.commands.menu` on the worker."""
-    cb = None if hook is None else partial(process_menu.run_process, hook, title, images)
+def _proc(id_: str, title: str, action: str | None, shortcut: str = "",
+          separator: bool = False, images: bool = False, **options: Any) -> ActionSpec:
+    """A Process item: the Session Process ``action`` with ``options``, on the worker."""
+    cb = None if action is None else partial(process_menu.run, action=action, title=title,
+                                             images=images, **options)
     return ActionSpec(id_, "Process", title, shortcut, cb, separator=separator)
 
 
+def _brim(id_: str, version: str, separator: bool = False) -> ActionSpec:
+    title = f"Initialize Default Calibration Brim [v{version}]"
+    return ActionSpec(id_, "Process", title, "", partial(process_menu.default_brim,
+                                                         version=version),
+                      separator=separator)
+
+
 _A = ActionSpec
-P = process_hooks
+S = Session
 
 # fmt: off
 ACTIONS: tuple[ActionSpec, ...] = (
@@ -125,14 +136,14 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("edit.redo", "Edit", "Redo", "Ctrl+Y", edit_menu.redo),
     _A("edit.clear_history", "Edit", "Clear History", "", edit_menu.clear_history),
     _A("edit.create_points", "Edit", "Create Points From Detections", "",
-       _cmd(edit.CreatePointsFromDetections), separator=True),
-    _A("edit.delete", "Edit", "Delete Selected", "Ctrl+D", _cmd(edit.DeleteSelected)),
-    _A("edit.split", "Edit", "Split Selected Point", "", _cmd(edit.SplitSelectedPoint)),
-    _A("edit.merge", "Edit", "Merge", "M", _cmd(edit.Merge)),
+       _do(S.create_points_from_detections), separator=True),
+    _A("edit.delete", "Edit", "Delete Selected", "Ctrl+D", _do(S.delete_selected)),
+    _A("edit.split", "Edit", "Split Selected Point", "", _do(S.split_selected_point)),
+    _A("edit.merge", "Edit", "Merge", "M", _do(S.merge)),
     _A("edit.clear_current", "Edit", "Clear Selected [Current Frame]", "",
-       _cmd(edit.ClearSelected.current_frame)),
+       _do(S.clear_selected, frames="current")),
     _A("edit.clear_range", "Edit", "Clear Selected [Active Range]", "",
-       _cmd(edit.ClearSelected.active_range)),
+       _do(S.clear_selected, frames="active")),
     _A("edit.detach_current", "Edit", "Detach Detections [Current Frame]", "Ctrl+H",
        partial(edit_menu.detach, which="current")),
     _A("edit.detach_range", "Edit", "Detach Detections [Active Range]", "Ctrl+Shift+H",
@@ -140,7 +151,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("edit.relocate", "Edit", "Relocate Files...", "", edit_menu.relocate_files,
        separator=True),
     _A("edit.increment_offset", "Edit", "Increment Image Sequence Offset", "",
-       _cmd(edit.IncrementImageSequenceOffset)),
+       _do(S.increment_image_sequence_offset)),
     # the Target Tracker's items wait for carapost.commands.target_track
     _A("edit.add_target_track", "Edit", "Add Target Track", "Shift+A", separator=True),
     _A("edit.edit_target_track", "Edit", "Edit Target Track", "Shift+E"),
@@ -148,25 +159,25 @@ ACTIONS: tuple[ActionSpec, ...] = (
        partial(edit_menu.point_edit_mode, mode="")),
     _A("edit.gaps_to_keys", "Edit", "Gaps To Keys", ""),
     _A("edit.remove_unused", "Edit", "Remove Unused Detections", "",
-       _cmd(edit.RemoveUnusedDetections), separator=True),
+       _do(S.remove_unused_detections), separator=True),
     _A("edit.remove_interpolated", "Edit", "Remove Interpolated 3D Points", "",
-       _cmd(edit.RemoveInterpolated3DPoints)),
+       _do(S.remove_interpolated_3d_points)),
     _A("edit.rename", "Edit", "Rename Point...", "Ctrl+R", edit_menu.rename_point,
        separator=True),
-    _A("edit.clear_labels", "Edit", "Clear All Labels", "", _cmd(edit.ClearAllLabels)),
+    _A("edit.clear_labels", "Edit", "Clear All Labels", "", _do(S.clear_all_labels)),
     _A("edit.delete_labels", "Edit", "Delete Selected Labels", "",
        edit_menu.delete_selected_labels),
     _A("edit.unlabel", "Edit", "Unlabel Selected Points", "Ctrl+U",
-       _cmd(edit.UnlabelSelectedPoints)),
+       _do(S.unlabel_selected_points)),
     _A("edit.create_stick", "Edit", "Create Stick from Selected Point", "S",
-       _cmd(edit.CreateStick), separator=True),
-    _A("edit.create_stick_mesh", "Edit", "Create Stick Mesh", "", edit_menu.create_stick_mesh),
+       _do(S.create_stick), separator=True),
+    _A("edit.create_stick_mesh", "Edit", "Create Stick Mesh", "", _do(S.create_stick_mesh)),
     _A("edit.edit_stick_color", "Edit", "Edit Stick Color...", "", edit_menu.edit_stick_color),
-    _A("edit.clear_active_range", "Edit", "Clear Active Range", "", _cmd(edit.ClearActiveRange)),
+    _A("edit.clear_active_range", "Edit", "Clear Active Range", "", _do(S.clear_active_range)),
     _A("edit.restore_defaults", "Edit", "Restore Properties To Defaults", "",
-       _cmd(edit.RestorePropertiesToDefaults), separator=True),
+       _do(S.restore_properties_to_defaults), separator=True),
     _A("edit.read_blob_params", "Edit", "Read Blob Parameters From Take Files", "",
-       _cmd(edit.RevertBlobParameters)),
+       _do(S.read_blob_parameters_from_take)),
     # --- View ------------------------------------------------------------------------------
     _A("view.panels", "View/Panels", ""),
     _A("view.floating", "View", "New Floating Workspace", "",
@@ -207,47 +218,45 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.distance", "View", "Distance Between Two Points", "",
        inspect_menu.distance_two_points),
     _A("view.active_start", "View", "Set Active Range Start", "Ctrl+1",
-       _cmd(edit.SetRange.active_start), separator=True),
+       _do(S.set_range_bound, which="active_start"), separator=True),
     _A("view.active_end", "View", "Set Active Range End", "Ctrl+2",
-       _cmd(edit.SetRange.active_end)),
+       _do(S.set_range_bound, which="active_end")),
     _A("view.active_reset", "View", "Reset Active Range", "Ctrl+3",
-       _cmd(edit.SetRange.reset_active)),
+       _do(S.reset_active_range)),
     _A("view.view_to_active", "View", "Set View Range to Active Range", "",
-       _cmd(edit.SetRange.view_to_active)),
-    _A("view.view_reset", "View", "Reset View Range", "", _cmd(edit.SetRange.reset_view)),
+       _do(S.set_range_bound, which="view_to_active")),
+    _A("view.view_reset", "View", "Reset View Range", "",
+       _do(S.set_range_bound, which="reset_view")),
     _A("view.center", "View", "Center Selection All 2D Views", "C",
        partial(view_menu.center_selection, frame=False), separator=True),
     _A("view.frame", "View", "Frame Selection All 2D Views", "Shift+C",
        partial(view_menu.center_selection, frame=True)),
     # --- Process ---------------------------------------------------------------------------
-    _A("process.blobs_range", "Process", "Detect Blobs [Active Range]", "",
-       partial(process_menu.detect_blobs, which="range")),
-    _A("process.blobs_current", "Process", "Detect Blobs [Current Frame]", "",
-       partial(process_menu.detect_blobs, which="current")),
+    _proc("process.blobs_range", "Detect Blobs [Active Range]", "detect_blobs", images=True,
+          frames="active"),
+    _proc("process.blobs_current", "Detect Blobs [Current Frame]", "detect_blobs",
+          images=True, frames="current"),
     _A("process.load_rom", "Process", "Load ROM...", "", process_menu.load_rom,
        separator=True),
-    _proc("process.init_rom", "Initialize from ROM", P.initialize_from_rom),
-    _proc("process.init_rom_brim", "Initialize from ROM [Brim Only]",
-          P.initialize_from_rom_brim_only),
-    _proc("process.brim_v20", "Initialize Default Calibration Brim [v2.0]",
-          P.initialize_brim_v20, separator=True),
-    _proc("process.brim_v11", "Initialize Default Calibration Brim [v1.1]",
-          P.initialize_brim_v11),
-    _proc("process.brim_v10", "Initialize Default Calibration Brim [v1.0]",
-          P.initialize_brim_v10),
-    _proc("process.solve_brim", "Solve Calibration Brim [Manual]", P.solve_brim),
-    _proc("process.init3d", "Initialize 3D", P.initialize_3d, separator=True),
+    _proc("process.init_rom", "Initialize from ROM", "initialize_from_rom"),
+    _proc("process.init_rom_brim", "Initialize from ROM [Brim Only]", "initialize_from_rom",
+          brim_only=True),
+    _brim("process.brim_v20", "2.0", separator=True),
+    _brim("process.brim_v11", "1.1"),
+    _brim("process.brim_v10", "1.0"),
+    _proc("process.solve_brim", "Solve Calibration Brim [Manual]", "solve_brim"),
+    _proc("process.init3d", "Initialize 3D", "initialize_3d", separator=True),
     _proc("process.bundle_frame", "Bundle Current Frame [Unconstrained]",
-          P.bundle_current_frame),
-    _proc("process.bundle_seq", "Bundle Sequence [Unconstrained]", P.bundle_sequence),
-    _proc("process.track_fwd_seq", "Track Forwards [Sequence]", P.track_forwards_sequence,
-          separator=True, images=True),
-    _proc("process.track_bwd_seq", "Track Backwards [Sequence]", P.track_backwards_sequence,
-          images=True),
-    _proc("process.track_fwd_one", "Track Forwards [Single Frame]", P.track_forwards_frame,
-          shortcut="Ctrl+W", images=True),
-    _proc("process.track_bwd_one", "Track Backwards [Single Frame]", P.track_backwards_frame,
-          images=True),
+          "bundle_current_frame"),
+    _proc("process.bundle_seq", "Bundle Sequence [Unconstrained]", "bundle_sequence"),
+    _proc("process.track_fwd_seq", "Track Forwards [Sequence]", "track", separator=True,
+          images=True, direction="forwards"),
+    _proc("process.track_bwd_seq", "Track Backwards [Sequence]", "track", images=True,
+          direction="backwards"),
+    _proc("process.track_fwd_one", "Track Forwards [Single Frame]", "track",
+          shortcut="Ctrl+W", images=True, direction="forwards", single_frame=True),
+    _proc("process.track_bwd_one", "Track Backwards [Single Frame]", "track", images=True,
+          direction="backwards", single_frame=True),
     # Stabilize, Align and Interpolate wait for their algorithms
     _proc("process.stab_manual", "Stabilize Data [Manual]", None, separator=True),
     _proc("process.stab_assisted", "Stabilize Data [Assisted]", None),

@@ -50,19 +50,16 @@ def application(argv: list[str] | None = None) -> QApplication:
 def open_path(window, path: str) -> bool:
     """Open a ``.cara`` project, or import a take from any other file.
 
-    A take is imported by `carapost.Session.import_take`, so ``carapost gui take.json``
-    builds the same project as File > Import Camera Files (brim model of the take
-    included).
+    A take is imported by File > Import Camera Files itself
+    (`carapost.ui.handlers.file.import_take`, which reads it with
+    `carapost.session.read_take`, the function behind `carapost.Session.import_take`), so
+    ``carapost gui take.json`` builds the same project as the menu and the scripts.
     """
-    if Path(path).suffix.lower() == ".cara":
-        return window.open_project(path)
-    from carapost.session import Session
+    from carapost.ui.handlers import file as file_menu
 
-    window.runner.start("Import Camera Files",
-                        lambda progress: Session.import_take(path).project,
-                        lambda project, cancelled: project is not None
-                        and window.set_project(project))
-    return True
+    if Path(path).suffix.lower() == ".cara":
+        return file_menu.open_project(window.context, path)
+    return file_menu.import_take(window.context, path)
 
 
 def _warm_up_detector() -> None:

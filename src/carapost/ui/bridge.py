@@ -7,7 +7,7 @@
   through a queued signal, whatever thread logged them.
 * :class:`JobRunner` runs ``fn(progress)`` on a worker thread and hands the result back
   on the GUI thread (progress bar, Cancel button and error reporting are the window's);
-  ``start_job(job, push)`` runs a processing job and pushes its result.
+  ``start_job(job, apply)`` runs a processing job and applies its result.
 """
 
 from __future__ import annotations
@@ -26,8 +26,7 @@ from carapost.model.events import Change, merge_changes
 from carapost.model.project import Project
 
 if TYPE_CHECKING:
-    from carapost.commands.recipe import Job
-    from carapost.commands.stack import Command
+    from carapost.commands.recipe import Job, Result
 
 log = logging.getLogger("carapost.ui")
 
@@ -109,7 +108,7 @@ class LogBridge(logging.Handler):
         super().__init__(logging.INFO)
         self.signals = _LogSignal()
 
-    def emit(self, rec: logging.LogRecord) -> None:  # noqa: D102 - logging.Handler API
+    def emit(self, rec: logging.LogRecord) -> None:
         try:
             text = rec.getMessage()
             if rec.exc_info and rec.levelno >= logging.ERROR:
@@ -193,21 +192,20 @@ class JobRunner(QObject):
         self._thread.start()
         return True
 
-    def start_job(self, job: Job, push: Callable[[Command], Any], *,
+    def start_job(self, job: Job, apply: Callable[[Result], Any], *,
                   title: str | None = None,
                   finished: Callable[[Any, bool], None] | None = None) -> bool:
         """Run a processing job (:mod:`carapost.commands.recipe`): ``job.compute`` on the
-        worker, then ``push(ApplyResult(result))`` on the GUI thread.
+        worker, then ``apply(result)`` on the GUI thread (the window:
+        ``ActionContext.apply``, which is ``Session.apply``: one History entry).
 
-        ``finished(result, cancelled)``, when given, runs after the push (or with None
+        ``finished(result, cancelled)``, when given, runs after ``apply`` (or with None
         when the job returned nothing), e.g. to close a worker's image source.
         """
-        from carapost.commands.recipe import ApplyResult
-
         def done(result: Any, cancelled: bool) -> None:
             try:
                 if result is not None:
-                    push(ApplyResult(result))
+                    apply(result)
             finally:
                 if finished is not None:
                     finished(result, cancelled)

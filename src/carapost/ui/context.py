@@ -3,12 +3,13 @@
 * :class:`ViewContext` is what the views share: the project, images, display options and
   per-frame caches.
 * :class:`ActionContext` is what the menu handlers (:mod:`carapost.ui.handlers`) and the
-  panes work with: the view context plus the command stack, the dialogs, the job runner
-  and the window's few layout operations (:class:`Shell`). Every change of project data
-  goes through :meth:`ActionContext.push` (one undo entry) or
-  :meth:`ActionContext.run_job` (a worker thread whose result is pushed), and a new
-  project arrives through :meth:`ActionContext.set_project`; that is the one place a
-  scripting session can take over.
+  panes work with: the view context plus the :class:`~carapost.session.Session` of the
+  open project (its command stack and images), the dialogs, the job runner and the
+  window's few layout operations (:class:`Shell`). Every change of project data is a
+  Session method called through :meth:`ActionContext.act` (one undo entry, refusals
+  reported), or, for long Process work, ``session.prepare`` on the GUI thread, the job
+  on the worker and :meth:`ActionContext.apply` of its result; a new project arrives
+  through :meth:`ActionContext.set_session` / :meth:`ActionContext.set_project`.
 """
 
 from __future__ import annotations
@@ -23,10 +24,12 @@ import numpy as np
 from numpy.typing import NDArray
 from PySide6.QtCore import QObject, QSettings, Qt, Signal
 
-from carapost.commands.edit import SetProperties
+from carapost.commands.recipe import Result
 from carapost.commands.stack import Command, CommandError, CommandStack
+from carapost.io.errors import CaraFileError
 from carapost.model.events import Change
 from carapost.model.project import Project, Selection, new_project
+from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
@@ -256,8 +259,10 @@ class ActionContext(QObject):
     ----------
     view : ViewContext
         The views' shared state (project, frame source, display options).
+    session : Session
+        The open project with its History; its images are the window's frame source.
     stack : CommandStack
-        Undo history of the current project.
+        Undo history of the current project (``session.stack``).
     dialogs : Dialogs
         Modal questions (tests put :class:`FakeDialogs` here).
     runner : JobRunner
@@ -297,7 +302,7 @@ class ActionContext(QObject):
         self.runner = JobRunner(self)
         self.bridge = ModelBridge(self)
         self.bridge.changed.connect(self.view.changed.emit)
-        self.stack = CommandStack(self.view.project)
+        self.session = Session(self.view.project)
         self.label_selection: list[str] = []
         self.point_mode = ""
         self.last_error = ""
@@ -332,24 +337,46 @@ class ActionContext(QObject):
         """Whether the project has changes that are not saved."""
         return self.project.modified or not self.stack.is_clean
 
+    @property
+    def stack(self) -> CommandStack:
+        """Undo history of the open project (the session's)."""
+        return self.session.stack
+
     # -- the one path of model changes --------------------------------------------------------
     def set_project(self, project: Project, frames: FrameSource | None = None) -> None:
-        """Show another project with a fresh undo history (Open, Import, Clear)."""
+        """Show another project with a fresh undo history (Import, Clear, tests)."""
+        self.set_session(Session(project), frames)
+
+    def set_session(self, session: Session, frames: FrameSource | None = None) -> None:
+        """Show the project of ``session`` (Open, Import): the window acts through it.
+
+        ``frames`` (default: the project's videos) becomes the session's image source.
+        """
         self.playback.stop()
         self.bridge.detach()
-        self.stack = CommandStack(project, on_change=self.history_changed.emit)
+        self.session.close()
+        self.session = session
+        session.stack.on_change = self.history_changed.emit
+        project = session.project
         if frames is None:
             frames = frame_source_for(project, on_ready=self.on_frame_ready)
         self.view.set_project(project, frames)
+        self._bind_images()
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
         self.history_changed.emit()
 
+    def _bind_images(self) -> None:
+        # the session reads what the views show (GUI thread); jobs get a worker copy
+        frames = self.view.frames
+        self.session.set_image_source(frames.require if frames.has_images else None)
+
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
         self.view.frames.close()
         self.view.frames = frames
+        self._bind_images()
         for view in self.shell.all_views() if self.shell is not None else ():
             view.refresh(None)
 
@@ -357,42 +384,51 @@ class ActionContext(QObject):
         """Open the project's videos again (after their paths changed)."""
         self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
 
+    def _refuse_busy(self, what: str) -> bool:
+        if self.runner.busy:
+            self.report_error("Busy", f"{what}: wait for {self.runner.title} to finish (or "
+                              "cancel it)", show=False)
+            return True
+        return False
+
+    def act(self, title: str, action: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """Call a Session method (``ctx.act("Merge", ctx.session.merge)``): one History
+        entry, or a refusal logged (red) and shown in the status bar.
+
+        Returns what the method returned, or None when it refused (a file that cannot
+        be read is shown in a box too) or a job is running.
+        """
+        if self._refuse_busy(title):
+            return None
+        try:
+            return action(*args, **kwargs)
+        except CommandError as exc:
+            self.report_error(title, str(exc), show=False)
+        except CaraFileError as exc:
+            self.report_error(title, str(exc))
+        return None
+
     def push(self, command: Command | None) -> bool:
-        """Run a command as one undo entry; refusals are logged (red) and shown in the bar."""
+        """Push a command built elsewhere (scripts, tests) as one undo entry."""
         if command is None:
             return False
-        if self.runner.busy:
-            self.report_error("Busy", f"{command.description}: wait for "
-                              f"{self.runner.title} to finish (or cancel it)", show=False)
-            return False
-        try:
-            self.stack.push(command)
-        except CommandError as exc:
-            self.report_error(command.description, str(exc), show=False)
-            return False
-        return True
+        return self.act(command.description, self.session.push, command) is not None
 
-    def make_and_push(self, factory: Callable[[], Command], what: str) -> bool:
-        """Build a command (its constructor validates) and push it."""
-        try:
-            command = factory()
-        except CommandError as exc:
-            self.report_error(what, str(exc), show=False)
-            return False
-        return self.push(command)
+    def apply(self, result: Result) -> bool:
+        """Push the result of a Process job (``session.apply``) on the GUI thread."""
+        return self.act(result.description, self.session.apply, result) is not None
 
     def run_job(self, title: str, fn: JobFn, done: Callable[[Any, bool], None]) -> bool:
         """Run ``fn(progress)`` on the worker; ``done(result, cancelled)`` on the GUI thread.
 
-        ``done`` usually pushes the command the job built (:meth:`push`), so a job is one
-        undo entry. False when another job is still running.
+        For work that is not a Process job (reading a take, writing an export). False
+        when another job is still running.
         """
         return self.runner.start(title, fn, done)
 
     def set_properties(self, values: dict[str, Any]) -> bool:
-        """Change project properties through the undoable ``SetProperties``."""
-        return self.make_and_push(lambda: SetProperties(self.project, values),
-                                  "Set property")
+        """Change project properties (``session.set_properties``, one undo entry)."""
+        return self.act("Set property", self.session.set_properties, values) is not None
 
     # -- feedback ----------------------------------------------------------------------------
     def report_error(self, title: str, text: str, *, show: bool = True) -> None:
@@ -447,4 +483,5 @@ class ActionContext(QObject):
             self.runner.cancel()
             self.runner.wait(30)
         self.bridge.detach()
+        self.session.close()
         self.view.frames.close()

@@ -67,7 +67,7 @@ class ArrayFrameSource(FrameSource):
         self._cache: OrderedDict[tuple[int, int], NDArray[np.uint8] | None] = OrderedDict()
         self._size = cache_size
 
-    def image(self, frame: int, camera: int) -> NDArray[np.uint8] | None:  # noqa: D102
+    def image(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         key = (frame, camera)
         if key in self._cache:
             self._cache.move_to_end(key)
@@ -78,22 +78,22 @@ class ArrayFrameSource(FrameSource):
             self._cache.popitem(last=False)
         return img
 
-    def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:  # noqa: D102
+    def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         return self._cache.get((frame, camera))
 
-    def prefetch(self, frames: range, cameras: list[int]) -> None:  # noqa: D102
+    def prefetch(self, frames: range, cameras: list[int]) -> None:
         for f in frames:
             for c in cameras:
                 self.image(f, c)
 
-    def worker_copy(self) -> FrameSource:  # noqa: D102
+    def worker_copy(self) -> FrameSource:
         return ArrayFrameSource(self._render, cache_size=8)
 
     @property
-    def has_images(self) -> bool:  # noqa: D102
+    def has_images(self) -> bool:
         return True
 
-    def close(self) -> None:  # noqa: D102
+    def close(self) -> None:
         self._cache.clear()
 
 
@@ -123,13 +123,13 @@ class VideoFrameSource(FrameSource):
             img = img[..., :3].mean(axis=-1).astype(np.uint8)
         return img
 
-    def image(self, frame: int, camera: int) -> NDArray[np.uint8] | None:  # noqa: D102
+    def image(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         return self._call("get", frame, camera)
 
-    def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:  # noqa: D102
+    def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         return self._call("get_cached", frame, camera)
 
-    def prefetch(self, frames: range, cameras: list[int]) -> None:  # noqa: D102
+    def prefetch(self, frames: range, cameras: list[int]) -> None:
         fn = getattr(self._frames, "prefetch", None)
         if fn is not None:
             try:
@@ -137,14 +137,14 @@ class VideoFrameSource(FrameSource):
             except Exception:  # prefetch is only a hint
                 log.debug("prefetch failed", exc_info=True)
 
-    def worker_copy(self) -> FrameSource:  # noqa: D102
+    def worker_copy(self) -> FrameSource:
         return VideoFrameSource(self._project)
 
     @property
-    def has_images(self) -> bool:  # noqa: D102
+    def has_images(self) -> bool:
         return True
 
-    def close(self) -> None:  # noqa: D102
+    def close(self) -> None:
         fn = getattr(self._frames, "close", None)
         if fn is not None:
             fn()

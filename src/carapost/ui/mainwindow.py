@@ -3,8 +3,9 @@
 What the menu items do lives in :mod:`carapost.ui.handlers` (one module per menu),
 called with the window's :class:`~carapost.ui.context.ActionContext`; the menus are
 built from :data:`carapost.ui.actions.ACTIONS` and the docks from
-:data:`carapost.ui.docks.PANES`. Every change of project data goes through the context
-(``push``, ``run_job``, ``set_project``); panes and views follow its change signals.
+:data:`carapost.ui.docks.PANES`. Every change of project data is a method of the open
+project's :class:`~carapost.session.Session` (``context.session``); panes and views
+follow the context's change signals.
 """
 
 from __future__ import annotations
@@ -305,7 +306,7 @@ class MainWindow(QMainWindow):
         s.setValue("display/options", self.context.view.options.to_dict())
         s.sync()
 
-    def closeEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def closeEvent(self, ev) -> None:
         if not file_menu.maybe_save(self.context):
             ev.ignore()
             return

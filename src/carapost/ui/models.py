@@ -57,7 +57,7 @@ class HistoryModel(QAbstractListModel):
         """Row of the current state."""
         return self._stack().position
 
-    def rowCount(self, parent: Index = _INVALID) -> int:  # noqa: N802 - Qt API
+    def rowCount(self, parent: Index = _INVALID) -> int:
         """Opened state plus one row per command."""
         return 0 if parent.isValid() else 1 + len(self._entries)
 
@@ -121,15 +121,15 @@ class LogModel(QAbstractTableModel):
         self.entries.extend(new)
         self.endInsertRows()
 
-    def rowCount(self, parent: Index = _INVALID) -> int:  # noqa: N802 - Qt API
+    def rowCount(self, parent: Index = _INVALID) -> int:
         """Records shown."""
         return 0 if parent.isValid() else len(self.entries)
 
-    def columnCount(self, parent: Index = _INVALID) -> int:  # noqa: N802 - Qt API
+    def columnCount(self, parent: Index = _INVALID) -> int:
         """Time, Level, Category, Text."""
         return 0 if parent.isValid() else len(self.HEADERS)
 
-    def headerData(self, section: int, orientation: Qt.Orientation,  # noqa: N802 - Qt API
+    def headerData(self, section: int, orientation: Qt.Orientation,
                    role: int = Qt.ItemDataRole.DisplayRole) -> Any:
         """Column titles."""
         if orientation == Qt.Orientation.Horizontal and role == Qt.ItemDataRole.DisplayRole:

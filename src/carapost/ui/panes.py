@@ -1,8 +1,9 @@
 """Docked panes: Labelling, History, Selected Point, Log, Properties, Selection, Tracker.
 
 Each pane gets the window's :class:`~carapost.ui.context.ActionContext`, listens to its
-change signals itself and changes the project only through the context (``ctx.push``
-and the handlers of :mod:`carapost.ui.handlers`).
+change signals itself and changes the project only through the handlers of
+:mod:`carapost.ui.handlers` and the context (``ctx.set_properties``), which call the
+open project's Session.
 """
 
 from __future__ import annotations
@@ -34,14 +35,15 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from carapost.commands import edit
 from carapost.model.events import Change
 from carapost.model.properties import SECTIONS, TARGET_TRACKER, specs_in_section
+from carapost.session import Session
 from carapost.ui.actions import NOT_AVAILABLE, requirement_met
 from carapost.ui.bridge import LogEntry
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import GREY, RED, YELLOW, HistoryModel, LogModel
+from carapost.ui.settings import PREFERENCES, preference, set_preference
 from carapost.ui.views.continuity import ContinuityView
 
 
@@ -77,7 +79,7 @@ class LabellingPane(QWidget):
         self.list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
         layout.addWidget(self.list)
         self.clear_button.clicked.connect(
-            lambda: edit_menu.command(edit.ClearAllLabels, ctx))
+            lambda: edit_menu.session_action(Session.clear_all_labels, ctx))
         self.delete_button.clicked.connect(lambda: edit_menu.delete_selected_labels(ctx))
         self.list.itemClicked.connect(lambda item: edit_menu.assign_label(ctx, item.text()))
         self.list.itemDoubleClicked.connect(
@@ -192,7 +194,12 @@ class LogPane(QWidget):
 class PropertiesPane(QWidget):
     """Every section of the properties registry, editable, with units, ranges and help."""
 
-    def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None) -> None:
+    #: the per-computer group of the main Properties pane (the guide's Show Again Flags)
+    PREFERENCES_TITLE = "Show Again Flags (this computer)"
+
+    def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None,
+                 preferences: tuple[str, ...] | None = None,
+                 preferences_title: str = PREFERENCES_TITLE) -> None:
         super().__init__()
         self.ctx = ctx
         layout = _vbox(self)
@@ -205,7 +212,8 @@ class PropertiesPane(QWidget):
         self.restore_button = QPushButton("Restore Properties To Defaults")
         layout.addWidget(self.restore_button)
         self.restore_button.clicked.connect(
-            lambda: edit_menu.command(edit.RestorePropertiesToDefaults, ctx))
+            lambda: edit_menu.session_action(Session.restore_properties_to_defaults,
+                                             ctx))
         self.editors: dict[str, QWidget] = {}
         self._updating = False
         shown = sections or tuple(s for s in SECTIONS if s != TARGET_TRACKER)
@@ -225,8 +233,38 @@ class PropertiesPane(QWidget):
                 self.tree.setItemWidget(item, 1, editor)
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
+        if preferences is None and sections is None:
+            preferences = ("show_version_check_dialog",)
+        self.preference_editors = self._add_preferences(preferences or (), preferences_title)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
+
+    def _add_preferences(self, keys: tuple[str, ...], title: str) -> dict[str, QCheckBox]:
+        """A group of GUI preferences, kept in the user settings (QSettings) of this
+        computer, not in the project: editing them is not a History entry."""
+        editors: dict[str, QCheckBox] = {}
+        if not keys:
+            return editors
+        top = QTreeWidgetItem([title])
+        top.setFirstColumnSpanned(True)
+        top.setToolTip(0, "Kept for you on this computer (not saved in the project).")
+        self.tree.addTopLevelItem(top)
+        by_key = {pref.key: pref for pref in PREFERENCES}
+        settings = self.ctx.settings
+        for key in keys:
+            pref = by_key[key]
+            item = QTreeWidgetItem([pref.label, "", ""])
+            tip = f"{pref.help} Default: {pref.default}. Kept for you on this computer."
+            item.setToolTip(0, tip)
+            top.addChild(item)
+            box = QCheckBox()
+            box.setToolTip(tip)
+            box.setChecked(preference(settings, key))
+            box.toggled.connect(lambda v, k=key: set_preference(settings, k, bool(v)))
+            self.tree.setItemWidget(item, 1, box)
+            editors[key] = box
+        top.setExpanded(True)
+        return editors
 
     def _editor(self, spec: Any) -> QWidget:
         key = spec.key
@@ -378,7 +416,9 @@ class TrackerPane(QWidget):
         self.settings_box = QCheckBox("Settings")
         self.settings_box.setChecked(True)
         layout.addWidget(self.settings_box)
-        self.settings = PropertiesPane(ctx, (TARGET_TRACKER,))
+        self.settings = PropertiesPane(ctx, (TARGET_TRACKER,), preferences=(
+            "tracker_update_timeline_every_frame", "tracker_update_2d_view_every_frame"),
+            preferences_title="Display while tracking (this computer)")
         self.settings.restore_button.hide()
         self.settings.tree.expandAll()
         layout.addWidget(self.settings, 1)

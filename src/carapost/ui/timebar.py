@@ -63,7 +63,7 @@ class TimeRuler(QWidget):
         a, b = self._span()
         return 6 + (frame - a) / max(b - a, 1) * max(self.width() - 12, 1)
 
-    def paintEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def paintEvent(self, ev) -> None:
         painter = QPainter(self)
         painter.fillRect(self.rect(), QColor(45, 45, 48))
         p = self.project
@@ -102,7 +102,7 @@ class TimeRuler(QWidget):
         painter.drawLine(int(x), 0, int(x), h)
         painter.end()
 
-    def mousePressEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mousePressEvent(self, ev) -> None:
         x = ev.position().x()
         if ev.button() == Qt.MouseButton.MiddleButton:
             self._middle_x = x
@@ -116,7 +116,7 @@ class TimeRuler(QWidget):
         else:
             self.frame_requested.emit(self.frame_at(x))
 
-    def mouseMoveEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseMoveEvent(self, ev) -> None:
         x = ev.position().x()
         if self._middle_x is not None and self.project is not None:
             step = int((x - self._middle_x) / 4)
@@ -131,7 +131,7 @@ class TimeRuler(QWidget):
         elif ev.buttons() & Qt.MouseButton.LeftButton:
             self.frame_requested.emit(self.frame_at(x))
 
-    def mouseReleaseEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseReleaseEvent(self, ev) -> None:
         self._middle_x = None
         if self._ctrl_start is not None and self._drag_range is not None:
             self.range_dragged.emit(*self._drag_range)
@@ -139,7 +139,7 @@ class TimeRuler(QWidget):
         self._drag_range = None
         self.update()
 
-    def wheelEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def wheelEvent(self, ev) -> None:
         if self.project is None:
             return
         notches = ev.angleDelta().y() / 120

@@ -1,82 +1,86 @@
-"""Edit menu: undo and history, the Edit commands, labels, sticks, Relocate Files."""
+"""Edit menu: undo and history, the Edit commands, labels, sticks, Relocate Files.
+
+Each item calls a method of the open project's :class:`~carapost.session.Session`
+through ``ctx.act`` (one History entry; a refusal is logged and shown in the status
+bar), with the window's defaults (the selection, the active camera view).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
-from carapost.commands import edit
-from carapost.commands.stack import Command
-from carapost.model.project import Project
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.file import VIDEO_FILTER
 
-#: A command built from the project alone (its constructor validates).
-CommandFactory = Callable[[Project], Command]
+#: An unbound Session method (``Session.merge``) called with the session alone.
+SessionAction = Callable[..., Any]
 
 
-def command(factory: CommandFactory, ctx: ActionContext) -> bool:
-    """Build ``factory(project)`` and push it (Merge, Delete Selected, Clear All Labels...).
+def title_of(action: SessionAction) -> str:
+    """The menu-like title of a Session method (``merge`` -> "Merge")."""
+    return action.__name__.replace("_", " ").title()
 
-    The action table binds ``factory`` (a command class or one of its classmethod
-    constructors) with :func:`functools.partial`.
+
+def session_action(action: SessionAction, ctx: ActionContext, **options: Any) -> bool:
+    """Call ``action(ctx.session, **options)`` (Merge, Delete Selected, Clear All Labels...).
+
+    The action table binds the unbound Session method (and its options) with
+    :func:`functools.partial`, so the window does exactly what the script call
+    ``session.merge()`` does.
     """
-    return ctx.make_and_push(lambda: factory(ctx.project),
-                             getattr(factory, "__qualname__", "Edit"))
+    return ctx.act(title_of(action), action, ctx.session, **options) is not None
 
 
 def undo(ctx: ActionContext) -> None:
     """Edit > Undo (Ctrl+Z); waits for a running job."""
     if not ctx.runner.busy:
-        ctx.stack.undo()
+        ctx.session.undo()
 
 
 def redo(ctx: ActionContext) -> None:
     """Edit > Redo (Ctrl+Y)."""
     if not ctx.runner.busy:
-        ctx.stack.redo()
+        ctx.session.redo()
 
 
 def goto_history(ctx: ActionContext, position: int) -> None:
     """History pane click: undo/redo until ``position`` commands are applied."""
     if not ctx.runner.busy:
-        ctx.stack.goto(position)
+        ctx.session.goto(position)
 
 
 def clear_history(ctx: ActionContext) -> None:
     """Edit > Clear History (logs the memory freed)."""
-    freed = ctx.stack.clear()
+    freed = ctx.session.clear_history()
     ctx.status(f"History cleared: {freed / 1e6:.1f} MB freed", 5000)
 
 
 def detach(ctx: ActionContext, which: str) -> None:
-    """Detach Detections [Current Frame] (``"current"``) / [Active Range] (``"range"``)."""
-    ctor = (edit.DetachDetections.current_frame if which == "current"
-            else edit.DetachDetections.active_range)
-    ctx.make_and_push(lambda: ctor(ctx.project, active_camera=ctx.view.active_camera),
-                      "Detach Detections")
+    """Detach Detections [Current Frame] (``"current"``) / [Active Range] (``"range"``):
+    the explicitly selected cameras, else the active camera view."""
+    frames = "current" if which == "current" else "active"
+    ctx.act("Detach Detections", ctx.session.detach_detections, frames,
+            active_camera=ctx.view.active_camera)
 
 
 def delete_selected_labels(ctx: ActionContext) -> None:
     """Delete Selected Labels (those selected in the Labelling pane)."""
-    names = list(ctx.label_selection)
-    ctx.make_and_push(lambda: edit.DeleteSelectedLabels(ctx.project, names),
-                      "Delete Selected Labels")
+    ctx.act("Delete Selected Labels", ctx.session.delete_labels, list(ctx.label_selection))
 
 
 def assign_label(ctx: ActionContext, name: str) -> None:
     """Labelling pane click: the one selected point takes the label."""
     sel = ctx.selection.points
     if len(sel) == 1:
-        ctx.push(edit.AssignLabel(ctx.project, next(iter(sel)), name))
+        ctx.act("Assign Label", ctx.session.assign_label, next(iter(sel)), name)
 
 
 def rename_label(ctx: ActionContext, old: str) -> None:
     """Labelling pane double-click: rename a label (and the point carrying it)."""
     new = ctx.dialogs.get_text("Rename Label", "New name:", old)
     if new and new != old:
-        from carapost.ui.uicommands import RenameLabel
-
-        ctx.push(RenameLabel(ctx.project, old, new))
+        ctx.act("Rename Label", ctx.session.rename_label, old, new)
 
 
 def rename_point(ctx: ActionContext) -> None:
@@ -90,14 +94,7 @@ def rename_point(ctx: ActionContext) -> None:
     col = int(p.points.index_of([pid])[0])
     text = ctx.dialogs.get_text("Rename Point", f"Label of point {pid}:", p.points.labels[col])
     if text is not None:
-        ctx.make_and_push(lambda: edit.RenamePoint(p, pid, text), "Rename Point")
-
-
-def create_stick_mesh(ctx: ActionContext) -> None:
-    """Create Stick Mesh (Delaunay triangulation of the selected points)."""
-    from carapost.ui.uicommands import CreateStickMesh
-
-    ctx.make_and_push(lambda: CreateStickMesh(ctx.project), "Create Stick Mesh")
+        ctx.act("Rename Point", ctx.session.rename_point, pid, text)
 
 
 def edit_stick_color(ctx: ActionContext) -> None:
@@ -111,22 +108,22 @@ def edit_stick_color(ctx: ActionContext) -> None:
         return
     colour = ctx.dialogs.get_colour("Stick colour")
     if colour is not None:
-        ctx.make_and_push(lambda: edit.EditStickColor(p, idx, colour), "Edit Stick Color")
+        ctx.act("Edit Stick Color", ctx.session.edit_stick_color, idx, colour)
 
 
-def relocate_files(ctx: ActionContext) -> None:
-    """Relocate Files: choose the video of each camera, then reopen the images."""
-    from carapost.ui.uicommands import RelocateVideos
-
-    paths: dict[int, str] = {}
+def relocate_files(ctx: ActionContext) -> bool:
+    """Relocate Files: choose the video of each camera (``session.relocate_files``, which
+    refuses a video of another image size), then reopen the images."""
+    paths: dict[str | int, str] = {}
     for c, cam in enumerate(ctx.project.take.cameras):
         path = ctx.dialogs.open_file(f"Video of camera {cam.name} (was {cam.video_path})",
                                      VIDEO_FILTER)
         if path:
             paths[c] = path
-    if paths and ctx.make_and_push(lambda: RelocateVideos(ctx.project, paths),
-                                   "Relocate Files"):
-        ctx.reload_frames()
+    if not paths or ctx.act("Relocate Files", ctx.session.relocate_files, paths) is None:
+        return False
+    ctx.reload_frames()
+    return True
 
 
 def point_edit_mode(ctx: ActionContext, mode: str) -> None:
@@ -141,8 +138,8 @@ def rotate_sensors(ctx: ActionContext, clockwise: bool) -> None:
 
     The explicitly selected cameras, else the active camera view.
     """
-    p = ctx.project
     active = ctx.view.active_camera
-    cams = p.selection.cameras or ({active} if active is not None else set())
-    ctx.make_and_push(lambda: edit.RotateSelectedSensors(p, cams or None, clockwise=clockwise),
-                      "Rotate Selected Sensors")
+    cams = ctx.project.selection.cameras or ({active} if active is not None else set())
+    ctx.act("Rotate Selected Sensors", ctx.session.rotate_sensors, cams or None,
+            clockwise=clockwise)
+

@@ -1,10 +1,15 @@
-"""File menu: open, save, autosave, import, export, recent files."""
+"""File menu: open, save, autosave, import, export, recent files.
+
+Every item that changes the project calls the open project's
+:class:`~carapost.session.Session` (``ctx.session``); a take is read by
+:func:`carapost.session.read_take`, the function behind ``Session.import_take``,
+``api.import_take`` and ``carapost gui take.json``.
+"""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
 
 from carapost.model.project import new_project
 from carapost.ui.context import ActionContext
@@ -31,8 +36,8 @@ def maybe_save(ctx: ActionContext) -> bool:
 
 def open_project(ctx: ActionContext, path: str | None = None) -> bool:
     """File > Open (Ctrl+O); offers the autosave copy when it is newer."""
-    from carapost.io.cara import load_project, recoverable_autosave
-    from carapost.io.errors import CaraFileError
+    from carapost.io.cara import recoverable_autosave
+    from carapost.session import Session
 
     if not maybe_save(ctx):
         return False
@@ -40,8 +45,8 @@ def open_project(ctx: ActionContext, path: str | None = None) -> bool:
         path = ctx.dialogs.open_file("Open project", CARA_FILTER)
         if not path:
             return False
-    source = path
     auto = recoverable_autosave(path)
+    source = None
     if auto is not None and ctx.dialogs.confirm(
             "Recover", f"An autosaved copy of {Path(path).name} is newer than the file "
             "(the program may have stopped unexpectedly). Open the autosaved copy?"):
@@ -50,20 +55,11 @@ def open_project(ctx: ActionContext, path: str | None = None) -> bool:
     def relocate(camera: str, missing: str) -> str | None:
         return ctx.dialogs.open_file(f"Find the video of camera {camera} ({missing})",
                                      VIDEO_FILTER)
-    try:
-        project = load_project(source, relocate=relocate)
-    except CaraFileError as exc:
-        ctx.report_error("Open", str(exc))
+    session = ctx.act("Open", Session.open, path, relocate=relocate, source=source)
+    if session is None:
         return False
-    project.path = str(Path(path).absolute())
-    recovered = source != path
-    project.modified = recovered
-    ctx.set_project(project)
-    if recovered:
-        # a recovered copy is unsaved until saved: a fresh stack with a modified
-        # project has no clean position, so undoing to here still counts as modified
-        ctx.stack.clear()
-    add_recent_file(ctx.settings, project.path)
+    ctx.set_session(session)
+    add_recent_file(ctx.settings, session.project.path)
     log.info("Opened %s", path)
     return True
 
@@ -89,16 +85,14 @@ def save_project_as(ctx: ActionContext) -> bool:
 
 
 def save_to(ctx: ActionContext, path: str) -> bool:
-    """Write the project to ``path`` and mark the history clean."""
-    from carapost.io.cara import save_project as write_project
-    from carapost.io.errors import CaraFileError
-
+    """Write the project to ``path`` (``session.save``) and mark the history clean."""
     try:
-        written = write_project(ctx.project, path)
-    except (CaraFileError, OSError) as exc:
+        written = ctx.act("Save", ctx.session.save, path)
+    except OSError as exc:
         ctx.report_error("Save", str(exc))
         return False
-    ctx.stack.mark_clean()
+    if written is None:
+        return False
     ctx.history_changed.emit()  # the window title and Undo text follow the clean state
     add_recent_file(ctx.settings, str(written))
     ctx.status(f"Saved {written}", 4000)
@@ -128,8 +122,9 @@ def exit_window(ctx: ActionContext) -> None:
 
 
 def import_take(ctx: ActionContext, path: str | None = None) -> bool:
-    """File > Import Camera Files: read a take on a worker thread."""
-    from carapost.api import import_take as read_take
+    """File > Import Camera Files (and ``carapost gui take.json``): read a take on the
+    worker with :func:`carapost.session.read_take` and open a session on it."""
+    from carapost.session import Session, read_take
 
     if path is None:
         if not maybe_save(ctx):
@@ -142,71 +137,44 @@ def import_take(ctx: ActionContext, path: str | None = None) -> bool:
     take = path
     return ctx.run_job("Import Camera Files", lambda progress: read_take(take),
                        lambda project, cancelled: project is not None
-                       and ctx.set_project(project))
+                       and ctx.set_session(Session(project)))
 
 
 def import_brim(ctx: ActionContext) -> None:
-    """File > Import Calibration Brim [svg]: a planar custom brim replaces the brim."""
-    from carapost.commands.process import ImportBrimSvg
-
+    """File > Import Calibration Brim [svg] (a .csv of label,x,y,z in mm too): the brim
+    model replaces the brim points."""
     path = ctx.dialogs.open_file("Import Calibration Brim [svg]",
-                                 "SVG files (*.svg);;All files (*)")
+                                 "Brim models (*.svg *.csv);;All files (*)")
     if path:
-        ctx.make_and_push(lambda: ImportBrimSvg(ctx.project, path),
-                          "Import Calibration Brim [svg]")
+        ctx.act("Import Calibration Brim [svg]", ctx.session.import_brim, path)
 
 
 def import_xcp(ctx: ActionContext) -> None:
     """File > Import XCP."""
-    from carapost.io.errors import CaraFileError
-    from carapost.io.xcp import read_xcp
-    from carapost.ui.uicommands import ApplyCalibration
-
     path = ctx.dialogs.open_file("Import XCP", "Calibration (*.xcp);;All files (*)")
-    if not path:
-        return
-    try:
-        calib = read_xcp(path)
-    except (CaraFileError, OSError, ValueError) as exc:
-        ctx.report_error("Import XCP", str(exc))
-        return
-    for note in calib.notes:
-        log.warning("%s: %s", Path(path).name, note)
-    ctx.make_and_push(lambda: ApplyCalibration(ctx.project, calib, path), "Import XCP")
+    if path:
+        ctx.act("Import XCP", ctx.session.import_xcp, path)
 
 
 def import_labels(ctx: ActionContext, kind: str) -> None:
     """Import Labels From Cara File (``kind="cara"``) / Text File (``"text"``)."""
-    from carapost.commands.edit import AddLabels
-    from carapost.io.errors import CaraFileError
-    from carapost.io.labels import read_label_file, read_labels_from_cara
-
     filters = CARA_FILTER if kind == "cara" else "Label files (*.txt);;All files (*)"
     path = ctx.dialogs.open_file("Import labels", filters)
-    if not path:
-        return
-    try:
-        names = read_labels_from_cara(path) if kind == "cara" else read_label_file(path)
-    except (CaraFileError, OSError, ValueError) as exc:
-        ctx.report_error("Import Labels", str(exc))
-        return
-    ctx.make_and_push(lambda: AddLabels(ctx.project, names,
-                                        description=f"Import Labels From {Path(path).name}"),
-                      "Import Labels")
+    if path:
+        ctx.act("Import Labels", ctx.session.import_labels, path, kind)
 
 
-def export(ctx: ActionContext, kind: str) -> None:
-    """Export C3D / FBX / XCP [Current Frame] (``kind`` ``"c3d"``, ``"fbx"``, ``"xcp"``)."""
-    from carapost import api
-
-    writers: dict[str, Any] = {"c3d": api.export_c3d, "fbx": api.export_fbx,
-                               "xcp": api.export_xcp}
+def export(ctx: ActionContext, kind: str) -> bool:
+    """Export C3D / FBX / XCP [Current Frame] (``kind`` ``"c3d"``, ``"fbx"``, ``"xcp"``)
+    on the worker, with the Export properties (``session.export_c3d`` ...)."""
     path = ctx.dialogs.save_file(f"Export {kind.upper()}", EXPORT_FILTERS[kind],
                                  f"{ctx.project.take.name}.{kind}")
     if not path:
-        return
-    fn = writers[kind]
-    kwargs = {"frame": ctx.project.current_frame} if kind == "xcp" else {}
-    project = ctx.project
-    ctx.run_job(f"Export {kind.upper()}", lambda progress: fn(project, path, **kwargs),
-                lambda result, cancelled: log.info("Exported %s", path))
+        return False
+    s, frame = ctx.session, ctx.project.current_frame
+    writers = {"c3d": lambda: s.export_c3d(path), "fbx": lambda: s.export_fbx(path),
+               "xcp": lambda: s.export_xcp(path, frame=frame)}
+    write = writers[kind]
+    return ctx.run_job(f"Export {kind.upper()}", lambda progress: write(),
+                       lambda written, cancelled: written is not None and log.info(
+                           "Exported %s", written))

@@ -9,11 +9,13 @@ from PySide6.QtGui import QDesktopServices
 
 from carapost.ui.context import ActionContext
 
-#: Runtime dependencies and their licences (Help > Show 3rd Party Licenses).
+#: Runtime dependencies (pyproject's ``dependencies``) and their licences (Help > Show
+#: 3rd Party Licenses); test-only packages (ezc3d, c3d, ufbx) are not shipped.
 THIRD_PARTY = (
     ("PySide6 (Qt for Python)", "LGPL-3.0"), ("numpy", "BSD-3-Clause"),
-    ("scipy", "BSD-3-Clause"), ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"),
-    ("pyqtgraph", "MIT"), ("ezc3d", "MIT"), ("lxml", "BSD-3-Clause"),
+    ("scipy", "BSD-3-Clause"), ("numba", "BSD-2-Clause"),
+    ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"), ("pyqtgraph", "MIT"),
+    ("lxml", "BSD-3-Clause"),
 )
 
 

@@ -6,7 +6,6 @@ import logging
 
 import numpy as np
 
-from carapost.commands import edit
 from carapost.model import queries
 from carapost.ui.context import ActionContext
 
@@ -66,8 +65,7 @@ def toggle_lock(ctx: ActionContext, on: bool) -> None:
 
 def set_active_range(ctx: ActionContext, a: int, b: int) -> None:
     """Ctrl+drag on the timebar, continuity chart or graph: set the active range."""
-    ctx.make_and_push(lambda: edit.SetRange(ctx.project, "active_range", (a, b),
-                                            f"Set Active Range {a}-{b}"), "Active range")
+    ctx.act("Active range", ctx.session.set_active_range, a, b)
 
 
 def select_point(ctx: ActionContext) -> None:

@@ -1,8 +1,9 @@
-"""Process menu: Detect Blobs, Load ROM and the ``carapost.commands.menu`` entry points.
+"""Process menu: every item is a :class:`~carapost.session.Session` Process action.
 
-Each Process item runs on the worker thread and becomes one undo entry: the job
-returns a :class:`~carapost.commands.stack.Command` and ``done`` pushes it on the GUI
-thread through ``ctx.push``.
+The long ones follow the recipe in the window's threads: ``session.prepare(action,
+...)`` validates and snapshots on the GUI thread, ``job.compute(progress)`` runs on the
+worker (with its own image decoder), and ``ctx.apply(result)`` pushes the one History
+entry on the GUI thread. Default brims and Load ROM change the project at once.
 """
 
 from __future__ import annotations
@@ -11,98 +12,96 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from carapost.commands.stack import Command
-from carapost.model.project import Project
+from carapost.commands.recipe import Job
+from carapost.commands.stack import CommandError
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.file import CARA_FILTER
+from carapost.ui.settings import preference
 
 log = logging.getLogger("carapost.ui")
 
-#: ``hook(project, progress=..., [get_image=...]) -> Command | None`` of commands.menu.
-ProcessHook = Callable[..., Command | None]
-DETECT_TITLES = {"current": "Detect Blobs [Current Frame]", "range": "Detect Blobs [Active Range]"}
+#: the user preference (Tracker pane, this computer) that makes the views follow tracking
+FOLLOW_TRACKING = "tracker_update_2d_view_every_frame"
 
 
-def detect_blobs(ctx: ActionContext, which: str) -> bool:
-    """Detect Blobs [Current Frame] (``"current"``) / [Active Range] (``"range"``)."""
-    from carapost.algorithms.blobs import detect_blobs_batch
-    from carapost.commands.edit import ReplaceDetections
+def follow_tracking(ctx: ActionContext, job: Job) -> Callable[[], None]:
+    """With Update 2D View Every Frame on, the views show each frame as it is tracked
+    (the current frame follows the job's progress); returns the function that stops it.
 
-    p = ctx.project
-    title = DETECT_TITLES[which]
-    if p.n_frames == 0 or not ctx.frames.has_images:
-        ctx.report_error(title, f"{title}: the take has no images to search")
-        return False
-    try:
-        params = ctx.view.blob_parameters()
-    except ValueError as exc:
-        ctx.report_error(title, f"{title}: {exc}")
-        return False
-    frames = [p.current_frame] if which == "current" else \
-        list(range(p.active_range[0], p.active_range[1] + 1))
-    cams = [int(c) for c in p.processing_cameras()]
-    keys = [(f, c) for f in frames for c in cams]
-    source = ctx.frames.worker_copy()
+    Slower, as the guide says: every frame's images are decoded for the views too.
+    """
+    start, stop = getattr(job, "start", None), getattr(job, "stop", None)
+    if start is None or stop is None or not preference(ctx.settings, FOLLOW_TRACKING):
+        return lambda: None
+    step, span = (1 if stop >= start else -1), abs(stop - start)
 
-    def job(progress: Callable[[int, int], bool]) -> Any:
-        return detect_blobs_batch(lambda key: source.require(*key), keys, params,
-                                  workers=2, progress=progress)
+    def show(done: int, total: int) -> None:
+        ctx.set_frame(start + step * min(int(done), span))
 
-    def done(result: Any, cancelled: bool) -> None:
-        if source is not ctx.frames:
-            source.close()
-        if not result:
-            return
-        images = sorted(result)
-        tables = [{"centre": result[k].centre, "axes": result[k].axes,
-                   "angle": result[k].angle, "colour": result[k].colour,
-                   "score": result[k].score} for k in images]
-        label = title + (" (cancelled: partial)" if cancelled else "")
-        ctx.push(ReplaceDetections(images, tables, label))
-        n = sum(len(t["centre"]) for t in tables)
-        log.info("%s: %d detections in %d images%s", title, n, len(images),
-                 " (cancelled)" if cancelled else "")
-
-    return ctx.run_job(title, job, done)
+    ctx.runner.progressed.connect(show)
+    return lambda: ctx.runner.progressed.disconnect(show)
 
 
-def run_process(hook: ProcessHook, title: str, images: bool, ctx: ActionContext) -> bool:
-    """Run a ``carapost.commands.menu`` entry point on the worker and push its command.
+def run(ctx: ActionContext, action: str, title: str, images: bool = False,
+        **options: Any) -> bool:
+    """Run the Session Process ``action`` (one of `carapost.session.PROCESS_ACTIONS`) on
+    the worker and push its result as one History entry.
 
     Parameters
     ----------
-    hook : callable
-        ``hook(project, progress=progress)`` returning a Command (or None).
-    title : str
-        Menu title (progress bar and log).
-    images : bool
-        The hook takes ``get_image(frame, camera)`` (tracking: patch tracking and the
-        detection of frames that have none); passed when the take has images.
     ctx : ActionContext
+    action : str
+        ``"detect_blobs"``, ``"track"``, ... (``ctx.session.prepare(action, **options)``).
+    title : str
+        Menu title (progress bar, log and refusals).
+    images : bool
+        The action reads camera images: the job gets a worker copy of the window's frame
+        source (tracking without images skips patch tracking; detection refuses).
     """
-    project: Project = ctx.project
-    source = ctx.frames.worker_copy() if images and ctx.frames.has_images else None
+    if ctx.runner.busy:
+        ctx.report_error("Busy", f"{title}: wait for {ctx.runner.title} to finish (or "
+                         "cancel it)", show=False)
+        return False
+    frames = ctx.frames
+    source = frames.worker_copy() if images and frames.has_images else None
 
-    def job(progress: Callable[[int, int], bool]) -> Any:
-        if source is None:
-            return hook(project, progress=progress)
-        try:
-            return hook(project, progress=progress, get_image=source.require)
-        finally:
-            if source is not ctx.frames:
-                source.close()
+    def close(*_: Any) -> None:
+        if source is not None and source is not frames:
+            source.close()
 
-    def done(result: Any, cancelled: bool) -> None:
-        if isinstance(result, Command):
-            ctx.push(result)
+    if images and source is None:
+        if action == "detect_blobs":
+            ctx.report_error(title, f"{title}: the take has no images to search")
+            return False
+        options["use_images"] = False
+    elif source is not None:
+        options["get_image"] = source.require
+    try:
+        job = ctx.session.prepare(action, **options)
+    except CommandError as exc:
+        close()
+        ctx.report_error(title, str(exc), show=False)
+        return False
+    unfollow = follow_tracking(ctx, job) if action == "track" else (lambda: None)
 
-    return ctx.run_job(title, job, done)
+    def finished(*_: Any) -> None:
+        unfollow()
+        close()
+
+    started = ctx.runner.start_job(job, ctx.apply, title=title, finished=finished)
+    if not started:
+        finished()
+    return started
+
+
+def default_brim(ctx: ActionContext, version: str) -> None:
+    """Initialize Default Calibration Brim [v2.0 / v1.1 / v1.0]."""
+    ctx.act(f"Initialize Default Calibration Brim [v{version}]",
+            ctx.session.initialize_default_brim, version)
 
 
 def load_rom(ctx: ActionContext) -> None:
-    """Process > Load ROM (the ROM project is read and checked by the command)."""
-    from carapost.commands.tracking import LoadRom
-
+    """Process > Load ROM (the ROM project is read and checked by ``session.load_rom``)."""
     path = ctx.dialogs.open_file("Load ROM", CARA_FILTER)
     if path:
-        ctx.make_and_push(lambda: LoadRom(ctx.project, path), "Load ROM")
+        ctx.act("Load ROM", ctx.session.load_rom, path)

@@ -114,7 +114,7 @@ def _curve(colour: tuple[int, int, int], width: float = 1.0, z: float = 0) -> pg
 class _Scatter(pg.ScatterPlotItem):
     """A scatter that never takes clicks (picking is done by the view, vectorised)."""
 
-    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - pyqtgraph API
+    def mouseClickEvent(self, ev) -> None:
         ev.ignore()
 
 
@@ -126,7 +126,7 @@ class _ViewBox(pg.ViewBox):
         self.view = view
         self.setBackgroundColor(QColor(60, 60, 60))
 
-    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseClickEvent(self, ev) -> None:
         self.view.activated.emit()
         if ev.button() == Qt.MouseButton.RightButton:
             ev.accept()
@@ -136,7 +136,7 @@ class _ViewBox(pg.ViewBox):
             ev.accept()
             self.view.click(ev.scenePos(), ev.modifiers(), ev.double())
 
-    def mouseDragEvent(self, ev, axis=None) -> None:  # noqa: N802 - Qt API
+    def mouseDragEvent(self, ev, axis=None) -> None:
         mods = ev.modifiers()
         shift = bool(mods & Qt.KeyboardModifier.ShiftModifier)
         alt = bool(mods & Qt.KeyboardModifier.AltModifier)
@@ -230,7 +230,7 @@ class CameraView(BaseView):
         self.refresh(None)
 
     # -- geometry ----------------------------------------------------------------------------
-    def title(self) -> str:  # noqa: D102
+    def title(self) -> str:
         p = self.ctx.project
         name = p.take.cameras[self.camera].name if self.camera < p.n_cameras else "?"
         return f"Sensor {self.camera} ({name})"
@@ -280,13 +280,13 @@ class CameraView(BaseView):
         return 1.0 / max(px[0], 1e-9)
 
     # -- drawing -----------------------------------------------------------------------------
-    def set_camera(self, camera: int) -> None:  # noqa: D102
+    def set_camera(self, camera: int) -> None:
         self.camera = camera
         self._image_shape = None
         self._fitted = False
         self.refresh(None)
 
-    def refresh(self, change: Change | None) -> None:  # noqa: D102
+    def refresh(self, change: Change | None) -> None:
         p = self.ctx.project
         self.header.setText(self.title() + self._mode_text())
         self.header.adjustSize()
@@ -672,7 +672,7 @@ class CameraView(BaseView):
         a, b = self._measure
         return math.hypot(b.x() - a.x(), b.y() - a.y())
 
-    def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
+    def add_menu_items(self, menu: QMenu) -> None:
         menu.addAction("Fit To Window", self.fit)
         menu.addAction("Actual Size", self.actual_size)
         menu.addSeparator()
@@ -683,7 +683,7 @@ class CameraView(BaseView):
         menu.addSeparator()
         self.add_option_items(menu, OPTION_TITLES_2D)
 
-    def resizeEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def resizeEvent(self, ev) -> None:
         super().resizeEvent(ev)
         if not self._fitted and self.ctx.project.n_cameras:
             self.fit()

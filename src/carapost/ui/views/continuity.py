@@ -114,7 +114,7 @@ class _ViewBox(pg.ViewBox):
         self.setMouseEnabled(x=True, y=False)
         self._range_start: float | None = None
 
-    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseClickEvent(self, ev) -> None:
         self.chart.activated.emit()
         if ev.button() == Qt.MouseButton.RightButton:
             ev.accept()
@@ -125,7 +125,7 @@ class _ViewBox(pg.ViewBox):
             pos = self.mapSceneToView(ev.scenePos())
             self.chart.click_row(pos.y(), ev.modifiers(), ev.double())
 
-    def mouseDragEvent(self, ev, axis=None) -> None:  # noqa: N802 - Qt API
+    def mouseDragEvent(self, ev, axis=None) -> None:
         mods = ev.modifiers()
         ctrl = bool(mods & Qt.KeyboardModifier.ControlModifier)
         shift = bool(mods & Qt.KeyboardModifier.ShiftModifier)
@@ -150,7 +150,7 @@ class _ViewBox(pg.ViewBox):
             return
         super().mouseDragEvent(ev, axis)
 
-    def wheelEvent(self, ev, axis=None) -> None:  # noqa: N802 - Qt API
+    def wheelEvent(self, ev, axis=None) -> None:
         super().wheelEvent(ev, axis=0)
 
 
@@ -196,11 +196,11 @@ class ContinuityView(BaseView):
         self.partial_updates = 0  # code updates limited to the changed point-frames
         self.refresh(None)
 
-    def title(self) -> str:  # noqa: D102
+    def title(self) -> str:
         return "Selected Point" if self.single else "Continuity"
 
     # -- data ------------------------------------------------------------------------------
-    def refresh(self, change: Change | None) -> None:  # noqa: D102
+    def refresh(self, change: Change | None) -> None:
         p = self.ctx.project
         parts = change.parts if change is not None else None
         data_parts = {"points", "point_list", "frames_range", "file"}
@@ -405,10 +405,10 @@ class ContinuityView(BaseView):
         if rows:
             self.vb.setYRange(min(rows), max(rows) + 1, padding=0)
 
-    def center_selection(self, frame: bool = False) -> None:  # noqa: D102
+    def center_selection(self, frame: bool = False) -> None:
         self.fit_to_selection()
 
-    def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
+    def add_menu_items(self, menu: QMenu) -> None:
         if not self.single:
             menu.addAction("Collapse all", self.collapse_all)
             menu.addAction("Expand all", self.expand_all)

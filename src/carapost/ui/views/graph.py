@@ -21,7 +21,7 @@ class _ViewBox(pg.ViewBox):
         super().__init__(enableMenu=False)
         self.graph = graph
 
-    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseClickEvent(self, ev) -> None:
         self.graph.activated.emit()
         if ev.button() == Qt.MouseButton.RightButton:
             ev.accept()
@@ -31,7 +31,7 @@ class _ViewBox(pg.ViewBox):
             x = self.mapSceneToView(ev.scenePos()).x()
             self.graph.frame_clicked.emit(int(round(x)))
 
-    def mouseDragEvent(self, ev, axis=None) -> None:  # noqa: N802 - Qt API
+    def mouseDragEvent(self, ev, axis=None) -> None:
         mods = ev.modifiers()
         if ev.button() == Qt.MouseButton.LeftButton and mods & Qt.KeyboardModifier.ControlModifier:
             ev.accept()
@@ -77,7 +77,7 @@ class GraphView(BaseView):
         layout.addWidget(self.layout_widget)
         self.refresh(None)
 
-    def title(self) -> str:  # noqa: D102
+    def title(self) -> str:
         return f"Graph (Sensor {self.camera})"
 
     def _curves(self, plot: pg.PlotItem, store: list, n: int) -> list:
@@ -90,7 +90,7 @@ class GraphView(BaseView):
             item.setData([], [])
         return store[:n]
 
-    def refresh(self, change: Change | None) -> None:  # noqa: D102
+    def refresh(self, change: Change | None) -> None:
         p = self.ctx.project
         for cur in self.cursors:
             cur.setValue(p.current_frame)
@@ -121,14 +121,14 @@ class GraphView(BaseView):
             plot.enableAutoRange()
             plot.autoRange()
 
-    def center_selection(self, frame: bool = False) -> None:  # noqa: D102
+    def center_selection(self, frame: bool = False) -> None:
         self.fit()
 
     def _toggle(self, name: str, on: bool) -> None:
         setattr(self, name, on)
         self.refresh(None)
 
-    def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
+    def add_menu_items(self, menu: QMenu) -> None:
         menu.addAction("Fit to data", self.fit)
         for name, title in (("track_data", "Track Data"), ("recon_data", "Recon Data")):
             act = menu.addAction(title)

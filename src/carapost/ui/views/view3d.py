@@ -66,10 +66,10 @@ class View3D(BaseView):
         self.setMinimumSize(100, 100)
         self.setMouseTracking(False)
 
-    def title(self) -> str:  # noqa: D102
+    def title(self) -> str:
         return "3D"
 
-    def refresh(self, change: Change | None) -> None:  # noqa: D102
+    def refresh(self, change: Change | None) -> None:
         if (not self._fitted and self.ctx.project.n_points) or (
                 change is not None and change.parts & {"file", "point_list"}):
             self.fit(selection=False)
@@ -127,7 +127,7 @@ class View3D(BaseView):
         self.pan[:] = 0
         self.update()
 
-    def center_selection(self, frame: bool = False) -> None:  # noqa: D102
+    def center_selection(self, frame: bool = False) -> None:
         X, _, present = self._frame_points()
         cols = self.ctx.project.selected_columns()
         if not len(cols) or not present[cols].any():
@@ -140,7 +140,7 @@ class View3D(BaseView):
         self.update()
 
     # -- painting ----------------------------------------------------------------------------
-    def paintEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def paintEvent(self, ev) -> None:
         painter = QPainter(self)
         painter.setRenderHint(QPainter.RenderHint.Antialiasing, True)
         painter.fillRect(self.rect(), QColor(25, 25, 30))
@@ -261,13 +261,13 @@ class View3D(BaseView):
             painter.drawText(QPointF(*pts[0]) + QPointF(4, -4), f"{c}")
 
     # -- interaction -------------------------------------------------------------------------
-    def mousePressEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mousePressEvent(self, ev) -> None:
         self.activated.emit()
         self._press = ev.position().toPoint()
         self._last = self._press
         self._moved = False
 
-    def mouseMoveEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseMoveEvent(self, ev) -> None:
         if self._last is None:
             return
         pos = ev.position().toPoint()
@@ -286,7 +286,7 @@ class View3D(BaseView):
             self.pitch = float(np.clip(self.pitch + 0.5 * d.y(), -89, 89))
         self.update()
 
-    def mouseReleaseEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def mouseReleaseEvent(self, ev) -> None:
         if not self._moved:
             if ev.button() == Qt.MouseButton.RightButton:
                 self.menu_requested.emit(ev.globalPosition().toPoint())
@@ -294,7 +294,7 @@ class View3D(BaseView):
                 self.click(ev.position(), ev.modifiers())
         self._last = None
 
-    def wheelEvent(self, ev) -> None:  # noqa: N802 - Qt API
+    def wheelEvent(self, ev) -> None:
         self.scale *= math.exp(ev.angleDelta().y() / 600.0)
         self.update()
 
@@ -311,7 +311,7 @@ class View3D(BaseView):
                 points ^= {int(p.points.ids[k])}
         p.set_selection(points=points)
 
-    def add_menu_items(self, menu: QMenu) -> None:  # noqa: D102
+    def add_menu_items(self, menu: QMenu) -> None:
         menu.addAction("Fit to Points", self.fit)
         menu.addAction("Center Selection", lambda: self.center_selection(False))
         menu.addAction("Frame Selection", lambda: self.center_selection(True))

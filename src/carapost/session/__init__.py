@@ -2,9 +2,9 @@
 
 A `Session` holds one `Project`, the `CommandStack` of its History and a source of
 camera images (the take's videos, opened on first use). It has one method per File,
-Edit and Process action of the main window; each method builds and pushes the same
-command the window pushes, so a script's History matches the window's and every
-action undoes as one step::
+Edit and Process action of the main window. The window itself holds a Session per open
+project and every menu item calls it, so a script's History matches the window's and
+every action undoes as one step::
 
     from carapost import Session
 
@@ -23,6 +23,15 @@ the project is unchanged) or :class:`~carapost.io.errors.CaraFileError` (a file 
 missing or unreadable; the message names it). Processing methods take an optional
 ``progress(done, total) -> bool`` callback; returning False cancels, and what was
 finished is kept as one History entry, as in the window.
+
+Process actions follow the recipe of :mod:`carapost.commands.recipe` in two public
+steps, which the window uses to compute on its worker thread::
+
+    job = s.prepare("detect_blobs", frames="current")   # or s.prepare_detect_blobs(...)
+    result = job.compute(progress)                      # any thread, no project access
+    s.apply(result)                                     # one History entry
+
+``s.detect_blobs(...)`` is ``s.run(s.prepare_detect_blobs(...), progress)``.
 """
 
 from __future__ import annotations
@@ -40,15 +49,19 @@ from carapost.commands import file as file_commands
 from carapost.commands.stack import Command, CommandError, CommandStack, HistoryEntry
 from carapost.export import ExportOptions
 from carapost.model.project import Project, new_project
+from carapost.session.process import (
+    PROCESS_ACTIONS,
+    ImageFn,
+    ProcessActions,
+    ProgressFn,
+    one_of,
+)
 
 log = logging.getLogger("carapost.session")
 
-__all__ = ["ImageFn", "ProgressFn", "RelocateCallback", "Session", "read_take"]
+__all__ = ["PROCESS_ACTIONS", "ImageFn", "ProgressFn", "RelocateCallback", "Session",
+           "read_take"]
 
-#: ``progress(done, total) -> bool``; returning False cancels.
-ProgressFn = Callable[[int, int], bool]
-#: ``get_image(frame, camera) -> grey image`` [H, W] uint8.
-ImageFn = Callable[[int, int], NDArray[np.uint8]]
 #: Called with (camera name or "take", missing path); returns a replacement or None.
 RelocateCallback = Callable[[str, str], "str | None"]
 
@@ -81,16 +94,11 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-def _one_of(value: str, choices: Sequence[str], what: str) -> str:
-    v = str(value).strip().lower()
-    if v not in choices:
-        raise CommandError(f"{what} must be one of {', '.join(map(repr, choices))}, "
-                           f"got {value!r}")
-    return v
-
-
-class Session:
+class Session(ProcessActions):
     """A project with its undo History and images, with one method per menu action.
+
+    The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
+    :class:`carapost.session.process.ProcessActions`.
 
     Parameters
     ----------
@@ -119,18 +127,24 @@ class Session:
     # ====================================================================================
     @classmethod
     def open(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
-             get_image: ImageFn | None = None) -> Session:
+             get_image: ImageFn | None = None, source: str | Path | None = None) -> Session:
         """File > Open: a session on a ``.cara`` project (a fresh History).
 
         Videos that moved are looked for beside the project, then ``relocate(camera,
         missing_path)`` is asked (see `relocate_files` to fix them afterwards).
+        ``source``: read this file instead (the recovered autosave copy of ``path``); the
+        project belongs to ``path`` and stays modified until it is saved.
         """
         from carapost.io.cara import load_project
 
-        project = load_project(path, relocate=relocate)
+        recovered = source is not None and Path(source) != Path(path)
+        project = load_project(source if recovered else path, relocate=relocate)
         project.path = str(Path(path).absolute())
         project.modified = False
-        return cls(project, get_image=get_image)
+        session = cls(project, get_image=get_image)
+        if recovered:  # the autosave copy differs from the file until it is saved
+            session.stack.mark_unsaved()
+        return session
 
     @classmethod
     def import_take(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
@@ -183,7 +197,9 @@ class Session:
             self._frames = TakeFrames(self.project.take, strict=True)
         return self._frames.get(frame, camera)
 
-    def _image_fn(self, what: str) -> ImageFn:
+    def image_source(self, what: str) -> ImageFn:
+        """The session's ``get_image``; ``CommandError("<what>: no image source")`` when
+        there are no images at all."""
         if not self.has_images:
             raise CommandError(f"{what}: no image source (the take has no camera videos)")
         return self.get_image
@@ -259,13 +275,13 @@ class Session:
                                    f"{p.n_cameras - 1})")
         p.set_selection(points=points, detections=detections, cameras=cameras)
 
-    def _frames_arg(self, frames: str | Sequence[int] | None, what: str) -> tuple[int, int]:
+    def frame_range(self, frames: str | Sequence[int] | None, what: str) -> tuple[int, int]:
         """(first, last) of "current", "active", "all", (first, last) or a contiguous run."""
         p = self.project
         if p.n_frames < 1:
             raise CommandError(f"{what}: the project has no frames")
         if frames is None or isinstance(frames, str):
-            which = _one_of(frames or "current", ("current", "active", "all"),
+            which = one_of(frames or "current", ("current", "active", "all"),
                             f"{what}: frames")
             if which == "current":
                 return (p.current_frame, p.current_frame)
@@ -294,6 +310,15 @@ class Session:
     def reset_active_range(self) -> Command:
         """View > Reset Active Range (Ctrl+3): the whole take."""
         return self._push(lambda: edit.SetRange.reset_active(self.project))
+
+    def set_range_bound(self, which: str) -> Command:
+        """View > Set Active Range Start / End (Ctrl+1 / Ctrl+2) at the current frame,
+        Set View Range to Active Range, Reset View Range: ``which`` is "active_start",
+        "active_end", "view_to_active" or "reset_view"."""
+        ctor = getattr(edit.SetRange, one_of(which, ("active_start", "active_end",
+                                                      "view_to_active", "reset_view"),
+                                              "Set range"))
+        return self._push(lambda: ctor(self.project))
 
     def set_view_range(self, first: int, last: int) -> Command:
         """Set the view range, inclusive frames."""
@@ -494,11 +519,11 @@ class Session:
         """Edit > Clear Selected [Current Frame] / [Active Range] (or (first, last))."""
         p = self.project
         if isinstance(frames, str):
-            which = _one_of(frames, ("current", "active"), "Clear Selected: frames")
+            which = one_of(frames, ("current", "active"), "Clear Selected: frames")
             ctor = (edit.ClearSelected.current_frame if which == "current"
                     else edit.ClearSelected.active_range)
             return self._push(lambda: ctor(p, point_ids))
-        rng = self._frames_arg(frames, "Clear Selected")
+        rng = self.frame_range(frames, "Clear Selected")
         return self._push(lambda: edit.ClearSelected(p, rng, point_ids))
 
     def clear_active_range(self) -> Command:
@@ -514,11 +539,11 @@ class Session:
         The cameras are ``cameras`` when given; else, as in the window, the explicitly
         selected cameras, else ``active_camera`` (the window's active view).
         """
-        which = _one_of(frames, ("current", "active"), "Detach Detections: frames")
+        which = one_of(frames, ("current", "active"), "Detach Detections: frames")
         p = self.project
         kw: dict[str, Any] = {} if point_ids is None else {"point_ids": point_ids}
         if cameras is not None:
-            rng = self._frames_arg(which, "Detach Detections")
+            rng = self.frame_range(which, "Detach Detections")
             desc = ("Detach Detections [Current Frame]" if which == "current"
                     else "Detach Detections [Active Range]")
             cams = [int(c) for c in cameras]
@@ -550,6 +575,10 @@ class Session:
         """Labelling pane: rename a label (and the point that carries it)."""
         return self._push(lambda: file_commands.RenameLabel(self.project, old, new))
 
+    def assign_label(self, point_id: int, label: str) -> Command:
+        """Labelling pane click: the point takes the label."""
+        return self._push(lambda: edit.AssignLabel(self.project, int(point_id), label))
+
     def clear_all_labels(self) -> Command:
         """Edit > Clear All Labels."""
         return self._push(lambda: edit.ClearAllLabels(self.project))
@@ -579,179 +608,6 @@ class Session:
         """View > Rotate Selected Sensors Clockwise / Anticlockwise."""
         return self._push(lambda: edit.RotateSelectedSensors(self.project, cameras,
                                                              clockwise=clockwise))
-
-    # ====================================================================================
-    # Process
-    # ====================================================================================
-    def _run(self, make: Callable[[ProgressFn | None], Command],
-             progress: ProgressFn | None = None) -> Command:
-        """Compute a processing action and push its result as one History entry.
-
-        Every Process method goes through here, so the processing-command recipe
-        (prepare on the caller's thread, compute on a worker, apply one result command)
-        replaces this one method: today ``make(progress)`` builds the command, whose
-        constructor computes, and the result is pushed. Commands that do not report
-        progress yet ignore ``progress``. A cancelled run that finished some work is
-        pushed too (as the window does) and logged; the command's ``cancelled``
-        attribute (or its computation's) says so.
-        """
-        command = make(progress)
-        comp = getattr(command, "computation", None)
-        if getattr(command, "cancelled", False) or getattr(comp, "cancelled", False):
-            log.warning("%s: cancelled; the finished part is kept", command.description)
-        return self.stack.push(command)
-
-    def detect_blobs(self, frames: str | Sequence[int] = "current",
-                     cameras: Iterable[int] | None = None, *,
-                     progress: ProgressFn | None = None, workers: int = 2) -> Command:
-        """Process > Detect Blobs [Current Frame] / [Active Range] with the Blob Parameters.
-
-        Parameters
-        ----------
-        frames : {"current", "active", "all"} or (first, last) or a contiguous run
-        cameras : iterable of int, optional
-            Default: the explicitly selected cameras, or all.
-        progress : callable, optional
-            ``progress(done, total)`` over the images; False cancels (the finished
-            images are kept).
-        workers : int
-            Detector threads.
-        """
-        from carapost.commands.process import DetectBlobs
-
-        rng = self._frames_arg(frames, "Detect Blobs")
-        get_image = self._image_fn("Detect Blobs")
-        cams = None if cameras is None else [int(c) for c in cameras]
-        return self._run(lambda pr: DetectBlobs(self.project, rng, cameras=cams,
-                                                get_image=get_image, progress=pr,
-                                                workers=workers), progress)
-
-    def load_rom(self, path: str | Path) -> Command:
-        """Process > Load ROM: keep a ``.cara`` project to initialise this take from."""
-        from carapost.commands.tracking import LoadRom
-
-        return self._push(lambda: LoadRom(self.project, path))
-
-    def initialize_from_rom(self, brim_only: bool = False, frame: int | None = None, *,
-                            progress: ProgressFn | None = None) -> Command:
-        """Process > Initialize from ROM (``brim_only``: [Brim Only]) at the current frame."""
-        from carapost.commands.tracking import InitializeFromRom
-
-        if self.project.rom is None or self.project.rom.project is None:
-            raise CommandError("Initialize from ROM: no ROM is loaded (load_rom first)")
-        return self._run(lambda pr: InitializeFromRom(self.project, brim_only=brim_only,
-                                                      frame=frame), progress)
-
-    def initialize_default_brim(self, version: str = "2.0") -> Command:
-        """Process > Initialize Default Calibration Brim [v2.0 / v1.1 / v1.0]."""
-        from carapost.commands.process import InitializeDefaultBrim
-
-        return self._push(lambda: InitializeDefaultBrim(self.project, version))
-
-    def solve_brim(self, frame: int | None = None, method: str = "auto",
-                   correspondences: Mapping[int, Sequence[tuple[int, int]]] | None = None,
-                   *, progress: ProgressFn | None = None) -> Command:
-        """Process > Solve Calibration Brim at ``frame`` (default: the current frame).
-
-        Parameters
-        ----------
-        method : {"auto", "manual", "automatic"}
-            "manual": from the brim points attached to detections (or
-            ``correspondences``); "automatic": matches found from the XCP rig
-            geometry; "auto" (the menu's rule): manual when brim points are attached
-            at the frame, else automatic.
-        """
-        from carapost.commands.process import SolveBrimAuto, SolveBrimManual
-        from carapost.model.project import KIND_BRIM
-
-        how = _one_of(method, ("auto", "manual", "automatic"), "Solve Calibration Brim: "
-                      "method")
-        p = self.project
-        f = p.current_frame if frame is None else int(frame)
-        if how == "auto":
-            brim = np.flatnonzero(p.points.kind == KIND_BRIM)
-            attached = (len(brim) and 0 <= f < p.n_frames
-                        and np.any(p.points.detection[f, brim] >= 0))
-            how = "manual" if attached or correspondences is not None else "automatic"
-        if how == "manual":
-            return self._run(lambda pr: SolveBrimManual(p, f, correspondences), progress)
-        if correspondences is not None:
-            raise CommandError("Solve Calibration Brim [Automatic]: correspondences are "
-                               "for the manual solve")
-        return self._run(lambda pr: SolveBrimAuto(p, f), progress)
-
-    def initialize_3d(self, frame: int | None = None,
-                      seeds: Sequence[Sequence[int]] | None = None, *,
-                      progress: ProgressFn | None = None) -> Command:
-        """Process > Initialize 3D at ``frame`` (default: the current frame)."""
-        from carapost.commands.process import Initialize3D
-
-        return self._run(lambda pr: Initialize3D(self.project, frame, seeds), progress)
-
-    def bundle_current_frame(self, frame: int | None = None, *,
-                             progress: ProgressFn | None = None) -> Command:
-        """Process > Bundle Current Frame [Unconstrained]."""
-        from carapost.commands.process import BundleCurrentFrame
-
-        return self._run(lambda pr: BundleCurrentFrame(self.project, frame), progress)
-
-    def bundle_sequence(self, frames: str | Sequence[int] = "active", *,
-                        progress: ProgressFn | None = None) -> Command:
-        """Process > Bundle Sequence [Unconstrained] (over the active range by default)."""
-        from carapost.commands.bundle import BundleSequence
-
-        rng = self._frames_arg(frames, "Bundle Sequence [Unconstrained]")
-        return self._run(lambda pr: BundleSequence(self.project, rng, progress=pr), progress)
-
-    def track(self, direction: str | int = "forwards", *, single_frame: bool = False,
-              point_ids: Iterable[int] | None = None, frame: int | None = None,
-              use_images: bool = True, progress: ProgressFn | None = None) -> Command:
-        """Process > Track Forwards / Backwards [Sequence] or [Single Frame] (Ctrl+W).
-
-        Parameters
-        ----------
-        direction : {"forwards", "backwards"} or {+1, -1}
-        single_frame : bool
-            One frame on instead of the rest of the active range.
-        point_ids : iterable of int, optional
-            Default: the selected points, or all when none is selected (as the menu).
-        frame : int, optional
-            Start frame (default: the current frame).
-        use_images : bool
-            Give the tracker the images (patch tracking of point-cameras without a
-            blob, detection of frames without detections), as the window does when
-            the take has videos.
-        """
-        from carapost.commands.tracking import TrackCommand
-
-        if isinstance(direction, str):
-            d = _one_of(direction, ("forwards", "backwards"), "Track: direction")
-            step = 1 if d == "forwards" else -1
-        elif int(direction) in (1, -1):
-            step = int(direction)
-        else:
-            raise CommandError(f"Track: direction must be 'forwards' or 'backwards', got "
-                               f"{direction!r}")
-        ids = sorted(self.project.selection.points) if point_ids is None else \
-            [int(i) for i in point_ids]
-        get_image = self.get_image if use_images and self.has_images else None
-        return self._run(lambda pr: TrackCommand(self.project, step, single_frame=single_frame,
-                                                 point_ids=ids or None, progress=pr,
-                                                 get_image=get_image, frame=frame), progress)
-
-    def track_take(self, frame: int | None = None, *, find_markers: bool = True,
-                   use_images: bool = False, progress: ProgressFn | None = None) -> Command:
-        """Track the whole take from an initialised frame, finding missed markers.
-
-        What ``carapost process`` does after Initialize 3D (forwards, then backwards).
-        ``use_images`` turns on patch tracking (slower: every image is decoded again).
-        """
-        from carapost.commands.tracking import TrackTakeCommand
-
-        get_image = self._image_fn("Track Take") if use_images else None
-        return self._run(lambda pr: TrackTakeCommand(self.project, frame, progress=pr,
-                                                     find_markers=find_markers,
-                                                     get_image=get_image), progress)
 
     # ====================================================================================
     # queries
