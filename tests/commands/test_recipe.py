@@ -215,3 +215,14 @@ def test_menu_prepares_jobs_and_commands(brim_project):
     p.set_active_range((0, 1))
     job = menu.prepare("detect_blobs_current", p, get_image=lambda f, c: _disc_image([]))
     assert job.description == "Detect Blobs [Current Frame]" and job.keys[0][0] == 1
+
+
+def test_initialize_3d_and_take_tracking_take_their_caddies_from_the_rig(brim_project):
+    """One definition of a caddy (`carapost.model.rig.caddies`) for both jobs."""
+    p = copy.deepcopy(brim_project[0])
+    run_job(CommandStack(p), prepare_solve_brim_auto(p, 1))
+    assert prepare_initialize_3d(p, 1).caddies == ((0, 1), (2, 3))
+    p.take.metadata["rig"] = {"caddies": [[0, 2], [1, 3]]}
+    assert prepare_initialize_3d(p, 1).caddies == ((0, 2), (1, 3))
+    run_job(CommandStack(p), prepare_initialize_3d(p, 1))
+    assert prepare_take_tracking(p, 1).caddies == ((0, 2), (1, 3))

@@ -39,6 +39,7 @@ from carapost.model.project import (
     SOURCE_BLOB,
     Project,
 )
+from carapost.model.rig import caddies
 
 log = logging.getLogger("carapost.process")
 
@@ -51,7 +52,6 @@ __all__ = [
     "SetBrimModel",
     "SolveBrimAuto",
     "SolveBrimManual",
-    "caddy_pairs",
     "prepare_bundle_frame",
     "prepare_detect_blobs",
     "prepare_initialize_3d",
@@ -95,11 +95,6 @@ def require_intrinsics(project: Project, what: str,
         raise refuse(f"{what}: the calibration has {intr.n_cameras} cameras, the take "
                       f"{project.n_cameras}")
     return intr
-
-
-def caddy_pairs(n_cameras: int) -> tuple[tuple[int, int], ...]:
-    """Caddy pairs: (0, 1), (2, 3), ... (first half left, as the rig's channels)."""
-    return tuple((i, i + 1) for i in range(0, n_cameras - 1, 2))
 
 
 def _frame_detections(project: Project, frame: int) -> list[NDArray[np.float64]]:
@@ -581,7 +576,8 @@ def prepare_initialize_3d(project: Project, frame: int | None = None,
         params = from_mapping(Init3DParameters, project.properties)
     except (TypeError, ValueError) as exc:
         raise refuse(f"{what}: {exc}") from None
-    return Init3DJob(frame=f, dets=dets, R=R, t=t, intr=intr.copy(), caddies=caddy_pairs(C),
+    return Init3DJob(frame=f, dets=dets, R=R, t=t, intr=intr.copy(),
+                     caddies=caddies(C, project.take.metadata),
                      seed_rows=seed_rows, exclude=exclude, params=params,
                      brim_model=brim_model, brim_det=brim_det,
                      seed_ids=pts.ids[seed_cols].copy(), description=f"{what} [frame {f}]")

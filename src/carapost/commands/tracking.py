@@ -39,7 +39,6 @@ from carapost.algorithms.tracking import (
     track_take,
 )
 from carapost.commands.process import (
-    caddy_pairs,
     check_frame,
     refuse,
     require_intrinsics,
@@ -52,6 +51,7 @@ from carapost.model.project import (
     KIND_FACE,
     Project,
 )
+from carapost.model.rig import caddies
 
 log = logging.getLogger("carapost.process")
 
@@ -449,6 +449,7 @@ class TakeTrackJob(Job):
     n_frames: int
     resolve_cameras: bool
     point_ids: list[int]
+    caddies: tuple[tuple[int, int], ...]  # Initialize 3D's camera pairs (model.rig)
     description: str
     spawn_parameters: Any = None  # Init3DParameters when finding markers
     brim_model: NDArray | None = None
@@ -458,7 +459,7 @@ class TakeTrackJob(Job):
     def compute(self, progress: Progress = None) -> TakeTrackComputation:
         spawn = None
         if self.spawn_parameters is not None:
-            spawn = make_spawner(self.intrinsics, caddy_pairs(self.intrinsics.n_cameras),
+            spawn = make_spawner(self.intrinsics, self.caddies,
                                  self.spawn_parameters, brim_model=self.brim_model)
         found: dict[tuple[int, int], dict[str, NDArray]] = {}
         source = self.detections.source(self.get_image, found)
@@ -528,7 +529,9 @@ def prepare_take_tracking(
     t = cal.t[start].copy() if has_brim else cal.t.copy()
     return TakeTrackJob(_Detections(project), _initial_state(project, start, slice(None)),
                         R, t, intr.copy(), params, start, project.n_frames, has_brim,
-                        [int(i) for i in pts.ids], f"{what} [from frame {start}]",
+                        [int(i) for i in pts.ids],
+                        caddies(project.n_cameras, project.take.metadata),
+                        f"{what} [from frame {start}]",
                         spawn_parameters=ip, brim_model=bm, spawn_interval=spawn_interval,
                         get_image=get_image)
 
