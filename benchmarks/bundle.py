@@ -22,24 +22,24 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-import tomllib  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import json
+import statistics
+import sys
+import time
+import tomllib
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from bal import bundle_adjust_bal, read_bal  # noqa: E402  (benchmarks/bal.py)
-from carapost.algorithms.bundle import bundle_frame  # noqa: E402
-from carapost.algorithms.camera import (  # noqa: E402
+from bal import bundle_adjust_bal, read_bal  # benchmarks/bal.py
+from carapost.algorithms.bundle import bundle_frame
+from carapost.algorithms.camera import (
     CameraIntrinsics,
     project,
     rodrigues_to_matrix,
 )
-from carapost.algorithms.triangulation import (  # noqa: E402
+from carapost.algorithms.triangulation import (
     TriangulationParameters,
     triangulate,
 )

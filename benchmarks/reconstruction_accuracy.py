@@ -36,6 +36,7 @@ from carapost.synth.scene import SynthConfig, build_scene
 SEEDS = (0, 1, 2)
 #: Frame evaluated (mid-take, so the seeds give different expressions and rig flex).
 FRAME = 30
+CADDIES = ((0, 1), (2, 3))  # the four-camera synthetic rig
 DEPTH = {"standard": 35.0, "sparse35": 60.0, "dense156": 16.0}
 
 
@@ -151,7 +152,8 @@ def main() -> None:
             params = Init3DParameters(max_allowed_depth=DEPTH[markers])
             for kind, s in (("seeds", seeds), ("noseeds", None)):
                 t0 = time.perf_counter()
-                res = initialize_3d(dets, man.R, man.t, scene.intrinsics, seeds=s,
+                res = initialize_3d(dets, man.R, man.t, scene.intrinsics, caddies=CADDIES,
+                                    seeds=s,
                                     exclude_mask=excl, params=params,
                                     brim_model=scene.brim3d, brim_detections=man.matches)
                 dt = time.perf_counter() - t0

@@ -105,7 +105,8 @@ def bench_takes(frames: int, cases: list[str]) -> None:
         t0, c0 = time.perf_counter(), time.process_time()
         res = track_take(dets.__getitem__, init, scene.cam_R[start], scene.cam_t[start],
                          scene.intrinsics, params, start=start, n_frames=frames,
-                         spawn=make_spawner(scene.intrinsics, brim_model=scene.brim3d))
+                         spawn=make_spawner(scene.intrinsics, ((0, 1), (2, 3)),
+                                            brim_model=scene.brim3d))
         seconds = time.perf_counter() - t0
         cpu = time.process_time() - c0
         pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)

@@ -6,9 +6,12 @@ import numpy as np
 import pytest
 
 from carapost.algorithms.init3d import Init3DParameters, initialize_3d
+from carapost.synth.scene import SynthConfig, build_scene
 from tests.algorithms.test_brim import _scene, synthetic_detections
 
 #: The reference guide's recommended Max Allowed Depth per marker set (mm).
+# the synthetic rig: cameras 0, 1 on the left caddy, 2, 3 on the right
+CADDIES = ((0, 1), (2, 3))
 DEPTH = {"standard": 35.0, "sparse35": 60.0, "dense156": 16.0}
 
 
@@ -44,7 +47,7 @@ def _seeds(scene, ident, n=6, frame=0):
 def test_initialize_3d_acceptance(markers, use_seeds):
     scene = _scene(markers=markers, seed=3)
     dets, ident = synthetic_detections(scene, 0, np.random.default_rng(3))
-    res = initialize_3d(dets, scene.cam_R[0], scene.cam_t[0], scene.intrinsics,
+    res = initialize_3d(dets, scene.cam_R[0], scene.cam_t[0], scene.intrinsics, caddies=CADDIES,
                         seeds=_seeds(scene, ident) if use_seeds else None,
                         exclude_mask=[i < 0 for i in ident],
                         params=Init3DParameters(max_allowed_depth=DEPTH[markers]))
@@ -68,7 +71,7 @@ def test_initialize_3d_with_brim_bundle_keeps_cameras_close():
     bidx = brim_index(ident, len(scene.brim3d))
     # start from slightly wrong cameras: the bundle pulls them back
     t0 = scene.cam_t[0] + np.array([0.15, -0.1, 0.1])
-    res = initialize_3d(dets, scene.cam_R[0], t0, scene.intrinsics,
+    res = initialize_3d(dets, scene.cam_R[0], t0, scene.intrinsics, caddies=CADDIES,
                         exclude_mask=[i < 0 for i in ident], brim_model=scene.brim3d,
                         brim_detections=bidx)
     assert res.success and "bundle adjusted" in res.message
@@ -90,30 +93,31 @@ def test_bad_seeds_and_inputs_give_messages():
     seeds = _seeds(scene, ident)
     one_view = [list(s) for s in seeds]
     one_view[2] = [one_view[2][0], -1, -1, -1]
-    res = initialize_3d(dets, R, t, intr, seeds=one_view)
+    res = initialize_3d(dets, R, t, intr, caddies=CADDIES, seeds=one_view)
     assert not res.success and "seed 2 is attached in 1 camera" in res.message
     # a seed whose detections belong to different markers does not triangulate
     wrong = [list(s) for s in seeds]
     wrong[1][3] = seeds[4][3]
     wrong[4][3] = seeds[1][3]
-    res = initialize_3d(dets, R, t, intr, seeds=wrong)
+    res = initialize_3d(dets, R, t, intr, caddies=CADDIES, seeds=wrong)
     assert not res.success and "do not match" in res.message
     dup = [list(s) for s in seeds]
     dup[0] = list(dup[1])
-    res = initialize_3d(dets, R, t, intr, seeds=dup)
+    res = initialize_3d(dets, R, t, intr, caddies=CADDIES, seeds=dup)
     assert not res.success and "same detection" in res.message
     out = [list(s) for s in seeds]
     out[0][1] = 99_999
-    res = initialize_3d(dets, R, t, intr, seeds=out)
+    res = initialize_3d(dets, R, t, intr, caddies=CADDIES, seeds=out)
     assert not res.success and "detection 99999" in res.message
     empty = [np.zeros((0, 2))] * 4
-    res = initialize_3d(empty, R, t, intr)
+    res = initialize_3d(empty, R, t, intr, caddies=CADDIES)
     assert not res.success and "no face detections" in res.message
     # no seeds and a bad calibration: no automatic seed can be found
     t_bad = t + np.array([[30.0, 0, 0], [0, 30.0, 0], [-30.0, 0, 0], [0, 0, 30.0]])
-    res = initialize_3d(dets, R, t_bad, intr, exclude_mask=[i < 0 for i in ident])
+    res = initialize_3d(dets, R, t_bad, intr, caddies=CADDIES,
+                        exclude_mask=[i < 0 for i in ident])
     assert not res.success and "automatic seed" in res.message
-    res = initialize_3d(dets, R, t, intr, seeds=None,
+    res = initialize_3d(dets, R, t, intr, caddies=CADDIES, seeds=None,
                         params=Init3DParameters(auto_seeds=False))
     assert not res.success and "no seed points" in res.message
     with pytest.raises(ValueError, match="max_allowed_depth"):
@@ -150,6 +154,7 @@ def test_rendered_dense_set_reaches_one_caddy_clusters():
     cov = {}
     for steps in ((), (1.5, 2.0)):
         res = initialize_3d(dets, scene.cam_R[frame], scene.cam_t[frame], scene.intrinsics,
+                            caddies=CADDIES,
                             exclude_mask=excl,
                             params=Init3DParameters(max_allowed_depth=16.0, reach_steps=steps))
         assert res.success, res.message
@@ -190,3 +195,25 @@ def test_one_biased_hand_seed_does_not_loosen_the_epipolar_tolerance():
     noisy = [np.array(d, float) + np.random.default_rng(c).normal(0, 0.6, np.shape(d))
              for c, d in enumerate(dets)]
     assert tolerance(noisy) > 2 * clean
+
+
+@pytest.mark.parametrize("caddies", [((0, 1), (1, 2), (3, 4), (4, 5)),  # halves (synth)
+                                     ((0, 1), (2, 3), (4, 5))])         # channel order
+@pytest.mark.parametrize("use_seeds", [True, False])
+def test_initialize_3d_six_cameras(caddies, use_seeds):
+    scene = build_scene(SynthConfig(n_cameras=6, frames=2, seed=3))
+    dets, ident = synthetic_detections(scene, 0, np.random.default_rng(3))
+    res = initialize_3d(dets, scene.cam_R[0], scene.cam_t[0], scene.intrinsics,
+                        caddies=caddies, seeds=_seeds(scene, ident) if use_seeds else None,
+                        exclude_mask=[i < 0 for i in ident],
+                        params=Init3DParameters(max_allowed_depth=DEPTH["standard"]))
+    assert res.success, res.message
+    coverage, mismatched, rmse, dup = _evaluate(res, scene, ident)
+    assert coverage >= 0.95 and mismatched == 0 and dup == 0 and rmse <= 0.2
+
+
+def test_initialize_3d_has_no_default_rig():
+    scene = _scene()
+    dets, _ = synthetic_detections(scene, 0, np.random.default_rng(0))
+    with pytest.raises(TypeError, match="caddies"):
+        initialize_3d(dets, scene.cam_R[0], scene.cam_t[0], scene.intrinsics)  # type: ignore[call-arg]

@@ -478,7 +478,8 @@ def test_track_take_finds_markers_initialisation_missed():
     res = track_take(lambda f: [(d[0], d[1]) for d in dets[f]], InitialState(X0, kind,
                      axes=axes), scene.cam_R[0], scene.cam_t[0], scene.intrinsics,
                      start=0, n_frames=60,
-                     spawn=make_spawner(scene.intrinsics, brim_model=scene.brim3d))
+                     spawn=make_spawner(scene.intrinsics, ((0, 1), (2, 3)),
+                                        brim_model=scene.brim3d))
     assert (res.first, res.last) == (0, 59)
     assert res.n_new >= (~four & (scene.visible[0].sum(-1) >= 2)).sum() // 2
     pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)
@@ -551,7 +552,7 @@ def _take_run(preset, frames, start, initialised=None):
     res = track_take(lambda f: [(d[0], d[1]) for d in dets[f]],
                      InitialState(X0, kind, axes=np.full((M + B, 4, 2), 5.0)),
                      scene.cam_R[start], scene.cam_t[start], scene.intrinsics, start=start,
-                     n_frames=frames, spawn=make_spawner(scene.intrinsics,
+                     n_frames=frames, spawn=make_spawner(scene.intrinsics, ((0, 1), (2, 3)),
                                                          brim_model=scene.brim3d))
     assert (res.first, res.last) == (0, frames - 1)
     pos = np.concatenate([res.positions[:, :M], res.positions[:, M + B:]], axis=1)

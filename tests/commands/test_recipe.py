@@ -64,23 +64,41 @@ def _walk(obj: object, depth: int = 0):
         yield from _walk(child, depth + 1)
 
 
+def _detection_arrays(project: Project) -> list[np.ndarray]:
+    return [project.detections.offsets, *project.detections.arrays.values()]
+
+
 def assert_snapshot_only(job: Job, project: Project) -> None:
-    """The job keeps no project and no view into the project's arrays."""
-    arrays = _project_arrays(project)
+    """The job keeps no project and no view into the project's arrays, except read-only
+    views of the detections, which the store never changes in place (every edit rebuilds
+    them, so a reference is a snapshot)."""
+    detections = _detection_arrays(project)
+    arrays = [a for a in _project_arrays(project) if not any(a is d for d in detections)]
     for obj in _walk(job):
         assert not isinstance(obj, Project), f"{type(job).__name__} keeps the project"
         if isinstance(obj, np.ndarray) and obj.size:
             assert not any(np.may_share_memory(obj, a) for a in arrays), \
                 f"{type(job).__name__} keeps a view into the project"
+            if any(np.may_share_memory(obj, d) for d in detections):
+                assert not obj.flags.writeable, \
+                    f"{type(job).__name__} keeps a writeable view of the detections"
 
 
 def _wreck(project: Project) -> None:
-    """Overwrite what a job could read from its project (it must have copied it)."""
+    """Change what a job could read from its project (it must have snapshotted it): the
+    point and camera arrays are overwritten in place, the detections replaced the only way
+    the store changes them (rebuilt: here every image emptied)."""
+    detections = _detection_arrays(project)
     for a in _project_arrays(project):
+        if any(a is d for d in detections):
+            continue
         if a.dtype.kind == "f":
             a[...] = np.nan
-        elif a.dtype.kind in "iu" and a is not project.detections.offsets:
+        elif a.dtype.kind in "iu":
             a[...] = 0
+    det = project.detections
+    images = [(f, c) for f in range(det.n_frames) for c in range(det.n_cameras)]
+    det.replace_images(images, [{k: v[:0] for k, v in det.get(0, 0).items()}] * len(images))
     project.calibration.intrinsics = None
 
 
@@ -215,3 +233,14 @@ def test_menu_prepares_jobs_and_commands(brim_project):
     p.set_active_range((0, 1))
     job = menu.prepare("detect_blobs_current", p, get_image=lambda f, c: _disc_image([]))
     assert job.description == "Detect Blobs [Current Frame]" and job.keys[0][0] == 1
+
+
+def test_initialize_3d_and_take_tracking_take_their_caddies_from_the_rig(brim_project):
+    """One definition of a caddy (`carapost.model.rig.caddies`) for both jobs."""
+    p = copy.deepcopy(brim_project[0])
+    run_job(CommandStack(p), prepare_solve_brim_auto(p, 1))
+    assert prepare_initialize_3d(p, 1).caddies == ((0, 1), (2, 3))
+    p.take.metadata["rig"] = {"caddies": [[0, 2], [1, 3]]}
+    assert prepare_initialize_3d(p, 1).caddies == ((0, 2), (1, 3))
+    run_job(CommandStack(p), prepare_initialize_3d(p, 1))
+    assert prepare_take_tracking(p, 1).caddies == ((0, 2), (1, 3))

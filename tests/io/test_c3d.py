@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-import carapost.io.c3d as c3dmod
+import carapost.io.c3d._write as c3d_writer
 from carapost.io.c3d import choose_residual_scale, read_c3d, write_c3d
 from carapost.io.errors import CaraFileError
 
@@ -313,7 +313,7 @@ def test_failed_write_leaves_old_file_and_no_temp(tmp_path, rng, monkeypatch):
     def boom(*_a, **_k):
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(c3dmod, "_pack_mask", boom)
+    monkeypatch.setattr(c3d_writer, "_pack_mask", boom)  # fail mid-write
     with pytest.raises(RuntimeError):
         write_c3d(path, pos, labels=labels, rate=60, camera_mask=mask)
     assert path.read_bytes() == before

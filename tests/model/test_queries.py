@@ -94,13 +94,6 @@ def test_events_batch_and_unknown_part() -> None:
         prj.set_active_range((2, 9))
 
 
-def test_caddy_cameras_are_consecutive_pairs() -> None:
-    assert queries.caddy_cameras(4) == [(0, 1), (2, 3)]
-    assert queries.caddy_cameras(6) == [(0, 1), (2, 3), (4, 5)]
-    assert queries.caddy_cameras(3) == [(0, 1), (2,)]
-    assert queries.caddy_cameras(0) == []
-
-
 def test_point_information_and_distance(rng: np.random.Generator) -> None:
     prj, uv = _project_with_cameras(rng)
     f, col = 4, 2
@@ -130,6 +123,11 @@ def test_point_information_and_distance(rng: np.random.Generator) -> None:
     text = info.text()
     assert "Sensor 1: -" in text and "blob 5.0 x 3.0 px" in text
     assert f"Distance to centroid of caddy 2: {got['caddy 2']:.1f} mm" in text
+    # the take's rig metadata decides the caddies (the same as Initialize 3D's)
+    prj.take.metadata["rig"] = {"caddies": [[0, 1, 2], [3]]}
+    got = dict(queries.point_information(prj, col, f).centroid_distances)
+    assert list(got) == ["caddy 1", "caddy 2", "all cameras"]
+    assert got["caddy 1"] == pytest.approx(np.linalg.norm(centres[:3].mean(0) - X))
     # no 3D position: no distances
     prj.points.positions[f, col] = np.nan
     none = queries.point_information(prj, col, f)

@@ -4,7 +4,8 @@ The cameras are known (solved from the brim) and a few seed markers may have bee
 by hand. Following the reference guide's outline, in our own formulation:
 
 1. Brim dots and detections in the brim's image region are left out.
-2. For each caddy (a pair of cameras on one side of the face), every detection pair
+2. For each caddy pair (two neighbouring cameras on one side of the face; the caller
+   says which, see `carapost.model.rig.caddies`), every detection pair
    within the Max Allowed Symmetric Epipolar Distance is a candidate; all candidates are
    triangulated at once (an ``[Na, Nb]`` distance matrix per caddy). Starting from the
    seeds, candidates are accepted in rounds: a candidate must lie within Max Allowed
@@ -12,11 +13,11 @@ by hand. Following the reference guide's outline, in our own formulation:
    near the local surface spanned by its nearest accepted points (our addition, which
    stops a wrong pairing along an epipolar line from passing as a new marker), and be
    the only valid candidate of both its detections. Rounds repeat until nothing new.
-3. The points of the two caddies closer than Max 3D Distance To Merge are merged.
+3. The points of the caddy pairs closer than Max 3D Distance To Merge are merged.
 4. Beyond the reference: every point is projected into the cameras that do not see it
-   yet and takes an unambiguous detection there; leftover detections of cameras on
-   different caddies are paired the same way as in step 2 (markers seen by one camera
-   of each caddy only).
+   yet and takes an unambiguous detection there; leftover detections of every camera
+   pair that is not a caddy pair are paired the same way as in step 2 (markers seen by
+   one camera of each caddy only, or by two non-neighbouring cameras of one caddy).
 5. All points are re-triangulated from all their detections and, when the brim is
    given, the frame is bundle adjusted with the brim dots fixed.
 
@@ -451,7 +452,7 @@ def initialize_3d(
     t: ArrayLike,
     intr: CameraIntrinsics,
     *,
-    caddies: Sequence[tuple[int, int]] = ((0, 1), (2, 3)),
+    caddies: Sequence[tuple[int, int]],
     seeds: Sequence[Sequence[int]] | None = None,
     exclude_mask: Sequence[ArrayLike] | None = None,
     params: Init3DParameters | None = None,
@@ -468,7 +469,9 @@ def initialize_3d(
         Solved cameras (brim frame, mm).
     intr : CameraIntrinsics
     caddies : sequence of (int, int)
-        Camera pairs that share a caddy.
+        Camera pairs grown in step 2: neighbouring cameras of one caddy. There is no
+        default (the rig decides); `carapost.model.rig.caddies` derives them from the
+        take, e.g. ``((0, 1), (2, 3))`` for a four-camera rig.
     seeds : sequence of per-camera detection index tuples, optional
         Hand-matched markers: ``seeds[k][c]`` is the detection of seed ``k`` in camera
         ``c`` or -1. Each needs at least two cameras. None (or empty) with
@@ -598,12 +601,12 @@ def initialize_3d(
     # ---- beyond the reference: other cameras, cross-caddy pairs ------------------------------
     if params.cross_caddy:
         _extend_to_cameras(state, dets_n, usable, R, t, focal, params)
-        caddy_of = {}
-        for k, (a, b) in enumerate(caddies):
-            caddy_of[a] = caddy_of[b] = k
+        # every camera pair that step 2 did not grow; a set of pairs, not a camera ->
+        # caddy map, because neighbouring pairs of a three-camera caddy share a camera
+        grown = {frozenset(pair) for pair in caddies}
         for a in range(C):
             for b in range(a + 1, C):
-                if caddy_of.get(a, -1) == caddy_of.get(b, -2):
+                if frozenset((a, b)) in grown:
                     continue
                 free = [usable[c] & ~state.used[c] for c in range(C)]
                 tr, X = _grow_pair(a, b, dets_n, free, R, t, focal, state.X, params, strict)

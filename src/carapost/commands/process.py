@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.multiview import ray_residual
 from carapost.algorithms.params import from_mapping
 from carapost.commands.recipe import ApplyResult, Job, Progress, Result
 from carapost.commands.results import DetectionsResult
@@ -39,6 +40,7 @@ from carapost.model.project import (
     SOURCE_BLOB,
     Project,
 )
+from carapost.model.rig import caddies
 
 log = logging.getLogger("carapost.process")
 
@@ -51,7 +53,6 @@ __all__ = [
     "SetBrimModel",
     "SolveBrimAuto",
     "SolveBrimManual",
-    "caddy_pairs",
     "prepare_bundle_frame",
     "prepare_detect_blobs",
     "prepare_initialize_3d",
@@ -97,11 +98,6 @@ def require_intrinsics(project: Project, what: str,
     return intr
 
 
-def caddy_pairs(n_cameras: int) -> tuple[tuple[int, int], ...]:
-    """Caddy pairs: (0, 1), (2, 3), ... (first half left, as the rig's channels)."""
-    return tuple((i, i + 1) for i in range(0, n_cameras - 1, 2))
-
-
 def _frame_detections(project: Project, frame: int) -> list[NDArray[np.float64]]:
     return [project.detections.centres(frame, c).astype(np.float64)
             for c in range(project.n_cameras)]
@@ -131,25 +127,6 @@ def set_cameras(journal: Journal, project: Project, frames: int | slice, R: NDAr
     cal.R[frames] = R
     cal.t[frames] = t
     cal.solved[frames] = True
-
-
-def _ray_residual(X: NDArray, obs: NDArray, R: NDArray, t: NDArray, intr) -> NDArray:
-    """RMS distance (mm) of points X [P, 3] to the rays of their observations [P, C, 2]."""
-    # NOTE: the same point-to-ray RMS as brim's (algorithms/brim.py); switch to the
-    # public algorithms.multiview function once that module exists.
-    from carapost.algorithms.camera import pixel_rays
-
-    P, C = obs.shape[:2]
-    o, d = pixel_rays(obs, R[None], t[None], intr)  # (P, C, 3)
-    v = X[:, None, :] - o
-    perp = v - (v * d).sum(-1, keepdims=True) * d
-    d2 = (perp**2).sum(-1)
-    ok = np.isfinite(d2)
-    n = ok.sum(1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.sqrt(np.where(ok, d2, 0.0).sum(1) / n)
-    out[n < 1] = np.nan
-    return out
 
 
 def _gather(dets: list[NDArray], det: NDArray[np.intp]) -> NDArray[np.float64]:
@@ -376,7 +353,7 @@ class BrimSolveJob(Job):
         if not res.success:
             raise refuse(res.message)
         R, t, matches = res.R.copy(), res.t.copy(), res.matches.copy()
-        residual = _ray_residual(self.model, _gather(self.dets, matches), R, t, self.intr)
+        residual = ray_residual(self.model, _gather(self.dets, matches), R, t, self.intr)
         return BrimSolveResult(self.frame, self.ids, R, t, matches, self.model, residual,
                                self.dets, self.description, res.message)
 
@@ -518,7 +495,7 @@ class Init3DJob(Job):
             raise refuse(res.message)
         changed = not (np.array_equal(res.R, self.R) and np.array_equal(res.t, self.t))
         # residual in mm with the final cameras
-        residual = _ray_residual(res.points, _gather(self.dets, res.detections), res.R,
+        residual = ray_residual(res.points, _gather(self.dets, res.detections), res.R,
                                  res.t, self.intr)
         return Init3DResult(self.frame, self.seed_ids, res.points, res.detections, res.R,
                             res.t, changed, residual, self.dets, self.description,
@@ -581,7 +558,8 @@ def prepare_initialize_3d(project: Project, frame: int | None = None,
         params = from_mapping(Init3DParameters, project.properties)
     except (TypeError, ValueError) as exc:
         raise refuse(f"{what}: {exc}") from None
-    return Init3DJob(frame=f, dets=dets, R=R, t=t, intr=intr.copy(), caddies=caddy_pairs(C),
+    return Init3DJob(frame=f, dets=dets, R=R, t=t, intr=intr.copy(),
+                     caddies=caddies(C, project.take.metadata),
                      seed_rows=seed_rows, exclude=exclude, params=params,
                      brim_model=brim_model, brim_det=brim_det,
                      seed_ids=pts.ids[seed_cols].copy(), description=f"{what} [frame {f}]")
@@ -651,7 +629,7 @@ class FrameBundleJob(Job):
         if not (res.success or np.isfinite(res.rms_after)):
             raise refuse(f"{what}: the adjustment failed ({res.message})")
         points = res.points[~brim]
-        residual = _ray_residual(points, obs[~brim], res.R, res.t, self.intr)
+        residual = ray_residual(points, obs[~brim], res.R, res.t, self.intr)
         message = (f"{what}: frame {f}, {len(obs)} points, RMS {res.rms_before:.3f} -> "
                    f"{res.rms_after:.3f} px")
         log.info("%s", message)

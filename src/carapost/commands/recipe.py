@@ -35,7 +35,7 @@ from carapost.model.project import Project
 #: ``progress(done, total) -> bool``; False asks the job to stop (what is done is kept).
 Progress = Callable[[int, int], bool] | None
 
-__all__ = ["ApplyResult", "Job", "Progress", "Result", "run_job"]
+__all__ = ["ApplyResult", "Job", "Progress", "Result", "ResultCommand", "run_job"]
 
 
 def _held_bytes(obj: Any, depth: int = 0) -> int:
@@ -127,6 +127,20 @@ class ApplyResult(Command):
     def memory(self) -> int:
         """Bytes held: the saved old state plus the result kept for redo."""
         return super().memory() + self.result.nbytes()
+
+
+class ResultCommand(ApplyResult):
+    """An :class:`ApplyResult` for the one-call commands of scripts: the result is also
+    reachable as ``computation``, and a ``project`` argument (older callers pass one) is
+    accepted and ignored."""
+
+    def __init__(self, computation: Result, project: Project | None = None) -> None:
+        super().__init__(computation)
+
+    @property
+    def computation(self) -> Any:
+        """The result applied."""
+        return self.result
 
 
 def run_job(stack: CommandStack, job: Job, progress: Progress = None) -> ApplyResult:

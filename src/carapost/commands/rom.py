@@ -22,7 +22,7 @@ from carapost.algorithms.params import from_mapping
 from carapost.algorithms.rom import RomParameters, initialize_from_rom
 from carapost.algorithms.tracking import RaggedDetections, TrackingParameters
 from carapost.commands.process import check_frame, refuse, set_cameras
-from carapost.commands.recipe import ApplyResult, Job, Progress, Result
+from carapost.commands.recipe import Job, Progress, Result, ResultCommand
 from carapost.commands.stack import Command, Journal
 from carapost.commands.tracking import tracked_arrays, tracking_parameters
 from carapost.model.project import KIND_BRIM, KIND_FACE, Project, RomReference, Stick
@@ -244,17 +244,8 @@ def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
     return prepare_rom_initialisation(project, brim_only=brim_only, frame=frame).compute()
 
 
-class RomResultCommand(ApplyResult):
-    """Apply a :class:`RomComputation` as one undoable step (an ``ApplyResult``;
-    ``project`` is ignored, accepted for older callers)."""
-
-    def __init__(self, computation: RomComputation, project: Project | None = None):
-        super().__init__(computation)
-
-    @property
-    def computation(self) -> Any:
-        """The result applied (a :class:`RomComputation`)."""
-        return self.result
+class RomResultCommand(ResultCommand):
+    """Apply a :class:`RomComputation` as one undoable step (``ResultCommand``)."""
 
 
 class InitializeFromRom(RomResultCommand):

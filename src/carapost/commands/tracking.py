@@ -39,19 +39,19 @@ from carapost.algorithms.tracking import (
     track_take,
 )
 from carapost.commands.process import (
-    caddy_pairs,
     check_frame,
     refuse,
     require_intrinsics,
     set_cameras,
 )
-from carapost.commands.recipe import ApplyResult, Job, Progress, Result
+from carapost.commands.recipe import Job, Progress, Result, ResultCommand
 from carapost.commands.stack import Journal
 from carapost.model.project import (
     KIND_BRIM,
     KIND_FACE,
     Project,
 )
+from carapost.model.rig import caddies
 
 log = logging.getLogger("carapost.process")
 
@@ -97,8 +97,21 @@ def tracked_arrays(value: Callable[[str], NDArray]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------
 # Tracking
 # ------------------------------------------------------------------------------------------
+def _read_only(a: NDArray) -> NDArray:
+    """A view of ``a`` the worker cannot write through."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 class _Detections:
     """A snapshot of the take's detections, read by the tracker frame by frame.
+
+    It keeps read-only references to the take's flat detection arrays instead of copies
+    (copying the centres and axes of a 36,000-frame, 4-camera take with 100 detections
+    per image took ~35 ms of the GUI thread and ~175 MB per job; keeping references,
+    ~1.5 ms): :class:`carapost.model.project.Detections` never changes those arrays in
+    place (every edit rebuilds them), so the snapshot stays what it was when taken.
 
     Frames with none are detected on the fly when an image source is given; what is
     found goes into ``found`` so the result can store it.
@@ -106,11 +119,23 @@ class _Detections:
 
     def __init__(self, project: Project) -> None:
         det = project.detections
-        self.ragged = RaggedDetections(det.offsets.copy(), det.arrays["centre"].copy(),
-                                       det.arrays["axes"].copy(), project.n_cameras)
-        self.counts = det.counts().copy()
+        self.ragged = RaggedDetections(_read_only(det.offsets),
+                                       _read_only(det.arrays["centre"]),
+                                       _read_only(det.arrays["axes"]), project.n_cameras)
+        self.counts = det.counts()  # a new array (np.diff)
         self.n_cameras = project.n_cameras
         self.blob_section = dict(project.properties.section("Blob Parameters"))
+
+    def run(self, get_image: Callable[[int, int], NDArray] | None,
+            tracker: Callable[[Callable[[int], list[tuple[NDArray, NDArray | None]]]],
+                              TrackResult],
+            ) -> tuple[TrackResult, list[tuple[int, int]], list[dict[str, NDArray]]]:
+        """``tracker(source)`` on this snapshot; returns its result and the detections
+        found on the fly (images in order, one table each)."""
+        found: dict[tuple[int, int], dict[str, NDArray]] = {}
+        result = tracker(self.source(get_image, found))
+        images = sorted(found)
+        return result, images, [found[k] for k in images]
 
     def source(self, get_image: Callable[[int, int], NDArray] | None,
                found: dict[tuple[int, int], dict[str, NDArray]]
@@ -160,11 +185,51 @@ def _store_found(journal: Journal, project: Project, images: list[tuple[int, int
         project.detections.replace_images(images, tables)
 
 
+@dataclass
+class _TrackedPoints(Result):
+    """What both trackers return: a point-array record over frames, and the detections
+    they found on the fly (stored with it, since its observations refer to them)."""
+
+    result: TrackResult
+    point_ids: list[int]
+    detected_images: list[tuple[int, int]] = field(default_factory=list, kw_only=True)
+    detected_tables: list[dict[str, NDArray]] = field(default_factory=list, kw_only=True)
+
+    @property
+    def cancelled(self) -> bool:  # type: ignore[override]
+        """True when the user cancelled (the frames tracked so far are kept)."""
+        return bool(self.result.cancelled)
+
+    def store_found(self, project: Project, journal: Journal) -> None:
+        """Store (undoably) the detections found on the fly."""
+        _store_found(journal, project, self.detected_images, self.detected_tables)
+
+    def nbytes(self) -> int:
+        """Bytes of the tracked arrays kept for redo."""
+        return sum(int(np.asarray(getattr(self.result, n)).nbytes) for n in _ARRAYS)
+
+
+@dataclass
+class _TrackingJob(Job):
+    """The snapshot both trackers start from (see :func:`prepare_tracking` and
+    :func:`prepare_take_tracking`)."""
+
+    detections: _Detections
+    initial: InitialState
+    R: NDArray
+    t: NDArray
+    intrinsics: CameraIntrinsics
+    params: TrackingParameters
+    start: int
+    resolve_cameras: bool
+    point_ids: list[int]
+
+
 # ------------------------------------------------------------------------------------------
 # Tracking
 # ------------------------------------------------------------------------------------------
 @dataclass
-class TrackComputation(Result):
+class TrackComputation(_TrackedPoints):
     """What a :class:`TrackJob` found: the result of Track Forwards/Backwards.
 
     Attributes
@@ -178,20 +243,11 @@ class TrackComputation(Result):
     description : str
     """
 
-    result: TrackResult
-    point_ids: list[int]
-    detected_images: list[tuple[int, int]] = field(default_factory=list)
-    detected_tables: list[dict[str, NDArray]] = field(default_factory=list)
     description: str = "Track"
-
-    @property
-    def cancelled(self) -> bool:  # type: ignore[override]
-        """True when the user cancelled (the frames tracked so far are kept)."""
-        return bool(self.result.cancelled)
 
     def write(self, project: Project, journal: Journal) -> None:
         res = self.result
-        _store_found(journal, project, self.detected_images, self.detected_tables)
+        self.store_found(project, journal)
         if res.last < res.first:
             return
         fr = slice(res.first, res.last + 1)
@@ -199,41 +255,26 @@ class TrackComputation(Result):
         journal.write_points(fr, cols, tracked_arrays(lambda name: getattr(res, name)))
         set_cameras(journal, project, fr, res.R, res.t)
 
-    def nbytes(self) -> int:
-        """Bytes of the tracked arrays kept for redo."""
-        return sum(int(np.asarray(getattr(self.result, n)).nbytes) for n in _ARRAYS)
-
 
 @dataclass
-class TrackJob(Job):
+class TrackJob(_TrackingJob):
     """Snapshot for :func:`carapost.algorithms.tracking.track` (see
     :func:`prepare_tracking`)."""
 
-    detections: _Detections
-    initial: InitialState
-    R: NDArray
-    t: NDArray
-    intrinsics: CameraIntrinsics
-    params: TrackingParameters
-    start: int
     stop: int
-    resolve_cameras: bool
-    point_ids: list[int]
     what: str
     description: str
     get_image: Callable[[int, int], NDArray] | None = None
 
     def compute(self, progress: Progress = None) -> TrackComputation:
-        found: dict[tuple[int, int], dict[str, NDArray]] = {}
-        source = self.detections.source(self.get_image, found)
-        result = track(source, self.initial, self.R, self.t, self.intrinsics, self.params,
-                       start=self.start, stop=self.stop, get_image=self.get_image,
-                       resolve_cameras=self.resolve_cameras, progress=progress)
+        result, images, tables = self.detections.run(self.get_image, lambda source: track(
+            source, self.initial, self.R, self.t, self.intrinsics, self.params,
+            start=self.start, stop=self.stop, get_image=self.get_image,
+            resolve_cameras=self.resolve_cameras, progress=progress))
         if result.cancelled:
             log.info("%s cancelled after %d frames (kept)", self.what, result.frames_done)
-        images = sorted(found)
-        return TrackComputation(result, list(self.point_ids), images,
-                                [found[k] for k in images], self.description)
+        return TrackComputation(result, list(self.point_ids), detected_images=images,
+                                detected_tables=tables, description=self.description)
 
 
 def prepare_tracking(
@@ -321,9 +362,10 @@ def prepare_tracking(
             raise refuse(f"{what}: without a calibration brim every frame's cameras must "
                           "be solved (import an XCP calibration)")
     return TrackJob(_Detections(project), _initial_state(project, start, cols),
-                    cal.R.copy(), cal.t.copy(), intr.copy(), params, start, stop, has_brim,
-                    [int(i) for i in pts.ids[cols]], what,
-                    f"{what} [frames {min(start, stop)}-{max(start, stop)}]", get_image)
+                    cal.R.copy(), cal.t.copy(), intr.copy(), params, start, has_brim,
+                    [int(i) for i in pts.ids[cols]], stop=stop, what=what,
+                    description=f"{what} [frames {min(start, stop)}-{max(start, stop)}]",
+                    get_image=get_image)
 
 
 def compute_tracking(
@@ -342,17 +384,8 @@ def compute_tracking(
                             get_image=get_image).compute(progress)
 
 
-class TrackResultCommand(ApplyResult):
-    """Apply a :class:`TrackComputation` as one undoable step (an ``ApplyResult``;
-    ``project`` is ignored, accepted for older callers)."""
-
-    def __init__(self, computation: TrackComputation, project: Project | None = None):
-        super().__init__(computation)
-
-    @property
-    def computation(self) -> Any:
-        """The result applied (a :class:`TrackComputation` or alike)."""
-        return self.result
+class TrackResultCommand(ResultCommand):
+    """Apply a :class:`TrackComputation` as one undoable step (``ResultCommand``)."""
 
 
 class TrackCommand(TrackResultCommand):
@@ -373,7 +406,7 @@ class TrackCommand(TrackResultCommand):
 
 
 @dataclass
-class TakeTrackComputation(Result):
+class TakeTrackComputation(_TrackedPoints):
     """What a :class:`TakeTrackJob` found (the result of Track Take).
 
     Attributes
@@ -390,21 +423,12 @@ class TakeTrackComputation(Result):
         Detections found on the fly for frames that had none.
     """
 
-    result: TrackResult
-    point_ids: list[int]
     start: int
     description: str = "Track Take"
-    detected_images: list[tuple[int, int]] = field(default_factory=list)
-    detected_tables: list[dict[str, NDArray]] = field(default_factory=list)
-
-    @property
-    def cancelled(self) -> bool:  # type: ignore[override]
-        """True when the user cancelled."""
-        return bool(self.result.cancelled)
 
     def write(self, project: Project, journal: Journal) -> None:
         res = self.result
-        _store_found(journal, project, self.detected_images, self.detected_tables)
+        self.store_found(project, journal)
         if res.last < res.first:
             return
         pts = project.points
@@ -429,26 +453,14 @@ class TakeTrackComputation(Result):
         Rn[keep_start], tn[keep_start] = cal.R[self.start], cal.t[self.start]
         set_cameras(journal, project, fr, Rn, tn)
 
-    def nbytes(self) -> int:
-        """Bytes of the tracked arrays kept for redo."""
-        return sum(int(np.asarray(getattr(self.result, n)).nbytes) for n in _ARRAYS)
-
 
 @dataclass
-class TakeTrackJob(Job):
+class TakeTrackJob(_TrackingJob):
     """Snapshot for :func:`carapost.algorithms.tracking.track_take` (see
     :func:`prepare_take_tracking`)."""
 
-    detections: _Detections
-    initial: InitialState
-    R: NDArray
-    t: NDArray
-    intrinsics: CameraIntrinsics
-    params: TrackingParameters
-    start: int
     n_frames: int
-    resolve_cameras: bool
-    point_ids: list[int]
+    caddies: tuple[tuple[int, int], ...]  # Initialize 3D's camera pairs (model.rig)
     description: str
     spawn_parameters: Any = None  # Init3DParameters when finding markers
     brim_model: NDArray | None = None
@@ -458,18 +470,16 @@ class TakeTrackJob(Job):
     def compute(self, progress: Progress = None) -> TakeTrackComputation:
         spawn = None
         if self.spawn_parameters is not None:
-            spawn = make_spawner(self.intrinsics, caddy_pairs(self.intrinsics.n_cameras),
+            spawn = make_spawner(self.intrinsics, self.caddies,
                                  self.spawn_parameters, brim_model=self.brim_model)
-        found: dict[tuple[int, int], dict[str, NDArray]] = {}
-        source = self.detections.source(self.get_image, found)
-        result = track_take(source, self.initial, self.R, self.t, self.intrinsics,
-                            self.params, start=self.start, n_frames=self.n_frames,
-                            spawn=spawn, spawn_interval=self.spawn_interval,
-                            resolve_cameras=self.resolve_cameras, progress=progress,
-                            get_image=self.get_image)
-        images = sorted(found)
+        result, images, tables = self.detections.run(self.get_image, lambda source: track_take(
+            source, self.initial, self.R, self.t, self.intrinsics, self.params,
+            start=self.start, n_frames=self.n_frames, spawn=spawn,
+            spawn_interval=self.spawn_interval, resolve_cameras=self.resolve_cameras,
+            progress=progress, get_image=self.get_image))
         return TakeTrackComputation(result, list(self.point_ids), self.start,
-                                    self.description, images, [found[k] for k in images])
+                                    self.description, detected_images=images,
+                                    detected_tables=tables)
 
 
 def prepare_take_tracking(
@@ -527,10 +537,11 @@ def prepare_take_tracking(
     R = cal.R[start].copy() if has_brim else cal.R.copy()
     t = cal.t[start].copy() if has_brim else cal.t.copy()
     return TakeTrackJob(_Detections(project), _initial_state(project, start, slice(None)),
-                        R, t, intr.copy(), params, start, project.n_frames, has_brim,
-                        [int(i) for i in pts.ids], f"{what} [from frame {start}]",
-                        spawn_parameters=ip, brim_model=bm, spawn_interval=spawn_interval,
-                        get_image=get_image)
+                        R, t, intr.copy(), params, start, has_brim, [int(i) for i in pts.ids],
+                        n_frames=project.n_frames,
+                        caddies=caddies(project.n_cameras, project.take.metadata),
+                        description=f"{what} [from frame {start}]", spawn_parameters=ip,
+                        brim_model=bm, spawn_interval=spawn_interval, get_image=get_image)
 
 
 def compute_take_tracking(
@@ -548,7 +559,7 @@ def compute_take_tracking(
                                  get_image=get_image).compute(progress)
 
 
-class TrackTakeCommand(ApplyResult):
+class TrackTakeCommand(ResultCommand):
     """Track Take: every point over the whole take, missed markers found on the way.
 
     Parameters
@@ -574,11 +585,6 @@ class TrackTakeCommand(ApplyResult):
         super().__init__(computation or compute_take_tracking(
             project, frame, progress=progress, find_markers=find_markers,
             get_image=get_image))
-
-    @property
-    def computation(self) -> Any:
-        """The result applied (a :class:`TakeTrackComputation`)."""
-        return self.result
 
 
 #: Initialize from ROM lives in :mod:`carapost.commands.rom`; importable from here too.

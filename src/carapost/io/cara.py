@@ -262,7 +262,7 @@ class _Members:
     def __init__(self, zf: zipfile.ZipFile, path: Path) -> None:
         self.zf = zf
         self.path = path
-        self._fh = open(path, "rb")  # noqa: SIM115 - closed in close()
+        self._fh = open(path, "rb")  # closed in close()
         try:
             self._map: mmap.mmap | None = mmap.mmap(self._fh.fileno(), 0,
                                                     access=mmap.ACCESS_COPY)

@@ -32,7 +32,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from carapost import __version__
-from carapost.io.c3d import atomic_output
+from carapost.io.atomic import atomic_output
 
 __all__ = ["write_fbx", "KTIME_PER_SECOND", "fbx_time_mode"]
 

@@ -138,6 +138,11 @@ class Detections:
     refer to detections by ``(f, c, k)`` so rebuilding the flat arrays never invalidates
     their references. Axes, angle and score are float16 to keep 43 M detections of a
     long take within memory; centres stay float32 (sub-pixel accuracy matters).
+
+    ``offsets`` and the flat ``arrays`` are never changed in place: every edit
+    (:meth:`replace_images`) builds new arrays, and the views :meth:`get` returns are for
+    reading. So a reference to them is a snapshot (the trackers' jobs keep references
+    instead of copying every detection of a long take on the GUI thread).
     """
 
     FIELDS: dict[str, tuple[str, tuple[int, ...]]] = {

@@ -15,6 +15,7 @@ from carapost.model.project import (
     SOURCE_NONE,
     Project,
 )
+from carapost.model.rig import caddy_groups
 
 
 def _frames(project: Project, frames: tuple[int, int] | None) -> slice:
@@ -159,14 +160,6 @@ def next_gap(project: Project, column: int, after_frame: int) -> tuple[int, int]
     return (int(later[0, 0]), int(later[0, 1])) if len(later) else None
 
 
-def caddy_cameras(n_cameras: int) -> list[tuple[int, ...]]:
-    """Cameras of each caddy: consecutive pairs (0, 1), (2, 3), ... (a last one alone).
-
-    The same grouping as Initialize 3D's caddies (``commands/process.py``).
-    """
-    return [tuple(range(c, min(c + 2, n_cameras))) for c in range(0, n_cameras, 2)]
-
-
 @dataclass(frozen=True)
 class PointInformation:
     """What View > Get Point Information reports about one point at one frame.
@@ -186,7 +179,8 @@ class PointInformation:
         it uses none.
     centroid_distances : tuple of (str, float)
         Distance (mm) from the 3D position to the centroid of the camera centres of
-        each caddy (``"caddy 1"``, ...) and of ``"all cameras"``; empty when the point
+        each caddy (``"caddy 1"``, ...; `carapost.model.rig.caddy_groups`, the same
+        caddies as Initialize 3D) and of ``"all cameras"``; empty when the point
         has no 3D position or the frame is not calibrated.
     """
 
@@ -243,7 +237,7 @@ def point_information(project: Project, column: int, frame: int) -> PointInforma
     if not np.isnan(X[0]) and C and cal.solved.any():
         centres = camera_centres(cal.R[frame], cal.t[frame])
         groups = [(f"caddy {k + 1}", list(cams))
-                  for k, cams in enumerate(caddy_cameras(C))]
+                  for k, cams in enumerate(caddy_groups(C, project.take.metadata))]
         groups.append(("all cameras", list(range(C))))
         distances = [(name, float(np.linalg.norm(centres[cams].mean(axis=0) - X)))
                      for name, cams in groups]

@@ -33,6 +33,8 @@ def _groups_from_metadata(metadata: Mapping[str, Any] | None,
     if given is None:
         return None
     try:
+        if isinstance(given, str) or any(isinstance(g, str) for g in given):
+            raise TypeError("a string is not a list of camera indices")
         groups = tuple(tuple(int(c) for c in g) for g in given)
     except (TypeError, ValueError):
         log.warning("Ignoring the take's caddies %r: not lists of camera indices", given)

@@ -19,7 +19,7 @@ from carapost.algorithms.blobs import BlobDetections, BlobParameters, detect_blo
 
 # The point kind codes have one home; model.project for now (a shared
 # carapost.algorithms.codes module is planned: import them from there once it exists).
-from carapost.model.project import KIND_BRIM, KIND_FACE
+from carapost.algorithms.codes import KIND_BRIM, KIND_FACE
 from carapost.synth.blob_images import (
     REGION_BACKGROUND,
     REGION_BRIM,

@@ -617,17 +617,19 @@ class FrameMatcher:
 
         X, res, contrib = tri(f)
         has = np.isfinite(obs[f]).all(-1)
-        if p.remove_bad_2d_projections or True:
-            # cameras left out by the robust triangulation are wrong matches
-            drop = has & ~contrib & np.isfinite(X).all(-1)[:, None]
-            if p.remove_bad_2d_projections:
-                uvp, _ = project(X, R, t, intr)
-                err = np.linalg.norm(uvp - obs[f], axis=-1)
-                drop |= has & (err > p.max_2d_projection_error)
-            if drop.any():
-                detach(f, drop)
-                rows = np.flatnonzero(drop.any(1))
-                X[rows], res[rows], _ = tri(f[rows])
+        # Cameras the robust triangulation left out are wrong matches: they are detached
+        # whatever Remove Bad 2D Projections says (that option adds the reprojection-error
+        # test; a blob the solve already rejected must not stay attached as an
+        # observation the point's 3D position ignores).
+        drop = has & ~contrib & np.isfinite(X).all(-1)[:, None]
+        if p.remove_bad_2d_projections:
+            uvp, _ = project(X, R, t, intr)
+            err = np.linalg.norm(uvp - obs[f], axis=-1)
+            drop |= has & (err > p.max_2d_projection_error)
+        if drop.any():
+            detach(f, drop)
+            rows = np.flatnonzero(drop.any(1))
+            X[rows], res[rows], _ = tri(f[rows])
         # neighbour-based 3D prediction (leave-one-out) from the points just solved
         Pf_all = len(self.face)
         fi = np.searchsorted(self.face, f)

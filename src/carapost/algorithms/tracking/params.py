@@ -29,6 +29,9 @@ class TrackingParameters:
     patch_match_size : int
         Side (px) of the square grey-level patch.
     remove_bad_2d_projections : bool
+        Detach observations further than ``max_2d_projection_error`` from their point's
+        projection. Off or on, the cameras the robust triangulation leaves out of a
+        point are detached (they are wrong matches).
     max_2d_projection_error : float
         Observations further (px) than this from their point's projection are detached.
     remove_bad_3d_points : bool

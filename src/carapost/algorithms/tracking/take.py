@@ -28,7 +28,7 @@ from carapost.algorithms.tracking.sequence import Spawner, track
 
 def make_spawner(
     intr: CameraIntrinsics,
-    caddies: Sequence[tuple[int, int]] | None = None,
+    caddies: Sequence[tuple[int, int]],
     init_params: Any = None,
     *,
     brim_model: ArrayLike | None = None,
@@ -44,8 +44,9 @@ def make_spawner(
     Parameters
     ----------
     intr : CameraIntrinsics
-    caddies : sequence of (int, int), optional
-        Camera pairs of one caddy (default (0, 1), (2, 3), ...).
+    caddies : sequence of (int, int)
+        Camera pairs of one caddy, as for `initialize_3d` (`carapost.model.rig.caddies`
+        derives them from the take).
     init_params : Init3DParameters, optional
         Initialize 3D parameters (the final bundle adjustment is always off here).
     brim_model : array_like, shape (B, 3), optional
@@ -66,8 +67,7 @@ def make_spawner(
     from carapost.algorithms.init3d import Init3DParameters, initialize_3d
 
     C = intr.n_cameras
-    cad = tuple(caddies) if caddies is not None else tuple(
-        (i, i + 1) for i in range(0, C - 1, 2))
+    cad = tuple(caddies)
     ip = replace(init_params or Init3DParameters(), bundle_adjust=False)
     bm = None if brim_model is None else np.asarray(brim_model, np.float64).reshape(-1, 3)
     empty = (np.zeros((0, 3)), np.zeros((0, C), np.intp))
