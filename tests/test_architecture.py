@@ -35,3 +35,41 @@ def test_no_module_over_the_size_limit():
     assert set(over) <= set(OVERSIZE), f"over {MAX_LINES} lines: {over}"
     for m in OVERSIZE:
         assert m in DOC, f"{m} is allowed over the limit but docs/architecture.md says not why"
+
+
+def _package_of(module: str) -> str:
+    return module.rsplit(".", 1)[0]
+
+
+def test_no_module_imports_another_packages_private_names():
+    """A private name (``_x``, or a private module ``pkg/_x.py``) is used only inside its
+    own package; anything another package needs is public and documented."""
+    import ast
+
+    shared = {"carapost._runtime"}  # process-wide settings, documented as shared
+    bad = []
+    for path in SRC.rglob("*.py"):
+        rel = path.relative_to(SRC.parent).with_suffix("")
+        me = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        my_pkg = me if path.name == "__init__.py" else _package_of(me)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                mods = [(node.module, a.name) for a in node.names]
+            elif isinstance(node, ast.Import):
+                mods = [(a.name, "") for a in node.names]
+            else:
+                continue
+            for mod, name in mods:
+                if not mod.startswith("carapost") or mod in shared:
+                    continue
+                parts = mod.split(".")
+                private_mod = next((i for i, p in enumerate(parts) if p.startswith("_")
+                                    and not p.startswith("__")), None)
+                if private_mod is not None:
+                    owner = ".".join(parts[:private_mod])
+                    if not (my_pkg + ".").startswith(owner + "."):
+                        bad.append(f"{me}: {mod}")
+                if name.startswith("_") and not name.startswith("__"):
+                    if not (my_pkg + ".").startswith(_package_of(mod) + ".") and my_pkg != mod:
+                        bad.append(f"{me}: {mod}.{name}")
+    assert not bad, bad
