@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from functools import partial
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from PySide6.QtCore import QPointF, Qt
 from PySide6.QtWidgets import QApplication
 
 from carapost.io.cara import autosave_path, load_project, save_project
-from carapost.ui.demo import dot_frames, render_dots
+from carapost.synth.demo_project import render_dots
 from carapost.ui.frames import ArrayFrameSource
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
@@ -49,7 +50,7 @@ def test_open_scrub_and_overlays(make_window, demo, tmp_path, qtbot):
     settle(qtbot, w)
     assert w.project.n_points == p.n_points and w.project.path == str(path)
     assert "take.cara" in w.windowTitle()
-    w.set_frames(dot_frames(w.project))
+    w.set_frames(ArrayFrameSource(partial(render_dots, w.project)))
     # keyboard scrubbing: arrows, End, Home
     w.activateWindow()
     qtbot.keyClick(w, Qt.Key.Key_Right)
