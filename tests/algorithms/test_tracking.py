@@ -15,14 +15,13 @@ import numpy as np
 import pytest
 
 from carapost.algorithms.camera import project as project_points
+from carapost.algorithms.codes import KIND_BRIM, SOURCE_BLOB
+from carapost.algorithms.patch import patch_search
 from carapost.algorithms.tracking import (
-    KIND_BRIM,
-    SOURCE_BLOB,
     InitialState,
     RaggedDetections,
     TrackingParameters,
     neighbour_graph,
-    patch_search,
     resect_cameras,
     track,
 )
