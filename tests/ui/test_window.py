@@ -226,6 +226,34 @@ def test_process_progress_cancel_and_one_undo_entry(make_window, demo, qtbot):
     assert p.detections.total == before
 
 
+def test_cancel_before_any_image_finished_changes_nothing_and_is_no_error(
+        make_window, demo, qtbot, monkeypatch):
+    """Cancel pressed before the detector finished an image: Detect Blobs has nothing to
+    apply and refuses; the window says so in the status bar, with no error box."""
+    import carapost.algorithms.blobs as blobs
+
+    def cancelled_detector(get_image, keys, params, *, workers=2, progress=None, **kw):
+        # the detector as it is when Cancel comes before its first image is done
+        while progress(0, len(keys)):
+            time.sleep(0.005)
+        return {}
+
+    monkeypatch.setattr(blobs, "detect_blobs_batch", cancelled_detector)
+    p, frames = demo
+    w = make_window(p, frames)
+    w.show()
+    before = p.detections.total
+    w.action("process.blobs_current").trigger()
+    assert w.runner.busy
+    qtbot.mouseClick(w.cancel_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=10000)
+    settle(qtbot, w)
+    assert w.dialogs.errors == [] and w.last_error == ""
+    assert w.statusBar().currentMessage() == ("Detect Blobs [Current Frame] cancelled; "
+                                              "nothing changed")
+    assert len(w.stack) == 0 and p.detections.total == before
+
+
 def test_detect_blobs_current_frame_finds_the_dots(make_window, demo, qtbot):
     p, frames = demo
     truth = p.detections.centres(7, 1).copy()
