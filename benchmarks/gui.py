@@ -39,7 +39,7 @@ def settle(app, n: int = 3) -> None:
 
 
 def bench_scrub(app) -> None:
-    from carapost.ui.demo import demo_project, render_dots
+    from carapost.synth.demo_project import demo_project, render_dots
     from carapost.ui.frames import ArrayFrameSource
     from carapost.ui.mainwindow import MainWindow
 

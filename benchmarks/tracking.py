@@ -76,8 +76,8 @@ def synthetic_detections(scene, rng, noise: float = 0.15):
 
 
 def bench_takes(frames: int, cases: list[str]) -> None:
+    from carapost.algorithms.codes import KIND_BRIM
     from carapost.algorithms.tracking import (
-        KIND_BRIM,
         InitialState,
         TrackingParameters,
         make_spawner,

@@ -166,17 +166,13 @@ def _export_columns(project: Project, include_brim: bool) -> NDArray[np.intp]:
 
 
 def _unique_labels(labels: list[str]) -> list[str]:
-    seen: dict[str, int] = {}
-    out = []
-    for lab in labels:
-        name = lab
-        while name in seen:
-            seen[lab] += 1
-            name = f"{lab} ({seen[lab]})"
-        seen[name] = 1
+    """The labels made unique for a format that keys points by label (logged)."""
+    from carapost.io.labels import unique_names
+
+    out = unique_names(labels)
+    for lab, name in zip(labels, out, strict=True):
         if name != lab:
             log.warning("Two points are labelled %r; exporting one as %r", lab, name)
-        out.append(name)
     return out
 
 

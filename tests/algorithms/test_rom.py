@@ -7,8 +7,8 @@ import logging
 import numpy as np
 import pytest
 
+from carapost.algorithms.codes import KIND_BRIM
 from carapost.algorithms.rom import RomParameters, initialize_from_rom
-from carapost.algorithms.tracking import KIND_BRIM
 from carapost.commands.stack import CommandError, CommandStack
 from carapost.model.project import RECON_TRIANGULATED, Stick, new_project
 from tests.algorithms.test_tracking import scene_of, snapshot, synth_detections, synth_project
@@ -98,13 +98,13 @@ def target_project():
 
 
 def test_initialize_from_rom_command(tmp_path, caplog):
-    from carapost.commands.tracking import InitializeFromRom, LoadRom
+    from carapost.commands.rom import InitializeFromRom, LoadRom
 
     path = rom_project(tmp_path)
     prj, target = target_project()
     stack = CommandStack(prj)
     with caplog.at_level(logging.ERROR, logger="carapost.process"):
-        with pytest.raises(CommandError, match="no ROM is loaded"):
+        with pytest.raises(CommandError, match=r"no ROM is loaded \(Process > Load ROM first\)"):
             InitializeFromRom(prj)
     assert "no ROM is loaded" in caplog.text
     stack.push(LoadRom(prj, path))
@@ -140,7 +140,7 @@ def test_initialize_from_rom_command(tmp_path, caplog):
 
 
 def test_load_rom_refuses_bad_file(tmp_path):
-    from carapost.commands.tracking import LoadRom
+    from carapost.commands.rom import LoadRom
 
     bad = tmp_path / "x.cara"
     bad.write_bytes(b"not a zip")

@@ -15,14 +15,13 @@ import numpy as np
 import pytest
 
 from carapost.algorithms.camera import project as project_points
+from carapost.algorithms.codes import KIND_BRIM, SOURCE_BLOB
+from carapost.algorithms.patch import patch_search
 from carapost.algorithms.tracking import (
-    KIND_BRIM,
-    SOURCE_BLOB,
     InitialState,
     RaggedDetections,
     TrackingParameters,
     neighbour_graph,
-    patch_search,
     resect_cameras,
     track,
 )
@@ -289,6 +288,31 @@ def test_blob_size_test_rejects_merged_blob():
         assert (res.detection[0, p] >= 0).any() == expect
     assert res.positions.shape[1] == M + len(scene.brim3d)
 
+
+
+def test_camera_left_out_by_the_robust_triangulation_is_detached_without_2d_removal():
+    """matching.py: a blob the robust triangulation rejects is a wrong match and is
+    detached even with Remove Bad 2D Projections off (that option only adds the 2D
+    reprojection-error test). Remove Bad 3D Points is off too: its wrong-blob test would
+    detach this blob as well."""
+    scene = scene_of("speech", 3)
+    p = int(np.flatnonzero(scene.visible[1].sum(-1) == 4)[0])
+    # px: the triangulation leaves it out (it keeps 3 px), yet below the 2D test's limit
+    c, shift = 2, 4.5
+    params = TrackingParameters(remove_bad_2d_projections=False, remove_bad_3d_points=False)
+    assert shift < params.max_2d_projection_error
+    for dx, attached in ((0.0, True), (shift, False)):
+        dets = synth_detections(scene, clutter=0, dropout=0.0, noise=0.05)
+        cen, _, ids = dets[1][c]
+        cen[ids == p] += [dx, 0.0]  # the only blob near the point in camera c
+        res, _ = run_tracker(scene, dets, start=0, stop=1, params=params)
+        assert (res.detection[0, p, c] >= 0) == attached
+        assert np.isfinite(res.obs[0, p, c]).all() == attached
+        others = [k for k in range(scene.n_cameras) if k != c]
+        assert (res.detection[0, p, others] >= 0).all()  # the point keeps the others
+        assert res.recon[0, p] == RECON_TRIANGULATED
+        # its 3D position is solved from the good cameras only
+        assert np.linalg.norm(res.positions[0, p] - scene.points3d[1, p]) < 0.2
 
 # ------------------------------------------------------------------------------------------
 # Commands

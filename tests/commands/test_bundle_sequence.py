@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from carapost.commands import menu
 from carapost.commands.bundle import BundleSequence
 from carapost.commands.process import Initialize3D, SolveBrimAuto
 from carapost.commands.recipe import ApplyResult
 from carapost.commands.stack import CommandError, CommandStack
 from carapost.model.project import new_project
+from carapost.session import Session
 from tests.algorithms.test_brim import camera_errors
 from tests.commands.test_process import full_snapshot, synthetic_project
 
@@ -34,16 +34,15 @@ def test_bundle_sequence_refines_perturbed_cameras_and_undoes_exactly():
     cal.t[:] += rng.normal(0, 0.6, cal.t.shape)  # ~1 mm off
     before_err = camera_errors(cal.R[1], cal.t[1], scene.cam_R[1], scene.cam_t[1])[0].max()
     before = full_snapshot(p)
-    stack = CommandStack(p)
-    cmd = menu.bundle_sequence(p)
+    session = Session(p)
+    cmd = session.bundle_sequence()  # over the active range, as the menu item
     assert isinstance(cmd, ApplyResult) and "frames" in cmd.message
-    stack.push(cmd)
     after_err = camera_errors(cal.R[1], cal.t[1], scene.cam_R[1], scene.cam_t[1])[0].max()
     assert after_err < 0.25 < before_err
     after = full_snapshot(p)
-    stack.undo()
+    session.undo()
     assert full_snapshot(p) == before
-    stack.redo()
+    session.redo()
     assert full_snapshot(p) == after
 
 

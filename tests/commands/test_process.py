@@ -236,33 +236,33 @@ def test_detect_blobs_command_cameras_cancel_and_undo():
         DetectBlobs(p, (0, 0))
 
 
-def test_process_menu_entry_points_return_commands_for_the_current_frame():
-    """The functions the main window calls (on a worker thread) build the same commands."""
-    from carapost.commands import menu as process
+def test_session_process_actions_at_the_current_frame():
+    """The Process items the window runs (through `carapost.Session`) at the current frame."""
+    from carapost.session import Session
 
     p, scene, _ = synthetic_project(seed=4)
     p.calibration.set_static(scene.nominal_R, scene.nominal_t)
     p.set_current_frame(1)
-    stack = CommandStack(p)
+    session = Session(p)
     # no brim point attached yet: Solve Calibration Brim falls back to the automatic solve
-    cmd = process.solve_brim(p, progress=None)
-    assert isinstance(cmd, SolveBrimAuto)
-    stack.push(cmd)
+    job = session.prepare("solve_brim")
+    assert job.mode == "auto"
+    session.apply(job.compute(None))
     pos, rot = camera_errors(p.calibration.R[1], p.calibration.t[1], scene.cam_R[1],
                              scene.cam_t[1])
     assert pos.max() <= 0.2 and rot.max() <= 0.05
     # now the brim is attached at this frame: the same item runs the manual solve
-    assert isinstance(process.solve_brim(p), SolveBrimManual)
-    stack.push(process.initialize_3d(p))
+    assert session.prepare("solve_brim").mode == "manual"
+    session.initialize_3d()
     assert (p.points.kind == KIND_FACE).sum() >= 0.95 * (scene.visible[1].sum(1) >= 2).sum()
-    stack.push(process.bundle_current_frame(p))
-    stack.push(process.initialize_brim_v20(p))
+    session.bundle_current_frame()
+    session.initialize_default_brim("2.0")
     from carapost.io.brim_svg import default_brim
 
     labels, xyz = default_brim("v2.0")
     brim = np.flatnonzero(p.points.kind == KIND_BRIM)
     assert [p.points.labels[i] for i in brim] == list(labels)
     np.testing.assert_allclose(p.points.positions[0, brim], xyz, atol=1e-4)
-    while stack.undo():
+    while session.undo():
         pass
     assert (p.points.kind == KIND_FACE).sum() == 0

@@ -13,7 +13,6 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from carapost.commands import menu
 from carapost.commands.bundle import BundleSequence, prepare_bundle_sequence
 from carapost.commands.process import (
     BundleCurrentFrame,
@@ -37,6 +36,7 @@ from carapost.commands.tracking import (
     prepare_tracking,
 )
 from carapost.model.project import Project, new_project
+from carapost.session import Session
 from tests.algorithms.test_rom import rom_project, target_project
 from tests.algorithms.test_tracking import scene_of, synth_detections, synth_project
 from tests.commands.test_process import _disc_image, full_snapshot, synthetic_project
@@ -219,19 +219,20 @@ def test_initialize_from_rom_recipe(tmp_path):
     roundtrip_recipe(p, wreck_rom_too, lambda q: InitializeFromRom(q))
 
 
-def test_menu_prepares_jobs_and_commands(brim_project):
+def test_session_prepares_the_process_jobs_and_pushes_the_brim_commands(brim_project):
+    """The window's Process items go through `Session.prepare` (one path per action)."""
     p = copy.deepcopy(brim_project[0])
     p.set_current_frame(1)
-    job = menu.prepare("solve_brim", p)
-    assert isinstance(job, Job) and not menu.is_command(job)
-    stack = CommandStack(p)
-    stack.push(ApplyResult(job.compute(None)))
-    cmd = menu.prepare("initialize_brim_v20", p)
-    assert menu.is_command(cmd)
-    assert set(menu.USES_IMAGES) <= set(menu.JOBS)
-    assert isinstance(menu.run("initialize_3d", p), ApplyResult)
+    session = Session(p)
+    job = session.prepare("solve_brim")
+    assert isinstance(job, Job)
+    session.apply(job.compute(None))
+    assert isinstance(session.initialize_3d(), ApplyResult)
+    # the default brims have no algorithm (no job): the session pushes the command itself
+    assert isinstance(session.initialize_default_brim("2.0"), Command)
     p.set_active_range((0, 1))
-    job = menu.prepare("detect_blobs_current", p, get_image=lambda f, c: _disc_image([]))
+    job = session.prepare("detect_blobs", frames="current",
+                          get_image=lambda f, c: _disc_image([]))
     assert job.description == "Detect Blobs [Current Frame]" and job.keys[0][0] == 1
 
 

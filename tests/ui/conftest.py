@@ -7,6 +7,7 @@ import os
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 import logging
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -102,7 +103,8 @@ def make_window(qtbot):
 @pytest.fixture
 def demo():
     """A small tracked-looking project and its dot images."""
-    from carapost.ui.demo import demo_project, dot_frames
+    from carapost.synth.demo_project import demo_project, render_dots
+    from carapost.ui.frames import ArrayFrameSource
 
     p = demo_project(60, 24, 4, size=(640, 360), seed=1)
-    return p, dot_frames(p)
+    return p, ArrayFrameSource(partial(render_dots, p))

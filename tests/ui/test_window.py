@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from functools import partial
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from PySide6.QtCore import QPointF, Qt
 from PySide6.QtWidgets import QApplication
 
 from carapost.io.cara import autosave_path, load_project, save_project
-from carapost.ui.demo import dot_frames, render_dots
+from carapost.synth.demo_project import render_dots
 from carapost.ui.frames import ArrayFrameSource
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
@@ -49,7 +50,7 @@ def test_open_scrub_and_overlays(make_window, demo, tmp_path, qtbot):
     settle(qtbot, w)
     assert w.project.n_points == p.n_points and w.project.path == str(path)
     assert "take.cara" in w.windowTitle()
-    w.set_frames(dot_frames(w.project))
+    w.set_frames(ArrayFrameSource(partial(render_dots, w.project)))
     # keyboard scrubbing: arrows, End, Home
     w.activateWindow()
     qtbot.keyClick(w, Qt.Key.Key_Right)
@@ -223,6 +224,34 @@ def test_process_progress_cancel_and_one_undo_entry(make_window, demo, qtbot):
     assert replaced == 240 and p.detections.total != before
     w.action("edit.undo").trigger()
     assert p.detections.total == before
+
+
+def test_cancel_before_any_image_finished_changes_nothing_and_is_no_error(
+        make_window, demo, qtbot, monkeypatch):
+    """Cancel pressed before the detector finished an image: Detect Blobs has nothing to
+    apply and refuses; the window says so in the status bar, with no error box."""
+    import carapost.algorithms.blobs as blobs
+
+    def cancelled_detector(get_image, keys, params, *, workers=2, progress=None, **kw):
+        # the detector as it is when Cancel comes before its first image is done
+        while progress(0, len(keys)):
+            time.sleep(0.005)
+        return {}
+
+    monkeypatch.setattr(blobs, "detect_blobs_batch", cancelled_detector)
+    p, frames = demo
+    w = make_window(p, frames)
+    w.show()
+    before = p.detections.total
+    w.action("process.blobs_current").trigger()
+    assert w.runner.busy
+    qtbot.mouseClick(w.cancel_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=10000)
+    settle(qtbot, w)
+    assert w.dialogs.errors == [] and w.last_error == ""
+    assert w.statusBar().currentMessage() == ("Detect Blobs [Current Frame] cancelled; "
+                                              "nothing changed")
+    assert len(w.stack) == 0 and p.detections.total == before
 
 
 def test_detect_blobs_current_frame_finds_the_dots(make_window, demo, qtbot):

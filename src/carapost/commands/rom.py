@@ -30,7 +30,7 @@ from carapost.model.project import KIND_BRIM, KIND_FACE, Project, RomReference, 
 log = logging.getLogger("carapost.process")
 
 __all__ = ["InitializeFromRom", "LoadRom", "RomComputation", "RomJob", "RomResultCommand",
-           "compute_rom_initialisation", "prepare_rom_initialisation"]
+           "prepare_rom_initialisation"]
 
 
 class LoadRom(Command):
@@ -172,7 +172,7 @@ def prepare_rom_initialisation(project: Project, *, brim_only: bool = False,
     """
     what = "Initialize from ROM" + (" [Brim Only]" if brim_only else "")
     if project.rom is None or project.rom.project is None:
-        raise refuse(f"{what}: no ROM is loaded (File > Load ROM first)")
+        raise refuse(f"{what}: no ROM is loaded (Process > Load ROM first)")
     rom: Project = project.rom.project
     f = check_frame(project, frame, what)
     if rom.n_cameras != project.n_cameras:
@@ -232,18 +232,6 @@ def prepare_rom_initialisation(project: Project, *, brim_only: bool = False,
                   rom.calibration.t[rf].copy(), intr, rp, tparams, template, what)
 
 
-def compute_rom_initialisation(project: Project, *, brim_only: bool = False,
-                               frame: int | None = None) -> RomComputation:
-    """:func:`prepare_rom_initialisation` and ``compute()`` in one call (changes nothing).
-
-    Raises
-    ------
-    CommandError
-        No ROM loaded, camera counts differ, bad parameters, or nothing matched.
-    """
-    return prepare_rom_initialisation(project, brim_only=brim_only, frame=frame).compute()
-
-
 class RomResultCommand(ResultCommand):
     """Apply a :class:`RomComputation` as one undoable step (``ResultCommand``)."""
 
@@ -252,5 +240,5 @@ class InitializeFromRom(RomResultCommand):
     """Initialize from ROM / Initialize from ROM [Brim Only] at the current frame."""
 
     def __init__(self, project: Project, brim_only: bool = False, frame: int | None = None):
-        super().__init__(compute_rom_initialisation(project, brim_only=brim_only,
-                                                    frame=frame))
+        super().__init__(prepare_rom_initialisation(project, brim_only=brim_only,
+                                                    frame=frame).compute())

@@ -62,8 +62,6 @@ __all__ = [
     "TrackComputation",
     "TrackResultCommand",
     "TrackTakeCommand",
-    "compute_take_tracking",
-    "compute_tracking",
     "prepare_take_tracking",
     "prepare_tracking",
     "tracked_arrays",
@@ -368,22 +366,6 @@ def prepare_tracking(
                     get_image=get_image)
 
 
-def compute_tracking(
-    project: Project,
-    direction: int = 1,
-    *,
-    single_frame: bool = False,
-    point_ids: Iterable[int] | None = None,
-    frame: int | None = None,
-    progress: Callable[[int, int], bool] | None = None,
-    get_image: Callable[[int, int], NDArray] | None = None,
-) -> TrackComputation:
-    """:func:`prepare_tracking` and ``compute(progress)`` in one call (changes nothing)."""
-    return prepare_tracking(project, direction, single_frame=single_frame,
-                            point_ids=point_ids, frame=frame,
-                            get_image=get_image).compute(progress)
-
-
 class TrackResultCommand(ResultCommand):
     """Apply a :class:`TrackComputation` as one undoable step (``ResultCommand``)."""
 
@@ -391,7 +373,7 @@ class TrackResultCommand(ResultCommand):
 class TrackCommand(TrackResultCommand):
     """Track Forwards/Backwards [Sequence] or [Single Frame] (Ctrl+W) in one call.
 
-    Parameters are those of :func:`compute_tracking`.
+    Parameters are those of :func:`prepare_tracking`, plus ``progress``.
     """
 
     def __init__(self, project: Project, direction: int = 1, single_frame: bool = False,
@@ -399,10 +381,9 @@ class TrackCommand(TrackResultCommand):
                  progress: Callable[[int, int], bool] | None = None,
                  get_image: Callable[[int, int], NDArray] | None = None,
                  frame: int | None = None):
-        comp = compute_tracking(project, direction, single_frame=single_frame,
-                                point_ids=point_ids, frame=frame, progress=progress,
-                                get_image=get_image)
-        super().__init__(comp)
+        super().__init__(prepare_tracking(project, direction, single_frame=single_frame,
+                                          point_ids=point_ids, frame=frame,
+                                          get_image=get_image).compute(progress))
 
 
 @dataclass
@@ -544,21 +525,6 @@ def prepare_take_tracking(
                         brim_model=bm, spawn_interval=spawn_interval, get_image=get_image)
 
 
-def compute_take_tracking(
-    project: Project,
-    frame: int | None = None,
-    *,
-    find_markers: bool = True,
-    spawn_interval: int = 1,
-    progress: Callable[[int, int], bool] | None = None,
-    get_image: Callable[[int, int], NDArray] | None = None,
-) -> TakeTrackComputation:
-    """:func:`prepare_take_tracking` and ``compute(progress)`` in one call."""
-    return prepare_take_tracking(project, frame, find_markers=find_markers,
-                                 spawn_interval=spawn_interval,
-                                 get_image=get_image).compute(progress)
-
-
 class TrackTakeCommand(ResultCommand):
     """Track Take: every point over the whole take, missed markers found on the way.
 
@@ -582,20 +548,5 @@ class TrackTakeCommand(ResultCommand):
                  progress: Callable[[int, int], bool] | None = None,
                  find_markers: bool = True,
                  get_image: Callable[[int, int], NDArray] | None = None):
-        super().__init__(computation or compute_take_tracking(
-            project, frame, progress=progress, find_markers=find_markers,
-            get_image=get_image))
-
-
-#: Initialize from ROM lives in :mod:`carapost.commands.rom`; importable from here too.
-_ROM_NAMES = frozenset({"InitializeFromRom", "LoadRom", "RomComputation", "RomJob",
-                        "RomResultCommand", "compute_rom_initialisation",
-                        "prepare_rom_initialisation"})
-
-
-def __getattr__(name: str) -> Any:
-    if name in _ROM_NAMES:
-        from carapost.commands import rom
-
-        return getattr(rom, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        super().__init__(computation or prepare_take_tracking(
+            project, frame, find_markers=find_markers, get_image=get_image).compute(progress))

@@ -17,7 +17,7 @@ from carapost.io.atomic import atomic_write_bytes
 from carapost.io.errors import CaraFileError
 
 __all__ = ["COPY_SUFFIX", "merge_labels", "read_label_file", "read_labels_from_cara",
-           "write_label_file"]
+           "unique_names", "write_label_file"]
 
 #: Appended to an imported label whose name is already taken.
 COPY_SUFFIX = " - Copy"
@@ -88,6 +88,29 @@ def merge_labels(existing: Sequence[str], new: Iterable[str]) -> list[str]:
             name += COPY_SUFFIX
         taken.add(name)
         out.append(name)
+    return out
+
+
+def unique_names(names: Iterable[str]) -> list[str]:
+    """``names`` with repeats made unique: the second ``"A"`` becomes ``"A (2)"``.
+
+    For formats whose names are keys (C3D point labels, XCP camera names). A number is
+    added until the name is free, so a name already in the list is never produced twice.
+
+    Examples
+    --------
+    >>> unique_names(["A", "B", "A", "A (2)", "A"])
+    ['A', 'B', 'A (2)', 'A (2) (2)', 'A (3)']
+    """
+    seen: dict[str, int] = {}
+    out = []
+    for name in names:
+        candidate = name
+        while candidate in seen:
+            seen[name] += 1
+            candidate = f"{name} ({seen[name]})"
+        seen[candidate] = 1
+        out.append(candidate)
     return out
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +41,7 @@ from carapost.algorithms.camera import (
 )
 from carapost.io.atomic import atomic_write_bytes
 from carapost.io.errors import CaraFileError
+from carapost.io.labels import unique_names
 
 __all__ = ["XcpCalibration", "read_xcp", "write_xcp"]
 
@@ -312,7 +313,7 @@ def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
     if not parsed:
         raise CaraFileError(path, "contains no <Camera> element")
 
-    names = _unique([p["name"] for p in parsed])
+    names = unique_names([p["name"] for p in parsed])
     for cam_extras, name in zip(extras["cameras"], names, strict=True):
         cam_extras["name"] = name
     intr = CameraIntrinsics(
@@ -526,19 +527,6 @@ def _to_xml(el: etree._Element) -> str:
 def _from_xml(text: str) -> etree._Element:
     parser = etree.XMLParser(remove_blank_text=True, resolve_entities=False, no_network=True)
     return etree.fromstring(text, parser)
-
-
-def _unique(names: Sequence[str]) -> list[str]:
-    seen: dict[str, int] = {}
-    out = []
-    for name in names:
-        candidate = name
-        while candidate in seen:
-            seen[name] += 1
-            candidate = f"{name} ({seen[name]})"
-        seen.setdefault(candidate, 1)
-        out.append(candidate)
-    return out
 
 
 # --------------------------------------------------------------------------- writing

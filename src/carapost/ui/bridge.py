@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
+from carapost.commands.stack import CommandError
 from carapost.model.events import Change, merge_changes
 from carapost.model.project import Project
 
@@ -128,7 +129,16 @@ class JobRunner(QObject):
 
     ``start(title, fn, done)``: ``fn(progress)`` runs on the worker with
     ``progress(done, total) -> bool`` (False once the user cancelled); ``done(result,
-    cancelled)`` runs on the GUI thread. Exceptions are reported through ``failed``.
+    cancelled)`` runs on the GUI thread. Exceptions are reported through ``failed``,
+    except a job's refusal (``CommandError``) after Cancel: a job cancelled before it
+    finished anything has nothing to apply, which is what the user asked for, so
+    ``done(None, True)`` runs and :attr:`outcome` says "cancelled; nothing changed".
+
+    Attributes
+    ----------
+    outcome : str
+        How the last job ended, for the status bar: "finished", "cancelled",
+        "cancelled; nothing changed" or "failed" ("" before the first one).
     """
 
     started = Signal(str)
@@ -145,6 +155,7 @@ class JobRunner(QObject):
         self._done: Callable[[Any, bool], None] | None = None
         self._result.connect(self._on_result)
         self._last_emit = 0.0
+        self.outcome = ""
 
     @property
     def busy(self) -> bool:
@@ -181,7 +192,11 @@ class JobRunner(QObject):
                 result = fn(progress)
                 outcome: tuple[str, Any] = ("ok", result)
             except Cancelled:
-                outcome = ("ok", None)
+                outcome = ("nothing", None)
+            except CommandError as exc:
+                # cancelled before anything was finished, the job refuses: nothing to apply
+                outcome = (("nothing", exc) if self._cancel.is_set()
+                           else ("error", (exc, traceback.format_exc())))
             except Exception as exc:  # reported on the GUI thread, never swallowed
                 outcome = ("error", (exc, traceback.format_exc()))
             self._result.emit((outcome, time.monotonic() - t0))
@@ -237,17 +252,23 @@ class JobRunner(QObject):
         if kind == "error":
             exc, tb = value
             logging.getLogger("carapost.process").error("%s failed: %s\n%s", title, exc, tb)
+            self.outcome = "failed"
             self.failed.emit(title, f"{title} failed: {exc}")
             self.finished.emit(title, cancelled)
             return
+        reason = ""
+        if kind == "nothing":  # value: the job's refusal (logged below), not a result
+            reason, value = (f" ({value})" if value is not None else ""), None
         try:
             if done is not None:
                 done(value, cancelled)
         except Exception as exc:
             logging.getLogger("carapost.process").exception("%s: applying the result failed",
                                                             title)
+            self.outcome = "failed"
             self.failed.emit(title, f"{title} failed: {exc}")
         else:
-            state = "cancelled" if cancelled else "finished"
-            log.info("%s %s in %.1f s", title, state, seconds)
+            self.outcome = ("cancelled; nothing changed" if kind == "nothing" else
+                            "cancelled" if cancelled else "finished")
+            log.info("%s %s in %.1f s%s", title, self.outcome, seconds, reason)
         self.finished.emit(title, cancelled)

@@ -12,6 +12,7 @@ import os
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 log = logging.getLogger("carapost.ui")
@@ -31,17 +32,19 @@ def take_screenshots(outdir: str | Path, *, frames: int = 90) -> list[Path]:
     from carapost.ui.app import application
 
     app = application()
-    from carapost.ui.demo import demo_project, dot_frames, scene_project
+    from carapost.synth.demo_project import demo_project, render_dots, scene_project
+    from carapost.ui.frames import ArrayFrameSource
     from carapost.ui.mainwindow import MainWindow
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     try:
-        project, _scene, source = scene_project(frames, (1280, 720))
+        project, _scene, render = scene_project(frames, (1280, 720))
+        source = ArrayFrameSource(render, cache_size=64)
     except Exception as exc:  # a broken renderer must not hide the window's state
         log.warning("synthetic take unavailable (%s); using dot images", exc)
         project = demo_project(frames, 60, 4, size=(1280, 720), brim=12)
-        source = dot_frames(project)
+        source = ArrayFrameSource(partial(render_dots, project))
     project.take.name = "synth_speech"
     w = MainWindow(restore=False)
     w.resize(1920, 1050)

@@ -47,4 +47,5 @@ class JobStatus:
     def _finished(self, title: str, cancelled: bool) -> None:
         self.progress.hide()
         self.cancel_button.hide()
-        self.bar.showMessage(f"{title} {'cancelled' if cancelled else 'finished'}", 4000)
+        outcome = self.ctx.runner.outcome or ("cancelled" if cancelled else "finished")
+        self.bar.showMessage(f"{title} {outcome}", 4000)

@@ -47,17 +47,6 @@ direction), :mod:`.take` (:func:`track_take`, two passes, and the spawner) and
 :func:`carapost.algorithms.patch.patch_search`.
 """
 
-from carapost.algorithms.codes import (
-    KIND_BRIM,
-    KIND_FACE,
-    RECON_NONE,
-    RECON_SINGLE_SENSOR,
-    RECON_TRIANGULATED,
-    SOURCE_BLOB,
-    SOURCE_NONE,
-    SOURCE_PATCH,
-)
-from carapost.algorithms.patch import patch_search
 from carapost.algorithms.tracking.assignment import PackedFrame, pack_detections
 from carapost.algorithms.tracking.identity import hop_segments
 from carapost.algorithms.tracking.matching import FrameMatcher, resect_cameras
@@ -73,15 +62,7 @@ from carapost.algorithms.tracking.sequence import PROBATION_FRAMES, Spawner, tra
 from carapost.algorithms.tracking.take import make_spawner, track_take
 
 __all__ = [
-    "KIND_BRIM",
-    "KIND_FACE",
     "PROBATION_FRAMES",
-    "RECON_NONE",
-    "RECON_SINGLE_SENSOR",
-    "RECON_TRIANGULATED",
-    "SOURCE_BLOB",
-    "SOURCE_NONE",
-    "SOURCE_PATCH",
     "FrameDetections",
     "FrameMatcher",
     "InitialState",
@@ -94,7 +75,6 @@ __all__ = [
     "make_spawner",
     "neighbour_graph",
     "pack_detections",
-    "patch_search",
     "resect_cameras",
     "track",
     "track_take",

@@ -4,16 +4,24 @@
 markers on an ellipsoid moving smoothly in front of the synthetic rig's cameras, their
 projections as blob observations and detections, with gaps, interpolated stretches,
 patch-tracked and target-tracked samples so every colour of the continuity chart shows.
-:func:`scene_project` does the same from a rendered synthetic take
-(:mod:`carapost.synth`), with its images.
+:func:`render_dots` draws a stand-in image of its detections. :func:`scene_project`
+does the same from a rendered synthetic take, with a function rendering its images.
 
-This is a test and demo harness kept beside the window it feeds (tests/ui, the
-screenshots and benchmarks/gui.py import it).
+A harness, not product code (tests/ui, ``carapost.ui.screenshots`` and
+benchmarks/gui.py use it). It is Qt-free and returns plain arrays and callables: the
+window's callers wrap an image function in ``carapost.ui.frames.ArrayFrameSource``.
+
+>>> p = demo_project(20, 6, 2, size=(160, 90))
+>>> p.n_frames, p.n_points, p.n_cameras
+(20, 6, 2)
+>>> render_dots(p, 0, 1).shape
+(90, 160)
 """
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from functools import partial
 
 import cv2
 import numpy as np
@@ -36,7 +44,9 @@ from carapost.model.project import (
     Project,
     new_project,
 )
-from carapost.ui.frames import ArrayFrameSource
+from carapost.synth.render import render_frame
+from carapost.synth.rig import rig_cameras
+from carapost.synth.scene import SynthConfig, SynthScene, build_scene
 
 
 def _face_points(n: int, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -160,8 +170,6 @@ def demo_project(n_frames: int = 120, n_points: int = 40, n_cameras: int = 4, *,
     Project
         Labels ``M01..`` are in the label list; the first half of the points carry them.
     """
-    from carapost.synth.rig import rig_cameras
-
     rng = np.random.default_rng(seed)
     p = new_project(n_frames, n_cameras, name="demo", image_size=size)
     intr, R, t = rig_cameras(n_cameras, size)
@@ -209,7 +217,11 @@ def demo_project(n_frames: int = 120, n_points: int = 40, n_cameras: int = 4, *,
 
 def render_dots(project: Project, frame: int, camera: int, *, noise: bool = True
                 ) -> NDArray[np.uint8]:
-    """A grey image with a dark dot at every detection (stand-in for video)."""
+    """A grey image [H, W] uint8 with a dark dot at every detection (stand-in for video).
+
+    ``partial(render_dots, project)`` is a ``get_image(frame, camera)`` for the window
+    (wrap it in ``ArrayFrameSource``) or a Session.
+    """
     w, h = project.take.cameras[camera].image_size
     yy = np.linspace(0, 1, h, dtype=np.float32)[:, None]
     xx = np.linspace(0, 1, w, dtype=np.float32)[None, :]
@@ -225,21 +237,21 @@ def render_dots(project: Project, frame: int, camera: int, *, noise: bool = True
     return img
 
 
-def dot_frames(project: Project, cache_size: int = 512) -> ArrayFrameSource:
-    """A frame source drawing :func:`render_dots` images."""
-    return ArrayFrameSource(lambda f, c: render_dots(project, f, c), cache_size=cache_size)
-
-
 def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
-                  preset: str = "speech", seed: int = 3) -> tuple[Project, Any, ArrayFrameSource]:
-    """A project from a rendered synthetic take (needs :mod:`carapost.synth`).
+                  preset: str = "speech", seed: int = 3
+                  ) -> tuple[Project, SynthScene, Callable[[int, int], NDArray[np.uint8]]]:
+    """A project from a rendered synthetic take.
 
-    Returns the project (points = the scene's face markers and brim dots with their
-    ground-truth 3D and 2D), the scene, and a frame source rendering its images.
+    Returns
+    -------
+    project : Project
+        Points = the scene's face markers and brim dots with their ground-truth 3D
+        and 2D.
+    scene : SynthScene
+    get_image : callable
+        ``get_image(frame, camera) -> grey image [H, W] uint8`` rendering the take
+        (slow: wrap it in a caching frame source).
     """
-    from carapost.synth.render import render_frame
-    from carapost.synth.scene import SynthConfig, build_scene
-
     scene = build_scene(SynthConfig(frames=frames, size=size, preset=preset, seed=seed))
     F, M, C = scene.visible.shape
     B = scene.brim3d.shape[0]
@@ -261,5 +273,4 @@ def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
     _fill_observations(p, uv, vis, rng, radius_px=radius)
     _decorate(p, rng)
     p.modified = False
-    source = ArrayFrameSource(lambda f, c: render_frame(scene, f, c), cache_size=64)
-    return p, scene, source
+    return p, scene, partial(render_frame, scene)
