@@ -348,6 +348,24 @@ def test_cancelled_detection_keeps_the_finished_images(synth_take):
     assert 0 < s.project.detections.counts().astype(bool).sum() < s.project.n_frames * 4
 
 
+def test_a_job_cancelled_before_it_finished_anything_adds_no_history_entry(synth_take):
+    from carapost.commands.results import DetectionsResult
+
+    s = Session.import_take(synth_take)
+    with s:
+        assert s.apply(DetectionsResult([], [], "Detect Blobs", cancelled=True)) is None
+        assert len(s.history()) == 0  # no empty "(cancelled: partial)" entry
+        s.detect_blobs("all")
+        s.solve_brim(frame=0, method="automatic")
+        s.initialize_3d(frame=0)
+        s.current_frame = 0
+        before = len(s.history())
+        # the tracker asks after each frame: cancelling at once keeps the first frame
+        cmd = s.track("forwards", use_images=False, progress=lambda d, t: False)
+        assert cmd is not None and cmd.cancelled and len(s.history()) == before + 1
+        assert cmd.result.result.frames_done >= 1
+
+
 # ----------------------------------------------------------------------------- caddies
 
 

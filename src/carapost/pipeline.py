@@ -206,7 +206,7 @@ def detect_all(session: Session, progress: Callable[[int, int], bool] | None = N
     project = session.project
     cmd = _stage("Detect Blobs", lambda: session.detect_blobs(
         "all", cameras=range(project.n_cameras), progress=progress))
-    if getattr(cmd, "cancelled", False):
+    if cmd is None or getattr(cmd, "cancelled", False):  # None: cancelled at once
         raise RuntimeError("cancelled during blob detection; nothing was written")
     if project.detections.total == 0:
         raise ValueError(f"{project.take.metadata.get('take_folder') or project.take.name}: "
@@ -266,7 +266,7 @@ def track_all(session: Session, *, patch_tracking: bool = False,
     if F > 1:
         cmd = _stage("tracking", lambda: session.track_take(
             frame=0, use_images=patch_tracking, progress=progress))
-        if cmd.cancelled:
+        if cmd is None or cmd.cancelled:  # None: cancelled before the first frame
             raise RuntimeError("cancelled during tracking; nothing was written")
 
 

@@ -79,6 +79,11 @@ class Result:
         """
         raise NotImplementedError
 
+    def changes_nothing(self) -> bool:
+        """True when applying the result would change nothing (a job cancelled before it
+        finished anything): the caller then adds no History entry."""
+        return False
+
     def nbytes(self) -> int:
         """Memory the result holds for redo (bytes)."""
         return _held_bytes(self)

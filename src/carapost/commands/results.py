@@ -69,6 +69,10 @@ class DetectionsResult(Result):
     def write(self, project: Project, journal: Journal) -> None:
         write_detections(journal, project, self.images, self.tables)
 
+    def changes_nothing(self) -> bool:
+        """No image was finished."""
+        return not self.images
+
 
 class PointDataResult(Result):
     """Computed per-point arrays over a frame range.

@@ -198,6 +198,10 @@ class _TrackedPoints(Result):
         """True when the user cancelled (the frames tracked so far are kept)."""
         return bool(self.result.cancelled)
 
+    def changes_nothing(self) -> bool:
+        """No frame was tracked and no detection found (cancelled at once)."""
+        return self.result.last < self.result.first and not self.detected_images
+
     def store_found(self, project: Project, journal: Journal) -> None:
         """Store (undoably) the detections found on the fly."""
         _store_found(journal, project, self.detected_images, self.detected_tables)

@@ -95,14 +95,19 @@ class ProcessActions:
                                f"{', '.join(PROCESS_ACTIONS)})")
         return getattr(self, f"prepare_{action}")(**options)
 
-    def apply(self, result: Result) -> ApplyResult:
+    def apply(self, result: Result) -> ApplyResult | None:
         """Step 3: push a computed result as one History entry (``ApplyResult``).
 
         A cancelled job's result is pushed too (what was finished is kept, as in the
-        window) and logged.
+        window) and logged; one cancelled before it finished anything changes nothing
+        and adds no History entry (returns None).
         """
         if not isinstance(result, Result):
             raise TypeError(f"apply needs a Result, got {type(result).__name__}")
+        if result.cancelled and result.changes_nothing():
+            log.info("%s: cancelled before anything was finished; nothing changed",
+                     result.description)
+            return None
         command = ApplyResult(result)
         if result.cancelled:
             log.warning("%s: cancelled; the finished part is kept", result.description)
@@ -110,7 +115,7 @@ class ProcessActions:
                 command.description += " (cancelled: partial)"
         return self.stack.push(command)  # type: ignore[return-value]
 
-    def run(self, job: Job, progress: ProgressFn | None = None) -> ApplyResult:
+    def run(self, job: Job, progress: ProgressFn | None = None) -> ApplyResult | None:
         """Steps 2 and 3 here: ``apply(job.compute(progress))``. Every synchronous
         Process method is ``run(prepare_<action>(...), progress)``."""
         return self.apply(job.compute(progress))
@@ -131,7 +136,7 @@ class ProcessActions:
 
     def detect_blobs(self, frames: str | Sequence[int] = "current",
                      cameras: Iterable[int] | None = None, *,
-                     progress: ProgressFn | None = None, workers: int = 2) -> ApplyResult:
+                     progress: ProgressFn | None = None, workers: int = 2) -> ApplyResult | None:
         """Process > Detect Blobs [Current Frame] / [Active Range] with the Blob Parameters.
 
         Parameters
@@ -162,7 +167,7 @@ class ProcessActions:
         return prepare_rom_initialisation(self.project, brim_only=brim_only, frame=frame)
 
     def initialize_from_rom(self, brim_only: bool = False, frame: int | None = None, *,
-                            progress: ProgressFn | None = None) -> ApplyResult:
+                            progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Initialize from ROM (``brim_only``: [Brim Only]) at the current frame."""
         return self.run(self.prepare_initialize_from_rom(brim_only, frame), progress)
 
@@ -195,7 +200,7 @@ class ProcessActions:
 
     def solve_brim(self, frame: int | None = None, method: str = "auto",
                    correspondences: Mapping[int, Sequence[tuple[int, int]]] | None = None,
-                   *, progress: ProgressFn | None = None) -> ApplyResult:
+                   *, progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Solve Calibration Brim at ``frame`` (default: the current frame).
 
         Parameters
@@ -217,7 +222,7 @@ class ProcessActions:
 
     def initialize_3d(self, frame: int | None = None,
                       seeds: Sequence[Sequence[int]] | None = None, *,
-                      progress: ProgressFn | None = None) -> ApplyResult:
+                      progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Initialize 3D at ``frame`` (default: the current frame)."""
         return self.run(self.prepare_initialize_3d(frame, seeds), progress)
 
@@ -228,7 +233,7 @@ class ProcessActions:
         return prepare_bundle_frame(self.project, frame)
 
     def bundle_current_frame(self, frame: int | None = None, *,
-                             progress: ProgressFn | None = None) -> ApplyResult:
+                             progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Bundle Current Frame [Unconstrained]."""
         return self.run(self.prepare_bundle_current_frame(frame), progress)
 
@@ -240,7 +245,7 @@ class ProcessActions:
         return prepare_bundle_sequence(self.project, rng)
 
     def bundle_sequence(self, frames: str | Sequence[int] = "active", *,
-                        progress: ProgressFn | None = None) -> ApplyResult:
+                        progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Bundle Sequence [Unconstrained] (over the active range by default)."""
         return self.run(self.prepare_bundle_sequence(frames), progress)
 
@@ -268,7 +273,7 @@ class ProcessActions:
 
     def track(self, direction: str | int = "forwards", *, single_frame: bool = False,
               point_ids: Iterable[int] | None = None, frame: int | None = None,
-              use_images: bool = True, progress: ProgressFn | None = None) -> ApplyResult:
+              use_images: bool = True, progress: ProgressFn | None = None) -> ApplyResult | None:
         """Process > Track Forwards / Backwards [Sequence] or [Single Frame] (Ctrl+W).
 
         Parameters
@@ -301,7 +306,7 @@ class ProcessActions:
 
     def track_take(self, frame: int | None = None, *, find_markers: bool = True,
                    use_images: bool = False, progress: ProgressFn | None = None
-                   ) -> ApplyResult:
+                   ) -> ApplyResult | None:
         """Track the whole take from an initialised frame, finding missed markers.
 
         What ``carapost process`` does after Initialize 3D (forwards, then backwards).

@@ -225,7 +225,13 @@ class JobRunner(QObject):
                 if finished is not None:
                     finished(result, cancelled)
 
-        return self.start(title or job.description, job.compute, done)
+        def compute(progress: Callable[[int, int], bool]) -> Result:
+            result = job.compute(progress)
+            if result.cancelled and result.changes_nothing():
+                raise Cancelled  # nothing to apply: "cancelled; nothing changed"
+            return result
+
+        return self.start(title or job.description, compute, done)
 
     def cancel(self) -> None:
         """Ask the running job to stop (it returns what it has finished)."""
