@@ -73,16 +73,11 @@ Examples
 ([[32.0, 30.0]], [0])
 """
 
-from carapost.algorithms.blobs.candidates import blob_candidates
-from carapost.algorithms.blobs.detect import (
-    PROCESS_CHUNK,
-    PROCESS_MIN_IMAGES,
-    detect_blobs,
-    detect_blobs_batch,
-    preview_blobs,
-    shutdown_workers,
-    warm_up,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from carapost.algorithms.blobs.detections import (
     BLACK,
     FEATURE_NAMES,
@@ -91,14 +86,52 @@ from carapost.algorithms.blobs.detections import (
     Candidates,
 )
 from carapost.algorithms.blobs.params import BlobParameters
-from carapost.algorithms.blobs.score import (
-    MODEL_HIDDEN,
-    MODEL_INPUTS,
-    MODEL_KINDS,
-    ScoreNet,
-    blob_probability,
-    net_logit,
-)
+
+# The detector's stages load numba and its compiled kernels (~0.5 s): they are imported
+# on first use, so that importing the parameters (the properties registry, the window
+# at start-up) stays fast. The window warms the kernels up on a background thread.
+_LAZY = {
+    "blob_candidates": "candidates",
+    "PROCESS_CHUNK": "detect", "PROCESS_MIN_IMAGES": "detect", "detect_blobs": "detect",
+    "detect_blobs_batch": "detect", "preview_blobs": "detect", "shutdown_workers": "detect",
+    "warm_up": "detect",
+    "MODEL_HIDDEN": "score", "MODEL_INPUTS": "score", "MODEL_KINDS": "score",
+    "ScoreNet": "score", "blob_probability": "score", "net_logit": "score",
+}
+
+if TYPE_CHECKING:
+    from carapost.algorithms.blobs.candidates import blob_candidates
+    from carapost.algorithms.blobs.detect import (
+        PROCESS_CHUNK,
+        PROCESS_MIN_IMAGES,
+        detect_blobs,
+        detect_blobs_batch,
+        preview_blobs,
+        shutdown_workers,
+        warm_up,
+    )
+    from carapost.algorithms.blobs.score import (
+        MODEL_HIDDEN,
+        MODEL_INPUTS,
+        MODEL_KINDS,
+        ScoreNet,
+        blob_probability,
+        net_logit,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # later lookups are plain attribute reads
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "BlobParameters",

@@ -47,10 +47,11 @@ direction), :mod:`.take` (:func:`track_take`, two passes, and the spawner) and
 :func:`carapost.algorithms.patch.patch_search`.
 """
 
-from carapost.algorithms.tracking.assignment import PackedFrame, pack_detections
-from carapost.algorithms.tracking.identity import hop_segments
-from carapost.algorithms.tracking.matching import FrameMatcher, resect_cameras
-from carapost.algorithms.tracking.neighbours import neighbour_graph
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import (
     FrameDetections,
@@ -58,8 +59,38 @@ from carapost.algorithms.tracking.records import (
     RaggedDetections,
     TrackResult,
 )
-from carapost.algorithms.tracking.sequence import PROBATION_FRAMES, Spawner, track
-from carapost.algorithms.tracking.take import make_spawner, track_take
+
+# The stages (matcher, sequence, take, identity) are imported on first use, so that
+# importing the parameters and records (the properties registry, the window at
+# start-up) does not load the whole tracker.
+_LAZY = {
+    "PackedFrame": "assignment", "pack_detections": "assignment",
+    "hop_segments": "identity", "FrameMatcher": "matching", "resect_cameras": "matching",
+    "neighbour_graph": "neighbours", "PROBATION_FRAMES": "sequence", "Spawner": "sequence",
+    "track": "sequence", "make_spawner": "take", "track_take": "take",
+}
+
+if TYPE_CHECKING:
+    from carapost.algorithms.tracking.assignment import PackedFrame, pack_detections
+    from carapost.algorithms.tracking.identity import hop_segments
+    from carapost.algorithms.tracking.matching import FrameMatcher, resect_cameras
+    from carapost.algorithms.tracking.neighbours import neighbour_graph
+    from carapost.algorithms.tracking.sequence import PROBATION_FRAMES, Spawner, track
+    from carapost.algorithms.tracking.take import make_spawner, track_take
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # later lookups are plain attribute reads
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "PROBATION_FRAMES",
