@@ -431,3 +431,25 @@ def test_open_a_recovered_autosave_stays_unsaved(tmp_path, rng):
     assert recovered.project.path == str(path.absolute())  # belongs to the file
     assert recovered.project.modified and not recovered.stack.is_clean
     assert Session.open(path).project.active_range != (3, 7)
+
+
+def test_a_group_of_actions_is_one_history_entry(rng):
+    s = Session(make_project(rng))
+
+    def several(s: Session) -> None:
+        with s.group("Tidy Up"):
+            s.set_active_range(2, 20)
+            s.set_property("Blob Parameters", "White Min Radius", 6.0)
+            s.rotate_sensors([0], clockwise=False)
+
+    roundtrip(s, several)
+    assert s.history()[-1].description == "Tidy Up"
+
+
+def test_a_group_that_fails_leaves_the_project_as_before(rng):
+    s = Session(make_project(rng))
+    before = snapshot(s.project)
+    with pytest.raises(CommandError), s.group("Half Done"):
+        s.set_active_range(2, 20)
+        s.set_active_range(50, 10_000)  # refused: no such frame
+    assert snapshot(s.project) == before and len(s.history()) == 0

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +216,15 @@ class Session(ProcessActions):
 
     def _push(self, make: Callable[[], Command]) -> Command:
         return self.stack.push(make())
+
+    def group(self, description: str) -> AbstractContextManager[Any]:
+        """Make every action inside the ``with`` block one History entry.
+
+        ``with s.group("Clean Up Lips"): s.delete_selected(); s.merge()`` undoes and
+        redoes as one step; if an action inside raises, the ones before it are undone and
+        the exception propagates (see `carapost.commands.stack.CommandStack.group`).
+        """
+        return self.stack.group(description)
 
     def undo(self) -> bool:
         """Edit > Undo; False when there is nothing to undo."""
