@@ -49,9 +49,9 @@ direction), :mod:`.take` (:func:`track_take`, two passes, and the spawner) and
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from carapost.algorithms._lazy import lazy_names
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import (
     FrameDetections,
@@ -79,18 +79,7 @@ if TYPE_CHECKING:
     from carapost.algorithms.tracking.take import make_spawner, track_take
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value  # later lookups are plain attribute reads
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
-
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())
 
 __all__ = [
     "PROBATION_FRAMES",
