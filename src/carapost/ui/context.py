@@ -384,7 +384,8 @@ class ActionContext(QObject):
         """Open the project's videos again (after their paths changed)."""
         self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
 
-    def _refuse_busy(self, what: str) -> bool:
+    def refuse_busy(self, what: str) -> bool:
+        """True (and the refusal shown in the status bar) while a job is running."""
         if self.runner.busy:
             self.report_error("Busy", f"{what}: wait for {self.runner.title} to finish (or "
                               "cancel it)", show=False)
@@ -398,7 +399,7 @@ class ActionContext(QObject):
         Returns what the method returned, or None when it refused (a file that cannot
         be read is shown in a box too) or a job is running.
         """
-        if self._refuse_busy(title):
+        if self.refuse_busy(title):
             return None
         try:
             return action(*args, **kwargs)

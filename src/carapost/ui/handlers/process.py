@@ -58,9 +58,7 @@ def run(ctx: ActionContext, action: str, title: str, images: bool = False,
         The action reads camera images: the job gets a worker copy of the window's frame
         source (tracking without images skips patch tracking; detection refuses).
     """
-    if ctx.runner.busy:
-        ctx.report_error("Busy", f"{title}: wait for {ctx.runner.title} to finish (or "
-                         "cancel it)", show=False)
+    if ctx.refuse_busy(title):
         return False
     frames = ctx.frames
     source = frames.worker_copy() if images and frames.has_images else None
