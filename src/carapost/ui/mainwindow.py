@@ -316,12 +316,8 @@ class MainWindow(QMainWindow):
     def shutdown(self) -> None:
         """Stop timers and workers, save settings, detach from logging."""
         self.autosave_timer.stop()
-        self.context.playback.stop()
-        if self.runner.busy:
-            self.runner.cancel()
-            self.runner.wait(30)
         self.save_settings()
         for fw in list(self.floating):
             fw.close()
         logging.getLogger().removeHandler(self.log_bridge)
-        self.context.shutdown()
+        self.context.shutdown()  # playback, the worker, the session and its images
