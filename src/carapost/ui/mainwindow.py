@@ -18,7 +18,7 @@ from PySide6.QtCore import QByteArray, QTimer
 from PySide6.QtGui import QAction
 from PySide6.QtWidgets import QDockWidget, QMainWindow, QVBoxLayout, QWidget
 
-from carapost.commands.stack import Command, CommandStack
+from carapost.commands.stack import CommandStack
 from carapost.model.events import Change
 from carapost.model.project import Project, new_project
 from carapost.ui import actions as action_table
@@ -165,10 +165,6 @@ class MainWindow(QMainWindow):
     def set_frame(self, frame: int) -> None:
         """Move to a frame."""
         self.context.set_frame(frame)
-
-    def push(self, command: Command | None) -> bool:
-        """Run a command as one undo entry."""
-        return self.context.push(command)
 
     def open_project(self, path: str | None = None) -> bool:
         """File > Open."""
