@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from PySide6.QtCore import QObject, QSettings, Qt, Signal
 
 from carapost.commands.recipe import Result
-from carapost.commands.stack import Command, CommandError, CommandStack
+from carapost.commands.stack import CommandError, CommandStack
 from carapost.io.errors import CaraFileError
 from carapost.model.events import Change
 from carapost.model.project import Project, Selection, new_project
@@ -408,12 +408,6 @@ class ActionContext(QObject):
         except CaraFileError as exc:
             self.report_error(title, str(exc))
         return None
-
-    def push(self, command: Command | None) -> bool:
-        """Push a command built elsewhere (scripts, tests) as one undo entry."""
-        if command is None:
-            return False
-        return self.act(command.description, self.session.push, command) is not None
 
     def apply(self, result: Result) -> bool:
         """Push the result of a Process job (``session.apply``) on the GUI thread."""
