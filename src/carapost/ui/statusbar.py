@@ -47,5 +47,5 @@ class JobStatus:
     def _finished(self, title: str, cancelled: bool) -> None:
         self.progress.hide()
         self.cancel_button.hide()
-        outcome = self.ctx.runner.outcome or ("cancelled" if cancelled else "finished")
-        self.bar.showMessage(f"{title} {outcome}", 4000)
+        # the runner sets its outcome before it emits finished
+        self.bar.showMessage(f"{title} {self.ctx.runner.outcome}", 4000)
