@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pyqtgraph as pg
 from numpy.typing import NDArray
-from PySide6.QtCore import QRectF, Qt, Signal
+from PySide6.QtCore import QRectF, Qt
 from PySide6.QtGui import QColor
 from PySide6.QtWidgets import QMenu, QVBoxLayout
 
@@ -158,7 +158,6 @@ class ContinuityView(BaseView):
     """The Continuity view (and, with ``single=True``, the Selected Point pane)."""
 
     kind = "continuity"
-    range_dragged = Signal(int, int)
 
     def __init__(self, ctx: ViewContext, parent=None, *, single: bool = False) -> None:
         super().__init__(ctx, parent)
