@@ -16,9 +16,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from carapost.algorithms.blobs import BlobDetections, BlobParameters, detect_blobs
-
-# The point kind codes have one home; model.project for now (a shared
-# carapost.algorithms.codes module is planned: import them from there once it exists).
 from carapost.algorithms.codes import KIND_BRIM, KIND_FACE
 from carapost.synth.blob_images import (
     REGION_BACKGROUND,
