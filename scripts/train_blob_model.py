@@ -42,9 +42,10 @@ from carapost.algorithms.blobs import (
     net_logit,
 )
 from carapost.algorithms.blobs.score import load_model, use_model
-from carapost.synth.blob_eval import match_nearest, synth_scene, synth_view
+from carapost.synth.blob_eval import synth_scene, synth_view
 from carapost.synth.blob_images import (
     ellipse_coverage,
+    match_nearest,
     match_to_truth,
     paint,
     render_face,

@@ -16,9 +16,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from carapost.algorithms.blobs import BlobDetections, BlobParameters, detect_blobs
-
-# The point kind codes have one home; model.project for now (a shared
-# carapost.algorithms.codes module is planned: import them from there once it exists).
 from carapost.algorithms.codes import KIND_BRIM, KIND_FACE
 from carapost.synth.blob_images import (
     REGION_BACKGROUND,
@@ -26,6 +23,7 @@ from carapost.synth.blob_images import (
     REGION_FACE,
     REGION_NAMES,
     SynthImage,
+    match_nearest,
     match_to_truth,
 )
 
@@ -203,6 +201,21 @@ def projected_ellipses(centres: np.ndarray, normals: np.ndarray, radii: np.ndarr
     axes : ndarray [N, 2] px (semi-major, semi-minor)
     centroid : ndarray [N, 2] px, area centroid of the projected disc
     ok : ndarray [N] bool, the whole rim projects in front of the camera
+
+    Examples
+    --------
+    A 5 mm disc facing the camera 500 mm away, focal length 1000 px: 10 px semi-axes
+    (the 64-point rim polygon is a little smaller than the circle).
+
+    >>> import numpy as np
+    >>> from carapost.algorithms.camera import CameraIntrinsics
+    >>> intr = CameraIntrinsics(focal=np.array([1000.0]),
+    ...                         principal_point=np.array([[640.0, 360.0]]))
+    >>> axes, centroid, ok = projected_ellipses(
+    ...     np.array([[0.0, 0.0, 500.0]]), np.array([[0.0, 0.0, -1.0]]), np.array([5.0]),
+    ...     np.eye(3), np.zeros(3), intr)
+    >>> np.round(axes, 2).tolist(), np.round(centroid, 2).tolist(), ok.tolist()
+    ([[9.99, 9.99]], [[640.0, 360.0]], [True])
     """
     from carapost.algorithms.camera import project
 
@@ -410,45 +423,6 @@ class SynthScore(_Tally):
             "centre_p95_px": float(np.percentile(e, 95)),
             **{f"false_per_image_{k}": v / max(self.images, 1) for k, v in self.false.items()},
         }
-
-
-def match_nearest(det: np.ndarray, truth: np.ndarray, tol: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """One-to-one nearest matching within a per-truth tolerance (closest pairs first).
-
-    Parameters
-    ----------
-    det : ndarray [N, 2]
-        Detected centres (px).
-    truth : ndarray [M, 2]
-        Truth centres (px).
-    tol : ndarray [M]
-        Largest distance (px) at which a detection matches each truth centre.
-
-    Returns
-    -------
-    det_to_truth : ndarray [N] int64, truth index or -1
-    truth_to_det : ndarray [M] int64, detection index or -1
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> d2t, t2d = match_nearest(np.array([[0.0, 0.0], [5.0, 5.0]]),
-    ...                          np.array([[0.5, 0.0], [9.0, 9.0]]), np.array([1.0, 1.0]))
-    >>> d2t.tolist(), t2d.tolist()
-    ([0, -1], [0, -1])
-    """
-    d2t = np.full(len(det), -1, np.int64)
-    t2d = np.full(len(truth), -1, np.int64)
-    if len(det) == 0 or len(truth) == 0:
-        return d2t, t2d
-    dist, idx = cKDTree(truth).query(det, k=1)
-    ok = dist <= tol[idx]
-    for i in np.argsort(dist):
-        if ok[i] and t2d[idx[i]] < 0:
-            t2d[idx[i]] = i
-            d2t[i] = idx[i]
-    return d2t, t2d
 
 
 def synth_scene(markers: str = "standard", preset: str = "speech", *, frames: int = 121,

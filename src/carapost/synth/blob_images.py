@@ -383,26 +383,53 @@ def match_to_truth(
     """One-to-one match of detections to truth markers by distance.
 
     A detection matches a marker when it is within ``clip(0.5 * minor semi-axis, 1, 3)``
-    px of its centre; each marker keeps only its closest detection.
+    px of its centre; each marker keeps only its closest detection
+    (:func:`match_nearest` with that tolerance).
 
     Returns
     -------
     det_to_truth : ndarray [N] int64, truth index or -1
     truth_to_det : ndarray [M] int64, detection index or -1
     """
+    return match_nearest(det_centre, truth_centre, np.clip(0.5 * truth_minor, 1.0, 3.0))
+
+
+def match_nearest(det: np.ndarray, truth: np.ndarray, tol: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one nearest matching within a per-truth tolerance (closest pairs first).
+
+    Parameters
+    ----------
+    det : ndarray [N, 2]
+        Detected centres (px).
+    truth : ndarray [M, 2]
+        Truth centres (px).
+    tol : ndarray [M]
+        Largest distance (px) at which a detection matches each truth centre.
+
+    Returns
+    -------
+    det_to_truth : ndarray [N] int64, truth index or -1
+    truth_to_det : ndarray [M] int64, detection index or -1
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d2t, t2d = match_nearest(np.array([[0.0, 0.0], [5.0, 5.0]]),
+    ...                          np.array([[0.5, 0.0], [9.0, 9.0]]), np.array([1.0, 1.0]))
+    >>> d2t.tolist(), t2d.tolist()
+    ([0, -1], [0, -1])
+    """
+    d2t = np.full(len(det), -1, np.int64)
+    t2d = np.full(len(truth), -1, np.int64)
+    if len(det) == 0 or len(truth) == 0:
+        return d2t, t2d
     from scipy.spatial import cKDTree
 
-    n, m = len(det_centre), len(truth_centre)
-    det_to_truth = np.full(n, -1, np.int64)
-    truth_to_det = np.full(m, -1, np.int64)
-    if n == 0 or m == 0:
-        return det_to_truth, truth_to_det
-    dist, idx = cKDTree(truth_centre).query(det_centre, k=1)
-    tol = np.clip(0.5 * truth_minor, 1.0, 3.0)
+    dist, idx = cKDTree(truth).query(det, k=1)
     ok = dist <= tol[idx]
-    order = np.argsort(dist)
-    for i in order:
-        if ok[i] and truth_to_det[idx[i]] < 0:
-            truth_to_det[idx[i]] = i
-            det_to_truth[i] = idx[i]
-    return det_to_truth, truth_to_det
+    for i in np.argsort(dist):
+        if ok[i] and t2d[idx[i]] < 0:
+            t2d[idx[i]] = i
+            d2t[i] = idx[i]
+    return d2t, t2d

@@ -178,7 +178,7 @@ def demo_project(n_frames: int = 120, n_points: int = 40, n_cameras: int = 4, *,
     total = n_points + brim
     labels = [f"M{i + 1:02d}" if i < n_points // 2 else "" for i in range(n_points)]
     labels += [f"Brim{i + 1:02d}" for i in range(brim)]
-    kinds = np.array([0] * n_points + [KIND_BRIM] * brim, np.int8)
+    kinds = np.array([KIND_FACE] * n_points + [KIND_BRIM] * brim, np.int8)
     p.points.append(total, labels=labels, kind=kinds)
     p.labels = [f"M{i + 1:02d}" for i in range(n_points // 2 + 3)]
     base = _face_points(n_points, rng) + np.array([0.0, 5.0, 60.0])

@@ -217,11 +217,7 @@ def detect_blobs_batch(
     """
     if not isinstance(params, BlobParameters):
         raise TypeError(f"params must be BlobParameters, got {type(params).__name__}")
-    if workers < 1:
-        raise ValueError(f"workers must be at least 1, got {workers}")
-    keys = list(keys)
-    if not keys:
-        return {}
+    keys = list(keys)  # map_arrays checks ``workers`` and returns {} for no keys
     if processes is None:
         processes = workers > 1 and len(keys) >= PROCESS_MIN_IMAGES
     if not processes:
