@@ -447,12 +447,7 @@ class Session(ProcessActions):
         CaraFileError
             A new file that does not exist or cannot be opened as a video.
         """
-        if isinstance(mapping, str | Path):
-            folder = mapping
-            command = self.stack.push(file_commands.RelocateFiles.from_folder(self.project,
-                                                                             folder))
-        else:
-            command = self.stack.push(file_commands.RelocateFiles(self.project, mapping))
+        command = self.stack.push(file_commands.RelocateFiles.of(self.project, mapping))
         self.close()  # the next image comes from the new files
         return command
 
