@@ -75,10 +75,11 @@ def tracking_intrinsics(project: Project, what: str) -> CameraIntrinsics:
     return require_intrinsics(project, what, "import an XCP file or initialise from a ROM")
 
 
-def tracking_parameters(project: Project, what: str, **overrides: Any) -> TrackingParameters:
+def tracking_parameters(project: Project, what: str) -> TrackingParameters:
+    """The Tracking Parameters section as parameters, refused as ``what`` when bad."""
     try:
-        return TrackingParameters.from_mapping(
-            project.properties.section("Tracking Parameters"), **overrides)
+        return from_mapping(TrackingParameters,
+                            project.properties.section("Tracking Parameters"))
     except (TypeError, ValueError) as exc:
         raise refuse(f"{what}: {exc}") from None
 
