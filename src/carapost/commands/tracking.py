@@ -45,6 +45,7 @@ from carapost.commands.process import (
     set_cameras,
 )
 from carapost.commands.recipe import Job, Progress, Result, ResultCommand
+from carapost.commands.results import write_detections
 from carapost.commands.stack import Journal
 from carapost.model.project import (
     KIND_BRIM,
@@ -175,15 +176,6 @@ def _initial_state(project: Project, start: int, cols: NDArray | slice) -> Initi
     return InitialState(X0, pts.kind[cols].copy(), obs0, axes0)
 
 
-def _store_found(journal: Journal, project: Project, images: list[tuple[int, int]],
-                 tables: list[dict[str, NDArray]]) -> None:
-    """Store (undoably) the detections the tracker found on the fly, which its
-    observations refer to (those images had none, so nothing is attached to them)."""
-    if images:
-        journal.detections(images)
-        project.detections.replace_images(images, tables)
-
-
 @dataclass
 class _TrackedPoints(Result):
     """What both trackers return: a point-array record over frames, and the detections
@@ -205,7 +197,7 @@ class _TrackedPoints(Result):
 
     def store_found(self, project: Project, journal: Journal) -> None:
         """Store (undoably) the detections found on the fly."""
-        _store_found(journal, project, self.detected_images, self.detected_tables)
+        write_detections(journal, project, self.detected_images, self.detected_tables)
 
     def nbytes(self) -> int:
         """Bytes of the tracked arrays kept for redo."""
