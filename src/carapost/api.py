@@ -108,10 +108,7 @@ def relocate_files(
     CaraFileError
         A new file that does not exist or cannot be opened as a video.
     """
-    if isinstance(mapping, str | Path):
-        command = RelocateFiles.from_folder(project, mapping)
-    else:
-        command = RelocateFiles(project, mapping)
+    command = RelocateFiles.of(project, mapping)
     if stack is not None:
         stack.push(command)
     else:

@@ -165,6 +165,17 @@ def _export_columns(project: Project, include_brim: bool) -> NDArray[np.intp]:
     return cols.astype(np.intp)
 
 
+def _exported_points(project: Project, frame_range: FrameRange, include_brim: bool
+                     ) -> tuple[int, int, NDArray[np.intp], NDArray[np.float64], list[str]]:
+    """What C3D and FBX both write: the inclusive frames, the point columns, their
+    positions over those frames (float64) and their labels made unique."""
+    a, b = resolve_frame_range(project, frame_range)
+    cols = _export_columns(project, include_brim)
+    positions = project.points.positions[a:b + 1][:, cols].astype(np.float64)
+    labels = _unique_labels([project.point_label(int(c)) for c in cols])
+    return a, b, cols, positions, labels
+
+
 def _unique_labels(labels: list[str]) -> list[str]:
     """The labels made unique for a format that keys points by label (logged)."""
     from carapost.io.labels import unique_names
@@ -226,11 +237,9 @@ def export_c3d(
     if stabilized:
         raise ValueError("stabilised export needs a stabilised project; this project has no "
                          "stabilisation (run Stabilize first, or export without it)")
-    a, b = resolve_frame_range(project, frame_range)
-    cols = _export_columns(project, include_brim)
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim)
     pts = project.points
     sl = slice(a, b + 1)
-    positions = pts.positions[sl][:, cols].astype(np.float64)
     recon = pts.recon[sl][:, cols]
     cams = project.take.cameras
     mask = None
@@ -239,7 +248,7 @@ def export_c3d(
     write_c3d(
         path,
         positions,
-        labels=_unique_labels([project.point_label(int(c)) for c in cols]),
+        labels=labels,
         rate=project.take.fps,
         residuals=pts.residual[sl][:, cols].astype(np.float64),
         camera_mask=mask,
@@ -292,10 +301,8 @@ def export_fbx(
     up = str(up_axis).lower()
     if up not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
-    a, b = resolve_frame_range(project, frame_range)
-    cols = _export_columns(project, include_brim)
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim)
     sl = slice(a, b + 1)
-    positions = project.points.positions[sl][:, cols].astype(np.float64)
     cameras = None
     if include_cameras:
         cal = project.calibration
@@ -314,7 +321,7 @@ def export_fbx(
     write_fbx(
         path,
         positions,
-        labels=_unique_labels([project.point_label(int(c)) for c in cols]),
+        labels=labels,
         rate=project.take.fps,
         kinds=project.points.kind[cols].astype(np.int64),
         take_name=project.take.name or "take",

@@ -206,7 +206,7 @@ def detect_all(session: Session, progress: Callable[[int, int], bool] | None = N
     project = session.project
     cmd = _stage("Detect Blobs", lambda: session.detect_blobs(
         "all", cameras=range(project.n_cameras), progress=progress))
-    if cmd is None or getattr(cmd, "cancelled", False):  # None: cancelled at once
+    if cmd is None or cmd.cancelled:  # None: cancelled at once
         raise RuntimeError("cancelled during blob detection; nothing was written")
     if project.detections.total == 0:
         raise ValueError(f"{project.take.metadata.get('take_folder') or project.take.name}: "

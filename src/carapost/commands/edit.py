@@ -14,7 +14,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 # the result commands live in commands.results; importable from here as before
-from carapost.commands.results import ApplyPointData, ReplaceDetections  # noqa: F401
+from carapost.commands.results import (  # noqa: F401
+    OBS_ARRAYS,
+    ApplyPointData,
+    ReplaceDetections,
+)
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import (
     RECON_INTERPOLATED,
@@ -26,7 +30,6 @@ from carapost.model.project import (
 )
 
 _POSITION_ARRAYS = ("positions", "recon", "residual")
-_OBS_ARRAYS = ("obs", "source", "detection", "quality", "keyframe")
 
 
 def _columns(project: Project, point_ids: Iterable[int]) -> NDArray[np.intp]:
@@ -51,7 +54,7 @@ def _clear_points(
 ) -> None:
     """Clear 3D data (and the attached 2D observations when ``obs``) of a block."""
     pts = project.points
-    names = _POSITION_ARRAYS + (_OBS_ARRAYS if obs else ())
+    names = _POSITION_ARRAYS + (OBS_ARRAYS if obs else ())
     journal.point_block(frames, cols, names)
     from carapost.model.project import POINT_ARRAYS
 
@@ -65,12 +68,12 @@ def _detach(
     journal: Journal, project: Project, frames: slice, cols: NDArray, cams: NDArray
 ) -> None:
     pts = project.points
-    journal.point_block(frames, cols, _OBS_ARRAYS)
+    journal.point_block(frames, cols, OBS_ARRAYS)
     from carapost.model.project import POINT_ARRAYS
 
     fr = np.arange(project.n_frames)[frames]
     ix = np.ix_(fr, cols, cams)
-    for name in _OBS_ARRAYS:
+    for name in OBS_ARRAYS:
         pts.arrays[name][ix] = POINT_ARRAYS[name][1]
 
 
@@ -178,7 +181,7 @@ def _delete_detections(
         refs = pts.detection[f, :, c]
         cols = np.flatnonzero(refs >= 0)
         if len(cols):
-            journal.point_block(slice(f, f + 1), cols, _OBS_ARRAYS)
+            journal.point_block(slice(f, f + 1), cols, OBS_ARRAYS)
             new = remap[refs[cols]]
             lost = cols[new < 0]
             pts.detection[f, cols, c] = np.where(new >= 0, new, -1)
@@ -268,7 +271,7 @@ class Merge(Command):
             journal.point_block(all_frames, [keep])
             for o in others:
                 empty = np.isnan(pts.obs[:, keep, :, 0]) & ~np.isnan(pts.obs[:, o, :, 0])
-                for name in _OBS_ARRAYS:
+                for name in OBS_ARRAYS:
                     arr = pts.arrays[name]
                     arr[:, keep][empty] = arr[:, o][empty]
                 no3d = np.isnan(pts.positions[:, keep, 0]) & ~np.isnan(pts.positions[:, o, 0])
@@ -285,7 +288,7 @@ class Merge(Command):
             keep = int(pts.index_of([keep_id])[0])
         if self.detections:
             for f, c, k in self.detections:
-                journal.point_block(slice(f, f + 1), [keep], _OBS_ARRAYS)
+                journal.point_block(slice(f, f + 1), [keep], OBS_ARRAYS)
                 _attach(project, f, keep, c, k)
         journal.setattr(project, "selection", type(project.selection)(
             points=frozenset({keep_id}), cameras=project.selection.cameras), "selection")

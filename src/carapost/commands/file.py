@@ -270,6 +270,14 @@ class RelocateFiles(Command):
                                f"{folder}")
         return cls(project, found)
 
+    @classmethod
+    def of(cls, project: Project,
+           mapping: Mapping[str | int, str | Path] | str | Path) -> RelocateFiles:
+        """From a mapping (see the class) or, for a path, :meth:`from_folder`."""
+        if isinstance(mapping, str | Path):
+            return cls.from_folder(project, mapping)
+        return cls(project, mapping)
+
     def apply(self, project: Project, journal: Journal) -> None:
         for c, path in self.paths.items():
             journal.setattr(project.take.cameras[c], "video_path", path, "cameras")

@@ -136,11 +136,7 @@ class ApplyResult(Command):
 
 class ResultCommand(ApplyResult):
     """An :class:`ApplyResult` for the one-call commands of scripts: the result is also
-    reachable as ``computation``, and a ``project`` argument (older callers pass one) is
-    accepted and ignored."""
-
-    def __init__(self, computation: Result, project: Project | None = None) -> None:
-        super().__init__(computation)
+    reachable as ``computation``."""
 
     @property
     def computation(self) -> Any:

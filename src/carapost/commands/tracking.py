@@ -45,6 +45,7 @@ from carapost.commands.process import (
     set_cameras,
 )
 from carapost.commands.recipe import Job, Progress, Result, ResultCommand
+from carapost.commands.results import write_detections
 from carapost.commands.stack import Journal
 from carapost.model.project import (
     KIND_BRIM,
@@ -75,10 +76,11 @@ def tracking_intrinsics(project: Project, what: str) -> CameraIntrinsics:
     return require_intrinsics(project, what, "import an XCP file or initialise from a ROM")
 
 
-def tracking_parameters(project: Project, what: str, **overrides: Any) -> TrackingParameters:
+def tracking_parameters(project: Project, what: str) -> TrackingParameters:
+    """The Tracking Parameters section as parameters, refused as ``what`` when bad."""
     try:
-        return TrackingParameters.from_mapping(
-            project.properties.section("Tracking Parameters"), **overrides)
+        return from_mapping(TrackingParameters,
+                            project.properties.section("Tracking Parameters"))
     except (TypeError, ValueError) as exc:
         raise refuse(f"{what}: {exc}") from None
 
@@ -174,15 +176,6 @@ def _initial_state(project: Project, start: int, cols: NDArray | slice) -> Initi
     return InitialState(X0, pts.kind[cols].copy(), obs0, axes0)
 
 
-def _store_found(journal: Journal, project: Project, images: list[tuple[int, int]],
-                 tables: list[dict[str, NDArray]]) -> None:
-    """Store (undoably) the detections the tracker found on the fly, which its
-    observations refer to (those images had none, so nothing is attached to them)."""
-    if images:
-        journal.detections(images)
-        project.detections.replace_images(images, tables)
-
-
 @dataclass
 class _TrackedPoints(Result):
     """What both trackers return: a point-array record over frames, and the detections
@@ -204,7 +197,7 @@ class _TrackedPoints(Result):
 
     def store_found(self, project: Project, journal: Journal) -> None:
         """Store (undoably) the detections found on the fly."""
-        _store_found(journal, project, self.detected_images, self.detected_tables)
+        write_detections(journal, project, self.detected_images, self.detected_tables)
 
     def nbytes(self) -> int:
         """Bytes of the tracked arrays kept for redo."""

@@ -214,9 +214,6 @@ class Session(ProcessActions):
             raise TypeError(f"push needs a Command, got {type(command).__name__}")
         return self.stack.push(command)
 
-    def _push(self, make: Callable[[], Command]) -> Command:
-        return self.stack.push(make())
-
     def group(self, description: str) -> AbstractContextManager[Any]:
         """Make every action inside the ``with`` block one History entry.
 
@@ -314,12 +311,12 @@ class Session(ProcessActions):
     def set_active_range(self, first: int, last: int) -> Command:
         """Set the active range (Ctrl+drag on the timebar), inclusive frames."""
         a, b = int(first), int(last)
-        return self._push(lambda: edit.SetRange(self.project, "active_range", (a, b),
-                                                f"Set Active Range {a}-{b}"))
+        return self.stack.push(edit.SetRange(self.project, "active_range", (a, b),
+                                             f"Set Active Range {a}-{b}"))
 
     def reset_active_range(self) -> Command:
         """View > Reset Active Range (Ctrl+3): the whole take."""
-        return self._push(lambda: edit.SetRange.reset_active(self.project))
+        return self.stack.push(edit.SetRange.reset_active(self.project))
 
     def set_range_bound(self, which: str) -> Command:
         """View > Set Active Range Start / End (Ctrl+1 / Ctrl+2) at the current frame,
@@ -328,13 +325,13 @@ class Session(ProcessActions):
         ctor = getattr(edit.SetRange, one_of(which, ("active_start", "active_end",
                                                       "view_to_active", "reset_view"),
                                               "Set range"))
-        return self._push(lambda: ctor(self.project))
+        return self.stack.push(ctor(self.project))
 
     def set_view_range(self, first: int, last: int) -> Command:
         """Set the view range, inclusive frames."""
         a, b = int(first), int(last)
-        return self._push(lambda: edit.SetRange(self.project, "view_range", (a, b),
-                                                f"Set View Range {a}-{b}"))
+        return self.stack.push(edit.SetRange(self.project, "view_range", (a, b),
+                                             f"Set View Range {a}-{b}"))
 
     # ====================================================================================
     # Properties
@@ -368,15 +365,15 @@ class Session(ProcessActions):
 
     def set_properties(self, values: Mapping[str, Any]) -> Command:
         """Change several properties (by key) as one History entry, all or nothing."""
-        return self._push(lambda: edit.SetProperties(self.project, values))
+        return self.stack.push(edit.SetProperties(self.project, values))
 
     def restore_properties_to_defaults(self) -> Command:
         """Edit > Restore Properties To Defaults."""
-        return self._push(edit.RestorePropertiesToDefaults)
+        return self.stack.push(edit.RestorePropertiesToDefaults())
 
     def read_blob_parameters_from_take(self) -> Command:
         """Edit > Read Blob Parameters From Take Files."""
-        return self._push(lambda: edit.RevertBlobParameters(self.project))
+        return self.stack.push(edit.RevertBlobParameters(self.project))
 
     # ====================================================================================
     # File
@@ -399,12 +396,12 @@ class Session(ProcessActions):
 
     def import_xcp(self, path: str | Path) -> Command:
         """File > Import XCP: the cameras of a Vicon ``.xcp`` file."""
-        return self._push(lambda: file_commands.ImportXcp(self.project, path))
+        return self.stack.push(file_commands.ImportXcp(self.project, path))
 
     def import_labels(self, path: str | Path, kind: str | None = None) -> Command:
         """File > Import Labels From Cara File / Text File (``kind`` "cara" or "text";
         by default from the file's extension)."""
-        return self._push(lambda: file_commands.ImportLabels(self.project, path, kind))
+        return self.stack.push(file_commands.ImportLabels(self.project, path, kind))
 
     def import_brim(self, path: str | Path) -> Command:
         """File > Import Calibration Brim [svg] (a ``.csv`` of label,x,y,z in mm too):
@@ -416,7 +413,7 @@ class Session(ProcessActions):
         p = Path(path)
         suffix = p.suffix.lower()
         if suffix == ".svg":
-            return self._push(lambda: ImportBrimSvg(self.project, p))
+            return self.stack.push(ImportBrimSvg(self.project, p))
         if suffix == ".csv":
             labels, xyz = read_brim_csv(p)
             return self.set_brim_model(labels, xyz, f"Import Calibration Brim {p.name}")
@@ -427,7 +424,7 @@ class Session(ProcessActions):
         """Replace the brim points by a brim model: labels and positions (B, 3) in mm."""
         from carapost.commands.process import SetBrimModel
 
-        return self._push(lambda: SetBrimModel(labels, xyz, description=description))
+        return self.stack.push(SetBrimModel(labels, xyz, description=description))
 
     def missing_files(self) -> dict[str, str]:
         """Cameras whose video does not exist: ``{camera name: path}``."""
@@ -450,12 +447,7 @@ class Session(ProcessActions):
         CaraFileError
             A new file that does not exist or cannot be opened as a video.
         """
-        if isinstance(mapping, str | Path):
-            folder = mapping
-            command = self._push(lambda: file_commands.RelocateFiles.from_folder(
-                self.project, folder))
-        else:
-            command = self._push(lambda: file_commands.RelocateFiles(self.project, mapping))
+        command = self.stack.push(file_commands.RelocateFiles.of(self.project, mapping))
         self.close()  # the next image comes from the new files
         return command
 
@@ -507,22 +499,22 @@ class Session(ProcessActions):
     def create_points_from_detections(
             self, detections: Iterable[Sequence[int]] | None = None) -> Command:
         """Edit > Create Points From Detections (default: the selected detections)."""
-        return self._push(lambda: edit.CreatePointsFromDetections(self.project, detections))
+        return self.stack.push(edit.CreatePointsFromDetections(self.project, detections))
 
     def delete_selected(self, point_ids: Iterable[int] | None = None,
                         detections: Iterable[Sequence[int]] | None = None) -> Command:
         """Edit > Delete Selected (Ctrl+D): points and/or detections (default: selected)."""
-        return self._push(lambda: edit.DeleteSelected(self.project, point_ids, detections))
+        return self.stack.push(edit.DeleteSelected(self.project, point_ids, detections))
 
     def split_selected_point(self, point_id: int | None = None,
                              frame: int | None = None) -> Command:
         """Edit > Split Selected Point (at the current frame by default)."""
-        return self._push(lambda: edit.SplitSelectedPoint(self.project, point_id, frame))
+        return self.stack.push(edit.SplitSelectedPoint(self.project, point_id, frame))
 
     def merge(self, point_ids: Iterable[int] | None = None,
               detections: Iterable[Sequence[int]] | None = None) -> Command:
         """Edit > Merge (M): points and/or detections into one point."""
-        return self._push(lambda: edit.Merge(self.project, point_ids, detections))
+        return self.stack.push(edit.Merge(self.project, point_ids, detections))
 
     def clear_selected(self, frames: str | Sequence[int] = "current",
                        point_ids: Iterable[int] | None = None) -> Command:
@@ -532,13 +524,13 @@ class Session(ProcessActions):
             which = one_of(frames, ("current", "active"), "Clear Selected: frames")
             ctor = (edit.ClearSelected.current_frame if which == "current"
                     else edit.ClearSelected.active_range)
-            return self._push(lambda: ctor(p, point_ids))
+            return self.stack.push(ctor(p, point_ids))
         rng = self.frame_range(frames, "Clear Selected")
-        return self._push(lambda: edit.ClearSelected(p, rng, point_ids))
+        return self.stack.push(edit.ClearSelected(p, rng, point_ids))
 
     def clear_active_range(self) -> Command:
         """Edit > Clear Active Range: every point's data over the active range."""
-        return self._push(lambda: edit.ClearActiveRange(self.project))
+        return self.stack.push(edit.ClearActiveRange(self.project))
 
     def detach_detections(self, frames: str = "current", *,
                           active_camera: int | None = None,
@@ -557,67 +549,67 @@ class Session(ProcessActions):
             desc = ("Detach Detections [Current Frame]" if which == "current"
                     else "Detach Detections [Active Range]")
             cams = [int(c) for c in cameras]
-            return self._push(lambda: edit.DetachDetections(p, rng, cams, description=desc,
-                                                            **kw))
+            return self.stack.push(edit.DetachDetections(p, rng, cams, description=desc,
+                                                         **kw))
         ctor = (edit.DetachDetections.current_frame if which == "current"
                 else edit.DetachDetections.active_range)
-        return self._push(lambda: ctor(p, active_camera=active_camera, **kw))
+        return self.stack.push(ctor(p, active_camera=active_camera, **kw))
 
     def increment_image_sequence_offset(self, cameras: Iterable[int] | None = None,
                                         step: int = 1) -> Command:
         """Edit > Increment Image Sequence Offset (the selected cameras by default)."""
-        return self._push(lambda: edit.IncrementImageSequenceOffset(self.project, cameras,
-                                                                    step))
+        return self.stack.push(edit.IncrementImageSequenceOffset(self.project, cameras,
+                                                                 step))
 
     def remove_unused_detections(self) -> Command:
         """Edit > Remove Unused Detections."""
-        return self._push(lambda: edit.RemoveUnusedDetections(self.project))
+        return self.stack.push(edit.RemoveUnusedDetections(self.project))
 
     def remove_interpolated_3d_points(self, point_ids: Iterable[int] | None = None) -> Command:
         """Edit > Remove Interpolated 3D Points (active range; selected or all points)."""
-        return self._push(lambda: edit.RemoveInterpolated3DPoints(self.project, point_ids))
+        return self.stack.push(edit.RemoveInterpolated3DPoints(self.project, point_ids))
 
     def rename_point(self, point_id: int, label: str) -> Command:
         """Edit > Rename Point (Ctrl+R)."""
-        return self._push(lambda: edit.RenamePoint(self.project, int(point_id), label))
+        return self.stack.push(edit.RenamePoint(self.project, int(point_id), label))
 
     def rename_label(self, old: str, new: str) -> Command:
         """Labelling pane: rename a label (and the point that carries it)."""
-        return self._push(lambda: file_commands.RenameLabel(self.project, old, new))
+        return self.stack.push(file_commands.RenameLabel(self.project, old, new))
 
     def assign_label(self, point_id: int, label: str) -> Command:
         """Labelling pane click: the point takes the label."""
-        return self._push(lambda: edit.AssignLabel(self.project, int(point_id), label))
+        return self.stack.push(edit.AssignLabel(self.project, int(point_id), label))
 
     def clear_all_labels(self) -> Command:
         """Edit > Clear All Labels."""
-        return self._push(lambda: edit.ClearAllLabels(self.project))
+        return self.stack.push(edit.ClearAllLabels(self.project))
 
     def delete_labels(self, names: Iterable[str]) -> Command:
         """Edit > Delete Selected Labels (the labels named)."""
-        return self._push(lambda: edit.DeleteSelectedLabels(self.project, list(names)))
+        return self.stack.push(edit.DeleteSelectedLabels(self.project, list(names)))
 
     def unlabel_selected_points(self, point_ids: Iterable[int] | None = None) -> Command:
         """Edit > Unlabel Selected Points (Ctrl+U)."""
-        return self._push(lambda: edit.UnlabelSelectedPoints(self.project, point_ids))
+        return self.stack.push(edit.UnlabelSelectedPoints(self.project, point_ids))
 
     def create_stick(self, point_ids: Iterable[int] | None = None) -> Command:
         """Edit > Create Stick from Selected Point (S)."""
-        return self._push(lambda: edit.CreateStick(self.project, point_ids))
+        return self.stack.push(edit.CreateStick(self.project, point_ids))
 
     def create_stick_mesh(self) -> Command:
         """Edit > Create Stick Mesh (Delaunay mesh of the face at the current frame)."""
-        return self._push(lambda: file_commands.CreateStickMesh(self.project))
+        return self.stack.push(file_commands.CreateStickMesh(self.project))
 
     def edit_stick_color(self, sticks: Iterable[int], colour: tuple[int, int, int]) -> Command:
         """Edit > Edit Stick Color: sticks (indices) get an RGB colour."""
-        return self._push(lambda: edit.EditStickColor(self.project, list(sticks), colour))
+        return self.stack.push(edit.EditStickColor(self.project, list(sticks), colour))
 
     def rotate_sensors(self, cameras: Iterable[int] | None = None,
                        clockwise: bool = True) -> Command:
         """View > Rotate Selected Sensors Clockwise / Anticlockwise."""
-        return self._push(lambda: edit.RotateSelectedSensors(self.project, cameras,
-                                                             clockwise=clockwise))
+        return self.stack.push(edit.RotateSelectedSensors(self.project, cameras,
+                                                          clockwise=clockwise))
 
     # ====================================================================================
     # queries
