@@ -132,3 +132,17 @@ def test_pipeline_on_other_rigs(tmp_path, variant):
     assert ev["swaps"] == 0
     assert ev["coverage"] >= 0.95
     assert ev["rmse_mm"] <= 0.3
+
+
+def test_process_exports_ignore_the_stabilized_property(tmp_path, rng):
+    """`carapost process` pins its export options: a take whose Properties ask for
+    stabilised coordinates (which needs Stabilize) still gets its plain C3D."""
+    from carapost.pipeline import PROCESS_EXPORT
+    from carapost.session import Session
+    from tests.commands.test_edit_commands import make_project
+
+    s = Session(make_project(rng))
+    s.set_property("Export", "Export Stabilized Coordinates", True)
+    with pytest.raises(ValueError, match="stabilis"):
+        s.export_c3d(tmp_path / "asked.c3d")
+    assert s.export_c3d(tmp_path / "take.c3d", **PROCESS_EXPORT).is_file()

@@ -121,10 +121,11 @@ def brim_from_take(project: Project, frames: NDArray[np.intp] | None = None, *,
     return labels, xyz
 
 
-#: What ``carapost process`` exports: every frame, face points only, Y up, no cameras or
-#: sticks (its outputs before the Export properties existed; a batch run should not
-#: depend on the Properties a take was imported with).
-PROCESS_EXPORT: dict[str, Any] = {"frame_range": "all", "include_brim": False}
+#: What ``carapost process`` exports: every frame, face points only, not stabilized, Y
+#: up, no cameras or sticks (its outputs before the Export properties existed; a batch
+#: run should not depend on the Properties a take was imported with).
+PROCESS_EXPORT: dict[str, Any] = {"frame_range": "all", "include_brim": False,
+                                  "stabilized": False}
 PROCESS_FBX_EXPORT: dict[str, Any] = {**PROCESS_EXPORT, "up_axis": "y",
                                       "include_cameras": False, "include_sticks": False}
 
