@@ -599,9 +599,12 @@ class CommandStack:
         return self._commands[self._position].description if self.can_redo else ""
 
     def mark_clean(self) -> None:
-        """Remember the current position as saved."""
+        """Remember the current position as saved (``on_change`` follows, as for every
+        change of the clean state: the window title and Undo text)."""
         self._clean_position = self._position
         self.project.modified = False
+        if self.on_change is not None:
+            self.on_change()
 
     def mark_unsaved(self) -> None:
         """No position of the history equals a saved file (a recovered autosave was

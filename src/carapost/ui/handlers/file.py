@@ -93,7 +93,6 @@ def save_to(ctx: ActionContext, path: str) -> bool:
         return False
     if written is None:
         return False
-    ctx.history_changed.emit()  # the window title and Undo text follow the clean state
     add_recent_file(ctx.settings, str(written))
     ctx.status(f"Saved {written}", 4000)
     return True
