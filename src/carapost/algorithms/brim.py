@@ -31,7 +31,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -49,7 +48,6 @@ from carapost.algorithms.rigid import register_model
 log = logging.getLogger("carapost.brim")
 
 __all__ = [
-    "BUNDLE_OPTIONS",
     "BrimSolveParameters",
     "BrimSolveResult",
     "brim_exclusion_mask",
@@ -58,12 +56,6 @@ __all__ = [
     "solve_brim_manual",
     "rotation_error_deg",
 ]
-
-#: Options of :func:`carapost.algorithms.bundle.bundle_frame` for the brim solve and
-#: Initialize 3D: scipy's trust-region solver. On these small, well-conditioned problems
-#: it converges to the minimum where the fast Schur solver was seen to stop early (0.09 px
-#: instead of 0.035 px on one synthetic frame).
-BUNDLE_OPTIONS: dict[str, Any] = {"solver": "least_squares"}
 
 
 @dataclass(frozen=True)
@@ -341,7 +333,7 @@ def _bundle_with_face(model: NDArray, dets: list[NDArray], dets_n: list[NDArray]
                       R: NDArray, t: NDArray, intr: CameraIntrinsics, matches: NDArray,
                       params: BrimSolveParameters) -> tuple[NDArray, NDArray, NDArray] | None:
     """Refine all cameras on the brim (fixed) plus face markers seen by >= 3 cameras."""
-    from carapost.algorithms.bundle import bundle_frame
+    from carapost.algorithms.bundle import BUNDLE_OPTIONS, bundle_frame
 
     B, C = matches.shape
     excluded = []

@@ -40,6 +40,7 @@ __all__ = [
     "SOURCE_NONE",
     "SOURCE_PATCH",
     "SOURCE_TARGET",
+    "blank_point_array",
 ]
 
 # Reconstruction kinds of a 3D sample.
@@ -84,6 +85,33 @@ CAMERA_ARRAYS = ("obs", "source", "detection", "quality", "keyframe")
 POINT_FILLS: dict[str, Any] = {k: fill for k, (_, fill) in POINT_ARRAYS.items()
                                if k != "keyframe"}
 
+
+
+def blank_point_array(name: str, n_frames: int, n_points: int,
+                      n_cameras: int) -> NDArray[Any]:
+    """One per-point array of :data:`POINT_ARRAYS` holding no sample (its fill value).
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`POINT_ARRAYS`.
+    n_frames, n_points, n_cameras : int
+
+    Returns
+    -------
+    ndarray
+        Shape (F, P, 3) for positions, (F, P) for recon and residual, (F, P, C, 2) for
+        obs and (F, P, C) for the others; the storage dtype.
+
+    Examples
+    --------
+    >>> blank_point_array("obs", 2, 3, 4).shape
+    (2, 3, 4, 2)
+    """
+    dt, fill = POINT_ARRAYS[name]
+    trailing = {"positions": (3,), "recon": (), "residual": (),
+                "obs": (n_cameras, 2)}.get(name, (n_cameras,))
+    return np.full((n_frames, n_points) + trailing, fill, dtype=dt)
 
 class PointArrays(NamedTuple):
     """Point samples an algorithm computed, in the model's layout and storage dtypes.

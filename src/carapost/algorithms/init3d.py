@@ -35,7 +35,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from carapost.algorithms.brim import BUNDLE_OPTIONS
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.multiview import (
     camera_rays,
@@ -631,7 +630,7 @@ def initialize_3d(
     X, res, rep = triangulate_tracks(state.tracks, dets_n, R, t, focal)
     msg_bundle = ""
     if params.bundle_adjust and brim_model is not None and brim_detections is not None:
-        from carapost.algorithms.bundle import bundle_frame
+        from carapost.algorithms.bundle import BUNDLE_OPTIONS, bundle_frame
 
         model = np.asarray(brim_model, dtype=np.float64).reshape(-1, 3)
         bd = np.asarray(brim_detections, dtype=np.intp).reshape(len(model), C)

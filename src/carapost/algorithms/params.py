@@ -60,6 +60,7 @@ __all__ = [
     "INITIALIZE_FROM_ROM",
     "TRACKING",
     "TRIANGULATION",
+    "Allowed",
     "ParamInfo",
     "check_number",
     "check_value",
@@ -376,7 +377,24 @@ def check_number(
     return coerced
 
 
-def check_value(value: Any, info: ParamInfo, kind: type, label: str) -> Any:
+class Allowed(Protocol):
+    """What :func:`check_value` reads of a declaration: a :class:`ParamInfo`, or a
+    :class:`carapost.model.properties.PropertySpec`."""
+
+    @property
+    def minimum(self) -> float | None: ...
+    @property
+    def maximum(self) -> float | None: ...
+    @property
+    def min_exclusive(self) -> bool: ...
+    @property
+    def max_exclusive(self) -> bool: ...
+    @property
+    def choices(self) -> tuple[str, ...] | None: ...
+    def range_text(self) -> str: ...
+
+
+def check_value(value: Any, info: Allowed, kind: type, label: str) -> Any:
     """Check one value of a field of type ``kind`` against ``info``; return it coerced.
 
     Raises

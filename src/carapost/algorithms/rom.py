@@ -21,15 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+# FrameMatcher and pack_detections are looked up through the lazy package when used, so
+# that importing RomParameters (the properties registry, the window at start-up) does
+# not load the tracker
+from carapost.algorithms import tracking
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.codes import KIND_BRIM, PointArrays
 from carapost.algorithms.params import INITIALIZE_FROM_ROM, param, validate
-from carapost.algorithms.tracking import (
-    FrameDetections,
-    FrameMatcher,
-    TrackingParameters,
-    pack_detections,
-)
+from carapost.algorithms.tracking import FrameDetections, TrackingParameters
 
 
 @dataclass(frozen=True)
@@ -123,9 +122,9 @@ def initialize_from_rom(
     P = X.shape[0]
     R = np.asarray(rom_R, np.float64).copy()
     t = np.asarray(rom_t, np.float64).copy()
-    fr = pack_detections(detections, C)
+    fr = tracking.pack_detections(detections, C)
     no_axes = np.full((P, C, 2), np.nan)
-    matcher = FrameMatcher(intr, kind, X, tp)
+    matcher = tracking.FrameMatcher(intr, kind, X, tp)
     brim = kind == KIND_BRIM
     has_brim = bool((brim & np.isfinite(X).all(-1)).any())
 

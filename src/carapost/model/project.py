@@ -44,6 +44,7 @@ from carapost.algorithms.codes import (  # defined once there, re-exported here
     SOURCE_NONE,  # noqa: F401
     SOURCE_PATCH,  # noqa: F401
     SOURCE_TARGET,  # noqa: F401
+    blank_point_array,
 )
 from carapost.model.events import EventHub
 
@@ -262,18 +263,7 @@ class Points:
         self.next_id = 1
 
     def _blank(self, name: str, n_points: int) -> NDArray:
-        dt, fill = POINT_ARRAYS[name]
-        F, C = self.n_frames, self.n_cameras
-        shape: tuple[int, ...]
-        if name == "positions":
-            shape = (F, n_points, 3)
-        elif name in ("recon", "residual"):
-            shape = (F, n_points)
-        elif name == "obs":
-            shape = (F, n_points, C, 2)
-        else:
-            shape = (F, n_points, C)
-        return np.full(shape, fill, dtype=dt)
+        return blank_point_array(name, self.n_frames, n_points, self.n_cameras)
 
     def __getattr__(self, name: str) -> NDArray:
         # positions, recon, residual, obs, source, detection, quality, keyframe

@@ -42,8 +42,6 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from carapost.algorithms import params as _params
 from carapost.algorithms.blobs import BlobParameters
 from carapost.algorithms.init3d import Init3DParameters
@@ -53,7 +51,7 @@ from carapost.algorithms.params import (
     INITIALIZE_FROM_ROM,
     TRACKING,
     TRIANGULATION,
-    check_number,
+    check_value,
     format_value,
 )
 from carapost.algorithms.rom import RomParameters
@@ -210,33 +208,15 @@ class PropertySpec:
             If the value has the wrong type or lies outside the allowed range; the
             message names the label and the allowed range or choices.
         """
-        kind = self.kind
-        if kind == "bool":
-            if isinstance(value, (bool, np.bool_)):
-                return bool(value)
-            raise self._refuse(value, "True or False")
-        if kind in ("int", "float"):
-            try:  # the same check as the algorithm parameter classes make
-                return check_number(value, self.label, integer=kind == "int",
-                                    minimum=self.minimum, maximum=self.maximum,
-                                    min_exclusive=self.min_exclusive,
-                                    max_exclusive=self.max_exclusive)
-            except ValueError as exc:
-                raise PropertyError(str(exc), self.key) from None
-        if kind == CHOICE:
-            assert self.choices is not None
-            if isinstance(value, str):
-                for choice in self.choices:
-                    if value.strip().lower() == choice.lower():
-                        return choice
-            raise self._refuse(value, self.range_text())
-        if kind == COLOUR:
+        if self.kind == COLOUR:
             if isinstance(value, str) and _COLOUR_RE.match(value):
                 return value.lower()
             raise self._refuse(value, "a colour written '#rrggbb'")
-        if isinstance(value, str):
-            return value
-        raise self._refuse(value, "text")
+        kind = self.type if isinstance(self.type, type) else str  # a choice is text
+        try:  # the same check as the algorithm parameter classes make
+            return check_value(value, self, kind, self.label)
+        except ValueError as exc:
+            raise PropertyError(str(exc), self.key) from None
 
     def parse(self, text: str) -> Any:
         """Convert command-line text (``"0.5"``, ``"true"``, ``"Y"``) and validate it.

@@ -18,10 +18,12 @@ from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.codes import (
     KIND_BRIM,
     KIND_FACE,
+    POINT_FILLS,
     RECON_TRIANGULATED,
     SOURCE_BLOB,
     SOURCE_NONE,
     SOURCE_PATCH,
+    blank_point_array,
 )
 from carapost.algorithms.patch import patch_search
 from carapost.algorithms.tracking.assignment import INFEASIBLE_COST, assign, pack_detections
@@ -150,17 +152,7 @@ def track(
         "born": np.full(P, -1, np.intp),
         "kind": kind.copy(),
     }
-    out: dict[str, NDArray[Any]] = {
-        "positions": np.full((n, P, 3), np.nan, np.float32),
-        "recon": np.zeros((n, P), np.int8),
-        "residual": np.full((n, P), np.nan, np.float32),
-        "obs": np.full((n, P, C, 2), np.nan, np.float32),
-        "source": np.zeros((n, P, C), np.int8),
-        "detection": np.full((n, P, C), -1, np.int32),
-        "quality": np.zeros((n, P, C), np.float16),
-    }
-    fills = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan,
-             "source": 0, "detection": -1, "quality": 0}
+    out = {k: blank_point_array(k, n, P, C) for k in POINT_FILLS}
     st_fills = {"X_est": np.nan, "alive": False, "velocity": 0.0, "last_seen": False,
                 "prev_obs": np.nan, "prev_axes": np.nan, "patch_run": 0, "X_ref": np.nan,
                 "born": -1, "kind": KIND_FACE}
@@ -168,7 +160,7 @@ def track(
     out_t = np.zeros((n, C, 3))
 
     def grow(m: int) -> None:
-        for d, fl, ax in ((st, st_fills, 0), (out, fills, 1)):
+        for d, fl, ax in ((st, st_fills, 0), (out, POINT_FILLS, 1)):
             for key, arr in d.items():
                 shape = list(arr.shape)
                 shape[ax] = m
@@ -289,9 +281,9 @@ def track(
                     got = np.r_[got, np.zeros(pad, bool)]
                     restart = np.r_[restart, np.zeros(pad, bool)]
                     X_restart = np.concatenate([X_restart, np.full((pad, 3), np.nan)])
-                    res = {k: (np.concatenate([v, np.full((pad,) + v.shape[1:], fills[k],
+                    res = {k: (np.concatenate([v, np.full((pad,) + v.shape[1:], POINT_FILLS[k],
                                                           v.dtype)])
-                               if k in fills else v) for k, v in res.items()}
+                               if k in POINT_FILLS else v) for k, v in res.items()}
                     rows = np.r_[rows, new_rows]
                     old = np.r_[old, new]
                 if rows.size:
@@ -314,10 +306,9 @@ def track(
         probe = (born >= 0) & (i - born <= PROBATION_FRAMES) & st["alive"]
         fail = probe & ~(res["recon"] == RECON_TRIANGULATED)
         if fail.any():
-            for key in ("positions", "recon", "residual", "obs", "source", "detection",
-                        "quality"):
-                res[key][fail] = fills[key]
-                out[key][:, fail] = fills[key]
+            for key, fill in POINT_FILLS.items():
+                res[key][fail] = fill
+                out[key][:, fail] = fill
             st["alive"][fail] = False
             st["X_est"][fail] = np.nan
             st["X_ref"][fail] = np.nan

@@ -13,7 +13,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
-from carapost.algorithms.codes import KIND_BRIM, KIND_FACE, RECON_NONE, RECON_TRIANGULATED
+from carapost.algorithms.codes import (
+    KIND_BRIM,
+    KIND_FACE,
+    POINT_FILLS,
+    RECON_NONE,
+    RECON_TRIANGULATED,
+    blank_point_array,
+)
 from carapost.algorithms.tracking.identity import (
     absorb,
     drop_isolated,
@@ -192,17 +199,8 @@ def track_take(
             return None
         return lambda d, n: progress(offset + d, total)
 
-    names = ("positions", "recon", "residual", "obs", "source", "detection", "quality")
-    fills = {"positions": np.nan, "recon": 0, "residual": np.nan, "obs": np.nan,
-             "source": 0, "detection": -1, "quality": 0}
-    shapes = {"positions": (3,), "recon": (), "residual": (), "obs": (C, 2), "source": (C,),
-              "detection": (C,), "quality": (C,)}
-    dtypes = {"positions": np.float32, "recon": np.int8, "residual": np.float32,
-              "obs": np.float32, "source": np.int8, "detection": np.int32,
-              "quality": np.float16}
-
     def empty(p: int) -> dict[str, NDArray[Any]]:
-        return {k: np.full((F, p) + shapes[k], fills[k], dtypes[k]) for k in names}
+        return {k: blank_point_array(k, F, p, C) for k in POINT_FILLS}
 
     Rall = np.zeros((F, C, 3, 3))
     tall = np.zeros((F, C, 3))
@@ -231,7 +229,7 @@ def track_take(
         A["obs"][start, :P] = initial.obs
     if fwd is not None and fwd.frames_done:
         sl = slice(fwd.first, fwd.last + 1)
-        for k in names:
+        for k in POINT_FILLS:
             A[k][sl] = getattr(fwd, k)
         Rall[sl], tall[sl] = fwd.R, fwd.t
     kind1 = np.r_[kind0, np.full(P1 - P, KIND_FACE, np.int8)]
@@ -256,7 +254,7 @@ def track_take(
     done += bwd.frames_done
     P2 = P1 + bwd.n_new
     B = empty(P2)
-    for k in names:
+    for k in POINT_FILLS:
         B[k][:, :P1] = A[k]
     if bwd.frames_done:
         sl = slice(bwd.first, bwd.last + 1)
@@ -266,7 +264,7 @@ def track_take(
         fill = (B["recon"][sl] == RECON_NONE)
         fill[:, :P1] |= beyond[:, None]
         fill[:, P1:] = True
-        for k in names:
+        for k in POINT_FILLS:
             cur = B[k][sl]
             new = getattr(bwd, k)
             m = fill.reshape(fill.shape + (1,) * (cur.ndim - 2))
