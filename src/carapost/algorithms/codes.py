@@ -24,6 +24,7 @@ __all__ = [
     "CAMERA_ARRAYS",
     "KIND_BRIM",
     "KIND_FACE",
+    "OPTIONAL_POINT_ARRAYS",
     "POINT_ARRAYS",
     "POINT_FILLS",
     "PointArrays",
@@ -65,12 +66,16 @@ KIND_FACE = 0
 KIND_BRIM = 1
 
 #: Per-point arrays, their storage dtypes and fill values (no sample), in save order.
-#: Shapes (F frames, P points, C cameras): positions (F, P, 3), recon and residual
-#: (F, P), the others (F, P, C) and obs (F, P, C, 2).
+#: Shapes (F frames, P points, C cameras): positions (F, P, 3), recon, residual and
+#: sigma (F, P), the others (F, P, C) and obs (F, P, C, 2).
+#: ``sigma`` is the estimated standard deviation (mm) of a 3D sample's error: from the
+#: observation geometry for measured samples, from the fill method's hold-out test for
+#: filled ones; NaN where unknown.
 POINT_ARRAYS: dict[str, tuple[str, Any]] = {
     "positions": ("float32", np.nan),
     "recon": ("int8", RECON_NONE),
     "residual": ("float32", np.nan),
+    "sigma": ("float32", np.nan),
     "obs": ("float32", np.nan),
     "source": ("int8", SOURCE_NONE),
     "detection": ("int32", -1),
@@ -81,9 +86,12 @@ POINT_ARRAYS: dict[str, tuple[str, Any]] = {
 #: Arrays with a camera axis.
 CAMERA_ARRAYS = ("obs", "source", "detection", "quality", "keyframe")
 
-#: Fill value of each array the algorithms produce (all but ``keyframe``).
+#: Arrays a project file may lack (written by an older carapost): read as blank.
+OPTIONAL_POINT_ARRAYS = ("sigma",)
+
+#: Fill value of each array the algorithms produce (all but ``keyframe`` and ``sigma``).
 POINT_FILLS: dict[str, Any] = {k: fill for k, (_, fill) in POINT_ARRAYS.items()
-                               if k != "keyframe"}
+                               if k not in ("keyframe", "sigma")}
 
 
 
@@ -100,7 +108,7 @@ def blank_point_array(name: str, n_frames: int, n_points: int,
     Returns
     -------
     ndarray
-        Shape (F, P, 3) for positions, (F, P) for recon and residual, (F, P, C, 2) for
+        Shape (F, P, 3) for positions, (F, P) for recon, residual and sigma, (F, P, C, 2) for
         obs and (F, P, C) for the others; the storage dtype.
 
     Examples
@@ -109,7 +117,7 @@ def blank_point_array(name: str, n_frames: int, n_points: int,
     (2, 3, 4, 2)
     """
     dt, fill = POINT_ARRAYS[name]
-    trailing = {"positions": (3,), "recon": (), "residual": (),
+    trailing = {"positions": (3,), "recon": (), "residual": (), "sigma": (),
                 "obs": (n_cameras, 2)}.get(name, (n_cameras,))
     return np.full((n_frames, n_points) + trailing, fill, dtype=dt)
 

@@ -39,6 +39,7 @@ from carapost.algorithms.camera import CameraIntrinsics
 from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
 from carapost.model.project import (
+    OPTIONAL_POINT_ARRAYS,
     POINT_ARRAYS,
     CameraChannel,
     Detections,
@@ -47,6 +48,7 @@ from carapost.model.project import (
     Selection,
     Stick,
     Take,
+    blank_point_array,
 )
 
 log = logging.getLogger("carapost.io")
@@ -452,6 +454,9 @@ def _build(
     pts.kind = np.asarray(pm["kind"], dtype=np.int8).reshape(P)
     pts.next_id = int(pm["next_id"])
     for name in POINT_ARRAYS:
+        if name in OPTIONAL_POINT_ARRAYS and f"points/{name}.npy" not in specs:
+            pts.arrays[name] = blank_point_array(name, F, P, C)
+            continue
         arr = members.read(f"points/{name}.npy", specs[f"points/{name}.npy"])
         if arr.shape[:2] != (F, P) or (name in ("obs", "source") and arr.shape[2] != C):
             raise CaraFileError(path, f"points/{name} does not fit {F} frames x {P} points")

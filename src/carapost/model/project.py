@@ -30,6 +30,7 @@ from carapost.algorithms.codes import (  # defined once there, re-exported here
     CAMERA_ARRAYS,  # noqa: F401
     KIND_BRIM,  # noqa: F401
     KIND_FACE,
+    OPTIONAL_POINT_ARRAYS,  # noqa: F401
     POINT_ARRAYS,
     RECON_FILTERED,  # noqa: F401
     RECON_INTERPOLATED,  # noqa: F401
