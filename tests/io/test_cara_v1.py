@@ -199,7 +199,11 @@ def test_v1_points_labels_and_sticks(project):
     assert pts.kind.tolist() == POINT_KINDS
     assert pts.next_id == NEXT_ID
     expected = expected_point_arrays()
-    assert set(pts.arrays) == set(expected)
+    # sigma came after format 1's first files: they open with it unknown (NaN).
+    assert set(pts.arrays) == set(expected) | {"sigma"}
+    assert pts.arrays["sigma"].shape == expected["recon"].shape
+    assert pts.arrays["sigma"].dtype == np.float32
+    assert np.isnan(pts.arrays["sigma"]).all()
     for name, arr in expected.items():
         got = pts.arrays[name]
         assert got.dtype == arr.dtype, name

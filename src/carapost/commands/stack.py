@@ -140,13 +140,17 @@ class Journal:
         arrays : mapping name -> array
             New values, each broadcastable to ``points.<name>[frames][:, columns]``
             (``(n_frames, n_cols, ...)``; a scalar such as ``False`` fills the block).
-            Values are cast to the stored dtype as by numpy assignment.
+            Values are cast to the stored dtype as by numpy assignment. New
+            ``positions`` without a ``sigma`` clear the block's ``sigma``: an
+            uncertainty must not outlive the sample it describes.
         """
         if isinstance(frames, int | np.integer):
             frames = slice(int(frames), int(frames) + 1)
         cols = np.atleast_1d(np.asarray(columns, dtype=np.intp))
         if cols.size == 0:
             return
+        if "positions" in arrays and "sigma" not in arrays:
+            arrays = {**arrays, "sigma": np.nan}
         self.point_block(frames, cols, list(arrays))
         pts = self.project.points
         for name, value in arrays.items():
