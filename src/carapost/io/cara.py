@@ -21,6 +21,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import math
 import mmap
 import os
 import struct
@@ -36,8 +37,9 @@ import numpy as np
 
 from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
-from carapost.io.atomic import atomic_output
+from carapost.io.atomic import atomic_output, check_input_file, checked_path, clean_stale_parts
 from carapost.io.errors import CaraFileError
+from carapost.io.ziplimits import MANIFEST_LIMIT, check_member, load_json, open_zip, read_member
 from carapost.model.project import (
     OPTIONAL_POINT_ARRAYS,
     POINT_ARRAYS,
@@ -172,7 +174,9 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
     Path
         The file written.
     """
-    path = Path(path)
+    path = checked_path(path)
+    if not autosave and path.is_dir():
+        raise CaraFileError(path, "is a folder, not a file name")
     if not autosave and path.suffix.lower() != ".cara":
         path = path.with_name(path.name + ".cara")
     path = path.absolute()
@@ -229,14 +233,11 @@ def recoverable_autosave(path: str | Path) -> Path | None:
 # Loading
 # ----------------------------------------------------------------------------------------
 def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
-    try:
-        raw = zf.read("manifest.json")
-    except KeyError:
-        raise CaraFileError(path, "not a carapost project: manifest.json is missing") from None
-    try:
-        manifest = json.loads(raw)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CaraFileError(path, f"manifest.json is not valid JSON ({exc})") from None
+    if "manifest.json" not in zf.NameToInfo:
+        raise CaraFileError(path, "not a carapost project: manifest.json is missing")
+    # bounded: the declared size is checked before inflating, the read stops at the limit
+    raw = read_member(zf, path, "manifest.json", MANIFEST_LIMIT)
+    manifest = load_json(path, raw, "manifest.json")
     if not isinstance(manifest, dict) or manifest.get("format") != "carapost-project":
         raise CaraFileError(path, "not a carapost project (manifest has no carapost format tag)")
     version = manifest.get("format_version")
@@ -252,35 +253,82 @@ def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
     return manifest
 
 
+#: Projects up to this size are read into private memory at open (copy-on-open); larger
+#: ones are mapped copy-on-write (see `load_project`).
+PRIVATE_COPY_LIMIT = 4 << 30
+
+_NPY_HEADER_MAX = 1 << 16
+
+
+def _npy_spec(path: Path, name: str, spec: Any) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """Shape and dtype the manifest gives a member, checked to be plain and sane."""
+    try:
+        shape = tuple(int(n) for n in spec["shape"])
+        dtype = np.dtype(str(spec["dtype"]))
+    except Exception:
+        raise CaraFileError(path, f"the manifest's entry for {name} is malformed") from None
+    if any(n < 0 for n in shape) or dtype.hasobject or dtype.itemsize == 0 or len(shape) > 8:
+        raise CaraFileError(path, f"the manifest's entry for {name} is malformed")
+    return shape, dtype
+
+
+def _parse_npy_header(raw: bytes | io.BufferedIOBase) -> tuple[tuple[int, ...], np.dtype[Any], int]:
+    """Shape, dtype and header length of an ``.npy`` stream (no pickles, no Fortran)."""
+    buf = io.BytesIO(raw) if isinstance(raw, bytes) else raw
+    version = np.lib.format.read_magic(buf)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
+    else:
+        raise ValueError(f"unsupported .npy version {version}")
+    if dtype.hasobject or fortran:
+        raise ValueError("object or Fortran-ordered arrays are not allowed")
+    return tuple(shape), dtype, buf.tell()
+
+
 class _Members:
-    """Arrays of a project file, mapped copy-on-write instead of read.
+    """Arrays of a project file, read into private memory or mapped copy-on-write.
 
     Members are stored uncompressed, so each ``.npy`` payload is a contiguous run of the
-    file: it is mapped privately (edits stay in memory, the file is never written) and
-    pages come in as they are used, which keeps Open fast for long takes. Every member's
-    CRC-32 is still checked, on both cores, before the project is handed out.
+    file. With ``private`` (the default up to `PRIVATE_COPY_LIMIT`) every array is read
+    into memory of its own: the open project no longer depends on its file, which may then
+    be truncated, overwritten or deleted by anyone. Otherwise it is mapped privately (edits
+    stay in memory, the file is never written) and pages come in as they are used. Every
+    member's CRC-32 is checked, on both cores, before the project is handed out.
+    Deflated members (a project re-zipped by another tool) are inflated with their size
+    and shape checked first.
     """
 
-    def __init__(self, zf: zipfile.ZipFile, path: Path) -> None:
+    def __init__(self, zf: zipfile.ZipFile, path: Path, *, private: bool | None = None) -> None:
         self.zf = zf
         self.path = path
         self._fh = open(path, "rb")  # closed in close()
-        try:
-            self._map: mmap.mmap | None = mmap.mmap(self._fh.fileno(), 0,
-                                                    access=mmap.ACCESS_COPY)
-        except (OSError, ValueError):  # empty file or a file system without mmap
-            self._map = None
-        self._checks: list[tuple[str, int, int, int]] = []
+        self.size = os.fstat(self._fh.fileno()).st_size
+        if private is None:
+            private = self.size <= PRIVATE_COPY_LIMIT
+        self.private = private
+        self._map: mmap.mmap | None = None
+        if not private:
+            try:
+                self._map = mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_COPY)
+            except (OSError, ValueError):  # empty file or a file system without mmap
+                self._map = None
+        # (name, expected CRC, buffers whose concatenation is the member's bytes)
+        self._checks: list[tuple[str, int, list[Any]]] = []
 
     def close(self) -> None:
         self._fh.close()  # the mapping stays valid on its own
 
+    def _pread(self, offset: int, n: int) -> bytes:
+        return os.pread(self._fh.fileno(), n, offset)
+
     def _payload(self, info: zipfile.ZipInfo) -> tuple[int, int]:
         """Start and end (file offsets) of a stored member's bytes."""
-        self._fh.seek(info.header_offset)
-        header = self._fh.read(30)
+        header = self._pread(info.header_offset, 30)
         if len(header) != 30 or header[:4] != b"PK\x03\x04":
-            raise CaraFileError(self.path, f"the member {info.filename} is damaged")
+            raise CaraFileError(self.path, f"the member {info.filename} is damaged "
+                                           "(bad local header)")
         n_name, n_extra = struct.unpack("<HH", header[26:30])
         start = info.header_offset + 30 + n_name + n_extra
         return start, start + info.compress_size
@@ -288,60 +336,107 @@ class _Members:
     def read(self, name: str, spec: dict[str, Any]) -> np.ndarray:
         """The array of member ``name``, checked against the manifest's ``spec``."""
         path = self.path
+        shape, dtype = _npy_spec(path, name, spec)
+        nbytes = math.prod(shape) * dtype.itemsize
         try:
             info = self.zf.getinfo(name)
         except KeyError:
             raise CaraFileError(path, f"the array {name} is missing") from None
+        # sizes from the directory, checked before anything is allocated or inflated
+        check_member(path, info, nbytes + _NPY_HEADER_MAX)
+        if info.file_size < nbytes:
+            raise CaraFileError(path, f"the array {name} is {info.file_size:,} bytes, too "
+                                      f"small for {dtype}{list(shape)}")
         try:
-            if self._map is None or info.compress_type != zipfile.ZIP_STORED:
-                with self.zf.open(name) as fh:
-                    arr = np.lib.format.read_array(fh, allow_pickle=False)
+            if info.compress_type == zipfile.ZIP_STORED:
+                arr = self._read_stored(name, info, shape, dtype, nbytes)
             else:
-                start, end = self._payload(info)
-                if end > len(self._map):
-                    raise CaraFileError(path, f"the array {name} is truncated")
-                buf = io.BytesIO(self._map[start : min(start + 4096, end)])
-                version = np.lib.format.read_magic(buf)
-                read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                               else np.lib.format.read_array_header_2_0)
-                shape, fortran, dtype = read_header(buf)
-                if dtype.hasobject or fortran:
-                    raise ValueError("object or Fortran-ordered arrays are not allowed")
-                offset = start + buf.tell()
-                count = int(np.prod(shape, dtype=np.int64))
-                if offset + count * dtype.itemsize != end:
-                    raise ValueError("its size does not match its header")
-                arr = np.frombuffer(self._map, dtype=dtype, count=count,
-                                    offset=offset).reshape(shape)
-                self._checks.append((name, start, end, info.CRC))
+                arr = self._read_deflated(name, info, shape, dtype, nbytes)
         except CaraFileError:
             raise
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        except MemoryError:
+            raise CaraFileError(path, f"the array {name} ({nbytes:,} bytes) does not fit in "
+                                      "memory") from None
+        except Exception as exc:
             raise CaraFileError(path, f"the array {name} is damaged ({exc})") from None
-        if list(arr.shape) != list(spec["shape"]) or str(arr.dtype) != spec["dtype"]:
+        return arr
+
+    def _check_header(self, name: str, got: tuple[tuple[int, ...], np.dtype[Any]],
+                      shape: tuple[int, ...], dtype: np.dtype[Any]) -> None:
+        if got[0] != shape or got[1] != dtype:
             raise CaraFileError(
-                path,
-                f"the array {name} is {arr.dtype}{list(arr.shape)}, the manifest says "
-                f"{spec['dtype']}{spec['shape']}",
-            )
+                self.path, f"the array {name} is {got[1]}{list(got[0])}, the manifest says "
+                           f"{dtype}{list(shape)}")
+
+    def _read_stored(self, name: str, info: zipfile.ZipInfo, shape: tuple[int, ...],
+                     dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
+        start, end = self._payload(info)
+        if end > self.size:
+            raise CaraFileError(self.path, f"the array {name} is truncated")
+        head = self._pread(start, min(_NPY_HEADER_MAX, end - start))
+        got_shape, got_dtype, hlen = _parse_npy_header(head)
+        self._check_header(name, (got_shape, got_dtype), shape, dtype)
+        if start + hlen + nbytes != end:
+            raise CaraFileError(self.path, f"the array {name} is damaged (its size does not "
+                                           "match its header)")
+        count = math.prod(shape)
+        if self._map is not None:
+            arr = np.frombuffer(self._map, dtype=dtype, count=count,
+                                offset=start + hlen).reshape(shape)
+            self._checks.append((name, info.CRC, [memoryview(self._map)[start:end]]))
+            return arr
+        arr = np.empty(shape, dtype=dtype)
+        flat = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else memoryview(b"")
+        pos, done = start + hlen, 0
+        while done < nbytes:
+            n = os.preadv(self._fh.fileno(), [flat[done:done + (1 << 28)]], pos + done)
+            if n <= 0:
+                raise CaraFileError(self.path, f"the array {name} is truncated")
+            done += n
+        self._checks.append((name, info.CRC, [head[:hlen], flat]))
+        return arr
+
+    def _read_deflated(self, name: str, info: zipfile.ZipInfo, shape: tuple[int, ...],
+                       dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
+        with self.zf.open(info) as fh:
+            # the header is read (a few hundred bytes inflated) and checked first
+            got_shape, got_dtype, hlen = _parse_npy_header(fh)
+            self._check_header(name, (got_shape, got_dtype), shape, dtype)
+            if info.file_size != hlen + nbytes:
+                raise CaraFileError(self.path, f"the array {name} is damaged (its size does "
+                                               "not match its header)")
+            arr = np.empty(shape, dtype=dtype)
+            flat = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else None
+            done = 0
+            while flat is not None and done < nbytes:
+                n = fh.readinto(flat[done:done + (1 << 26)])
+                if not n:
+                    raise CaraFileError(self.path, f"the array {name} is truncated")
+                done += n
+            if fh.read(1):  # also makes zipfile check the CRC-32 at the end
+                raise CaraFileError(self.path, f"the array {name} is longer than its header")
         return arr
 
     def verify(self) -> None:
-        """Check the CRC-32 of every mapped member (zlib releases the GIL: two threads)."""
+        """Check the CRC-32 of every member read (zlib releases the GIL: two threads)."""
         if not self._checks:
             return
-        view = memoryview(self._map)
 
-        def crc(item: tuple[str, int, int, int]) -> tuple[str, bool]:
-            name, start, end, expected = item
+        def crc(item: tuple[str, int, list[Any]]) -> tuple[str, bool]:
+            name, expected, parts = item
             value = 0
-            for a in range(start, end, 1 << 26):  # 64 MB steps
-                value = zlib.crc32(view[a : min(a + (1 << 26), end)], value)
+            for part in parts:
+                view = memoryview(part)
+                for a in range(0, len(view), 1 << 26):  # 64 MB steps
+                    value = zlib.crc32(view[a : a + (1 << 26)], value)
             return name, value == expected
 
+        def size(item: tuple[str, int, list[Any]]) -> int:
+            return -sum(len(memoryview(p)) for p in item[2])
+
         with ThreadPoolExecutor(max_workers=2) as pool:
-            results = list(pool.map(crc, sorted(self._checks, key=lambda c: c[1] - c[2])))
-        view.release()
+            results = list(pool.map(crc, sorted(self._checks, key=size)))
+        self._checks.clear()
         bad = [name for name, ok in results if not ok]
         if bad:
             raise CaraFileError(self.path, f"the array {bad[0]} is damaged (checksum mismatch)")
@@ -372,7 +467,8 @@ def _resolve_video(
     return abs_path
 
 
-def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
+def load_project(path: str | Path, *, relocate: RelocateCallback | None = None,
+                 private: bool | None = None) -> Project:
     """Open a ``.cara`` project.
 
     Parameters
@@ -381,6 +477,11 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) 
     relocate : callable, optional
         Asked for a camera video that is neither at its saved absolute path nor beside
         the project: ``relocate(camera_name, missing_path) -> new path or None``.
+    private : bool, optional
+        Read every array into memory of the project's own (True), or map the file
+        copy-on-write (False). By default projects up to `PRIVATE_COPY_LIMIT` bytes are
+        read (the open project then survives its file being truncated or overwritten);
+        larger ones are mapped, which opens faster and shares the page cache.
 
     Returns
     -------
@@ -392,26 +493,27 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) 
         Missing, truncated, corrupt or foreign files, and projects of a newer format.
     """
     path = Path(path)
-    if not path.exists():
-        raise CaraFileError(path, "no such file")
-    try:
-        zf = zipfile.ZipFile(path, "r")
-    except zipfile.BadZipFile:
-        raise CaraFileError(path, "not a carapost project (not a ZIP container, or truncated)")\
-            from None
-    except OSError as exc:
-        raise CaraFileError(path, f"cannot be read: {exc.strerror or exc}") from None
+    check_input_file(path)
+    clean_stale_parts(path)
+    zf = open_zip(path)
     with zf:
         manifest = _read_manifest(zf, path)
-        members = _Members(zf, path)
+        try:
+            members = _Members(zf, path, private=private)
+        except OSError as exc:
+            raise CaraFileError(path, f"cannot be read: {exc.strerror or exc}") from None
         try:
             project = _build(members, manifest, path, relocate)
             members.verify()
             return project
         except CaraFileError:
             raise
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise CaraFileError(path, f"the manifest is inconsistent ({exc!r})") from None
+        except MemoryError:
+            raise CaraFileError(path, "the project does not fit in memory") from None
+        except RecursionError:
+            raise CaraFileError(path, "the manifest is nested too deeply") from None
+        except Exception as exc:
+            raise CaraFileError(path, f"the manifest is inconsistent ({exc!r:.200})") from None
         finally:
             members.close()
 
