@@ -10,6 +10,7 @@ import argparse
 import logging
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from carapost import __version__
 
@@ -47,10 +48,25 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_export_c3d(args: argparse.Namespace) -> int:
-    from carapost.session import Session
+def _open_session(args: argparse.Namespace) -> Any:
+    """Session.open of ``args.project``; a newer autosave copy is reported on stderr."""
+    import warnings
 
-    with Session.open(args.project) as session:
+    from carapost.session import Session
+    from carapost.session.recovery import NewerAutosaveWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NewerAutosaveWarning)
+        session = Session.open(args.project, recover=True if args.recover else None)
+    if session.newer_autosave is not None:
+        print(f"carapost {args.command}: warning: {args.project} has a newer autosave copy "
+              f"({session.newer_autosave}); the file was used. Pass --recover to use the "
+              "copy.", file=sys.stderr)
+    return session
+
+
+def _cmd_export_c3d(args: argparse.Namespace) -> int:
+    with _open_session(args) as session:
         session.export_c3d(args.output, frame_range=args.range, include_brim=args.brim,
                            stabilized=args.stabilized)
     print(f"wrote {args.output}")
@@ -58,9 +74,7 @@ def _cmd_export_c3d(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_fbx(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_fbx(args.output, frame_range=args.range, include_brim=args.brim,
                            up_axis=args.up, include_cameras=args.cameras,
                            include_sticks=args.sticks)
@@ -69,9 +83,7 @@ def _cmd_export_fbx(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_xcp(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_xcp(args.output, frame=args.frame)
     print(f"wrote {args.output}")
     return 0
@@ -100,6 +112,23 @@ def _cmd_process(args: argparse.Namespace) -> int:
     )
     for key, value in result.items():
         print(f"{key}: {value}")
+    return 0
+
+
+RECOVER_HELP = ("when an autosave copy newer than the project exists (the program stopped "
+                "before saving), use the copy")
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _quiet_stdout() -> int:
+    """The reader of our output went away (``carapost evaluate ... | head``): not an
+    error of ours; point stdout at devnull so the interpreter's flush stays quiet."""
+    import os
+
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
@@ -156,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         sp = add(name, func, f"export a project's points as {what}")
         sp.add_argument("project")
+        sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
         sp.add_argument("output")
         sp.add_argument("--range", choices=("active", "all"), default="all")
         sp.add_argument("--brim", action="store_true", help="include brim points")
@@ -169,6 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
     sp.add_argument("project")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
     sp.add_argument("output")
     sp.add_argument("--frame", type=int, default=None, help="frame (default: current frame)")
     return p
@@ -196,19 +227,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (CliError, CaraFileError, CommandError, FileNotFoundError, ValueError) as exc:
-        print(f"carapost {args.command}: error: {exc}", file=sys.stderr)
+    except BrokenPipeError:
+        return _quiet_stdout()
+    except (CliError, CaraFileError, CommandError, OSError, ValueError) as exc:
+        print(f"carapost {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"carapost {args.command}: error: out of memory", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("carapost: cancelled", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # the reader of our output went away (`carapost evaluate ... | head`): not an
-        # error of ours; point stdout at devnull so the interpreter's flush stays quiet
-        import os
-
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except Exception as exc:
+        if args.verbose:
+            raise
+        print(f"carapost {args.command}: error: unexpected {type(exc).__name__}: "
+              f"{_one_line(exc)} (run with -v for the details)", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

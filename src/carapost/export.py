@@ -122,9 +122,11 @@ def check_output(path: str | Path, suffixes: str | tuple[str, ...]) -> Path:
     CaraFileError
         ``path`` is a folder or its folder does not exist.
     """
+    from carapost.io.atomic import checked_path
+
     if isinstance(suffixes, str):
         suffixes = (suffixes,)
-    p = Path(path)
+    p = checked_path(path)  # empty names and NUL bytes first
     if p.suffix.lower() not in suffixes:
         allowed = " or ".join(suffixes)
         raise OutputNameError(p, f"the output must be a {allowed} file (the file name must "

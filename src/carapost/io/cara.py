@@ -7,6 +7,7 @@ Layout (format version 1)::
     detections/offsets.npy     [F*C+1] int64 run offsets
     detections/<field>.npy     flat detection fields (centre, axes, angle, colour, score)
     calibration/R.npy, t.npy, solved.npy   per-frame extrinsics
+    calibration/xcp_extras.json    optional: unknown content of an imported XCP file
 
 Members are stored uncompressed: the arrays are mostly noise-like floats that deflate
 barely shrinks, and storing keeps save and open close to disk speed.
@@ -18,6 +19,7 @@ leaves a half-written project and a failed save never touches the original.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import logging
@@ -57,6 +59,8 @@ log = logging.getLogger("carapost.io")
 
 FORMAT_VERSION = 1
 AUTOSAVE_SUFFIX = ".autosave"
+#: Optional member: the unknown content of the imported XCP calibration (JSON).
+XCP_EXTRAS_MEMBER = "calibration/xcp_extras.json"
 
 #: Called with (camera name, missing path); returns a replacement path or None.
 RelocateCallback = Callable[[str, str], "str | None"]
@@ -158,6 +162,13 @@ def _write_npy(zf: zipfile.ZipFile, name: str, arr: np.ndarray) -> None:
             fh.write(memoryview(arr.reshape(-1).view(np.uint8)))
 
 
+def _is_folder(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name too long: atomic_output says so
+        return False
+
+
 def save_project(project: Project, path: str | Path, *, autosave: bool = False) -> Path:
     """Save a project to a ``.cara`` file atomically.
 
@@ -175,7 +186,7 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         The file written.
     """
     path = checked_path(path)
-    if not autosave and path.is_dir():
+    if not autosave and _is_folder(path):
         raise CaraFileError(path, "is a folder, not a file name")
     if not autosave and path.suffix.lower() != ".cara":
         path = path.with_name(path.name + ".cara")
@@ -193,13 +204,25 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         zf.writestr("manifest.json", json.dumps(manifest, indent=1))
         for name, arr in arrays.items():
             _write_npy(zf, name, arr)
+        if project.calibration.xcp_extras is not None:
+            # optional member: the unknown content of an imported XCP, written back on
+            # export (older carapost versions ignore it)
+            zf.writestr(XCP_EXTRAS_MEMBER, json.dumps(project.calibration.xcp_extras))
     if not autosave:
+        previous = project.path
         project.path = str(path)
         project.modified = False
         project.events.emit("file")
-        stale = autosave_path(path)
-        if stale.exists():
-            stale.unlink()
+        # the saved file is now the newest: autosave copies of this name, of the name
+        # it had before a Save As, and of the never-saved project are all stale
+        stale = [autosave_path(path), getattr(project, "untitled_autosave", None)]
+        if previous and Path(previous).absolute() != path:
+            stale.append(autosave_path(previous))
+        for copy in stale:
+            if copy is not None:
+                with contextlib.suppress(OSError):
+                    Path(copy).unlink(missing_ok=True)
+        project.untitled_autosave = None  # type: ignore[attr-defined]
     log.info("Saved %s", path)
     return path
 
@@ -210,11 +233,37 @@ def autosave_path(path: str | Path) -> Path:
     return path.with_name(path.name + AUTOSAVE_SUFFIX)
 
 
+def untitled_autosave_folder() -> Path:
+    """Where autosave copies of never-saved projects go (``CARAPOST_AUTOSAVE_DIR``, else
+    ``$XDG_STATE_HOME/carapost/autosave`` or ``~/.local/state/carapost/autosave``)."""
+    env = os.environ.get("CARAPOST_AUTOSAVE_DIR")
+    if env:
+        return Path(env)
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "carapost" / "autosave"
+
+
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
-    """Write the autosave copy of a project (beside its file, or ``path``)."""
+    """Write the autosave copy of a project (beside its file, or ``path``).
+
+    A project that was never saved is autosaved too, as a ``.cara`` file in
+    `untitled_autosave_folder` (named after the take and the time it was first
+    autosaved; File > Open opens it); its first save removes that copy.
+    """
     target = path or project.path
     if target is None:
-        return None
+        copy = getattr(project, "untitled_autosave", None)
+        if copy is None:
+            folder = untitled_autosave_folder()
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise CaraFileError(folder, f"cannot be created: {exc.strerror or exc}") from None
+            name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
+                           (project.take.name or "untitled"))[:80]
+            copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
+            project.untitled_autosave = copy  # type: ignore[attr-defined]
+        return save_project(project, copy, autosave=True)
     return save_project(project, autosave_path(target), autosave=True)
 
 
@@ -582,6 +631,9 @@ def _build(
     intr = m.get("intrinsics")
     if intr is not None:
         cal.intrinsics = CameraIntrinsics(**intr)
+    if XCP_EXTRAS_MEMBER in members.zf.NameToInfo:
+        raw = read_member(members.zf, path, XCP_EXTRAS_MEMBER, MANIFEST_LIMIT)
+        cal.xcp_extras = load_json(path, raw, XCP_EXTRAS_MEMBER)
     project.labels = [str(x) for x in m.get("labels", [])]
     project.sticks = [Stick(int(a), int(b), tuple(col)) for a, b, col in m.get("sticks", [])]
     project.properties = Properties.from_dict(

@@ -195,4 +195,4 @@ def write_label_file(path: str | os.PathLike[str], labels: Iterable[str]) -> Non
             raise ValueError(f"label {name!r} cannot be written to a label file: names must "
                              "be non-empty and contain no spaces")
     text = "".join(f"{name}\n" for name in names)
-    atomic_write_bytes(Path(path), text.encode("utf-8"))
+    atomic_write_bytes(path, text.encode("utf-8"))  # not Path(""): "" is refused as empty

@@ -301,6 +301,8 @@ def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
     extras: dict[str, Any] = {
         "format": "xcp", "version": _EXTRAS_VERSION,
         "root_attrib": dict(root.attrib), "root_children": [], "cameras": [],
+        "prolog": [_to_xml(n) for n in reversed(list(root.itersiblings(preceding=True)))],
+        "epilog": [_to_xml(n) for n in root.itersiblings()],
     }
     parsed: list[dict[str, Any]] = []
     notes: list[str] = []
@@ -532,6 +534,16 @@ def _to_xml(el: etree._Element) -> str:
 
 
 def _from_xml(text: str) -> etree._Element:
+    """The node ``_to_xml`` wrote: an element, or a comment, processing instruction or
+    entity reference (which cannot be parsed as a document of their own)."""
+    text = text.strip()
+    if text.startswith("<!--") and text.endswith("-->"):
+        return etree.Comment(text[4:-3])
+    if text.startswith("<?") and text.endswith("?>"):
+        target, _, data = text[2:-2].partition(" ")
+        return etree.ProcessingInstruction(target, data or None)
+    if text.startswith("&") and text.endswith(";") and " " not in text:
+        return etree.Entity(text[1:-1])
     parser = etree.XMLParser(remove_blank_text=True, resolve_entities=False, no_network=True)
     return etree.fromstring(text, parser)
 
@@ -570,7 +582,12 @@ def write_xcp(path: str | os.PathLike[str], calib: XcpCalibration, *,
     path = Path(path)
     root = _build_tree(calib, frame)
     body = etree.tostring(root, encoding="UTF-8", pretty_print=True)
-    data = b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n' + body
+    ex = calib.extras if isinstance(calib.extras, dict) else {}
+    # comments and processing instructions around the root element, kept by read_xcp
+    before = "".join(f"{t}\n" for t in ex.get("prolog", []) if isinstance(t, str))
+    after = "".join(f"{t}\n" for t in ex.get("epilog", []) if isinstance(t, str))
+    data = (b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n'
+            + before.encode("utf-8") + body + after.encode("utf-8"))
     atomic_write_bytes(path, data)
 
 

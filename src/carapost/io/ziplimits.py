@@ -94,10 +94,11 @@ def read_member(zf: zipfile.ZipFile, path: Path, name: str, limit: int) -> bytes
     check_member(path, info, limit)
     try:
         with zf.open(info) as fh:
-            data = fh.read(limit + 1)
-            if len(data) > limit:
-                raise CaraFileError(path, f"the member {name} holds more than {limit:,} "
-                                          "bytes")
+            # never more than the header declares: a lying header cannot make us inflate
+            # further than that (zipfile then finds the CRC-32 wrong)
+            data = fh.read(info.file_size + 1)
+            if len(data) > info.file_size:
+                raise CaraFileError(path, f"the member {name} is longer than its header says")
             fh.read(1)  # at the end: lets zipfile compare the CRC-32
     except CaraFileError:
         raise

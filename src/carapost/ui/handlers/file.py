@@ -55,7 +55,8 @@ def open_project(ctx: ActionContext, path: str | None = None) -> bool:
     def relocate(camera: str, missing: str) -> str | None:
         return ctx.dialogs.open_file(f"Find the video of camera {camera} ({missing})",
                                      VIDEO_FILTER)
-    session = ctx.act("Open", Session.open, path, relocate=relocate, source=source)
+    session = ctx.act("Open", Session.open, path, relocate=relocate, source=source,
+                      recover=False)  # the user was asked
     if session is None:
         return False
     ctx.set_session(session)
@@ -102,7 +103,8 @@ def autosave(ctx: ActionContext) -> None:
     """Write the autosave copy beside the project when there are unsaved changes."""
     from carapost.io.cara import autosave_project
 
-    if ctx.project.path and ctx.is_modified and not ctx.runner.busy:
+    # never-saved projects too (autosave_project puts them in the autosave folder)
+    if ctx.is_modified and ctx.project.n_frames and not ctx.runner.busy:
         try:
             autosave_project(ctx.project)
         except Exception as exc:  # autosave must never interrupt work
