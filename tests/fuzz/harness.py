@@ -201,6 +201,7 @@ def _writer_seeds(work: Path) -> list[Seed]:
 
 def take_base_files(work: Path) -> dict[str, bytes]:
     """The undamaged files of the 4-camera take a ``take_import`` case is built from."""
+    work.mkdir(parents=True, exist_ok=True)
     base = {s.name: s.data for s in _writer_seeds_cached(work) if s.reader == "take_import"}
     mkv = base["take_cam0.mkv"]
     for c in range(1, 4):

@@ -281,7 +281,7 @@ def test_kill_9_during_saves_keeps_the_original_and_leaves_no_debris(tmp_path: P
         import numpy as np
         from carapost.io.cara import save_project
         from carapost.model.project import new_project
-        project = new_project(6000, 4)
+        project = new_project(12000, 4)
         project.points.append(200)
         project.points.positions[:] = 1.5
         project.points.obs[:] = 2.5
