@@ -267,6 +267,21 @@ def test_open_project_survives_its_file_changing(tmp_path: Path, change: str) ->
     assert out.returncode == 0 and out.stdout.strip() == "intact", out
 
 
+def test_a_mapped_project_refuses_to_save_from_a_changed_file(tmp_path: Path) -> None:
+    path = tmp_path / "take.cara"
+    save_project(_small_project(), path)
+    project = load_project(path, private=False)  # as projects over the copy limit are
+    save_project(project, path)  # our own save replaces the file: the mapping stays valid
+    save_project(project, tmp_path / "other.cara")  # Save As: the file stays guarded
+    project = load_project(path, private=False)
+    with open(path, "r+b") as fh:  # another program rewrites it in place
+        fh.write(b"\0" * 64)
+    with pytest.raises(CaraFileError, match="changed or removed by another program") as info:
+        save_project(project, tmp_path / "copy.cara")
+    assert info.value.path == path
+    assert not (tmp_path / "copy.cara").exists()
+
+
 # --------------------------------------------------------------------------------------
 # kill -9 during saves (slow set)
 # --------------------------------------------------------------------------------------
@@ -276,35 +291,51 @@ def test_kill_9_during_saves_keeps_the_original_and_leaves_no_debris(tmp_path: P
 
     path = tmp_path / "take.cara"
     code = textwrap.dedent(f"""
-        import sys
+        import sys, time
         sys.path[:0] = [{str(REPO)!r}, {str(REPO / "src")!r}]
         import numpy as np
         from carapost.io.cara import save_project
         from carapost.model.project import new_project
         project = new_project(12000, 4)
         project.points.append(200)
-        project.points.positions[:] = 1.5
+        project.points.positions[:] = float(sys.argv[1])
         project.points.obs[:] = 2.5
-        save_project(project, {str(path)!r})
-        print("saved", flush=True)
-        while True:
+        project.labels = [sys.argv[2]]
+        if sys.argv[2] == "original":
             save_project(project, {str(path)!r})
+            sys.exit(0)
+        print("saving", flush=True)
+        t0 = time.perf_counter()
+        save_project(project, {str(path)!r})
+        print("saved", time.perf_counter() - t0, flush=True)
     """)
+    subprocess.run([sys.executable, "-c", code, "1.5", "original"], check=True, timeout=300)
+    original = path.read_bytes()
+    assert len(original) > 150 << 20
     rng = random.Random(7)
-    original = None
-    for _ in range(20):
-        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-        assert proc.stdout.readline().strip() == "saved"
-        if original is None:
-            original = path.read_bytes()
-            assert len(original) > 150 << 20
-        time.sleep(rng.uniform(0.0, 3.0))
+    save_s, interrupted = 1.0, 0
+    for k in range(20):
+        proc = subprocess.Popen([sys.executable, "-c", code, str(k), f"new{k}"],
+                                stdout=subprocess.PIPE, text=True)
+        assert proc.stdout.readline().strip() == "saving"
+        time.sleep(rng.uniform(0.0, 1.2 * save_s))
         proc.kill()
         proc.wait()
+        rest = proc.stdout.read()
         proc.stdout.close()
-        assert path.read_bytes() == original
-        load_project(path)
+        if rest.startswith("saved"):
+            save_s = float(rest.split()[1])
+        # either the original, bit-identical, or (the kill came after the rename) the
+        # whole new project: never anything in between
+        if path.read_bytes() == original:
+            interrupted += 1
+        else:
+            back = load_project(path)
+            assert back.labels == [f"new{k}"] and float(back.points.positions[0, 0, 0]) == k
+            atomic_write_bytes(path, original)
+        load_project(path)  # the next open removes what the killed save left
         assert os.listdir(tmp_path) == ["take.cara"]
+    assert interrupted >= 10
 
 
 # --------------------------------------------------------------------------------------

@@ -191,6 +191,7 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
     if not autosave and path.suffix.lower() != ".cara":
         path = path.with_name(path.name + ".cara")
     path = path.absolute()
+    check_mapped_source(project)
     manifest = _manifest(project, path.parent)
     arrays = _arrays(project)
     manifest["arrays"] = {
@@ -223,8 +224,42 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
                 with contextlib.suppress(OSError):
                     Path(copy).unlink(missing_ok=True)
         project.untitled_autosave = None  # type: ignore[attr-defined]
+        source = getattr(project, "mapped_source", None)
+        if source is not None and Path(source[0]) == path:
+            # the mapping keeps the replaced file's data alive, and no one can reach
+            # that file by its name any more: nothing left to guard
+            project.mapped_source = None  # type: ignore[attr-defined]
     log.info("Saved %s", path)
     return path
+
+
+def check_mapped_source(project: Project) -> None:
+    """Refuse to read the arrays of a project mapped from a file that changed since.
+
+    Only projects larger than `PRIVATE_COPY_LIMIT` are mapped. If another program
+    truncated or rewrote their file in place, reading the mapping would crash the
+    process (truncation) or see other data; this check turns that into a clear error
+    before a save or an autosave reads them.
+
+    Raises
+    ------
+    CaraFileError
+        Naming the file, when its size, modification time or identity changed.
+    """
+    source = getattr(project, "mapped_source", None)
+    if source is None:
+        return
+    path, size, mtime_ns, ino = source
+    try:
+        st = os.stat(path)
+        same = (st.st_size, st.st_mtime_ns, st.st_ino) == (size, mtime_ns, ino)
+    except OSError:
+        same = False
+    if not same:
+        raise CaraFileError(path, "was changed or removed by another program while open; the "
+                                  "open project reads its arrays from it, so it can no longer "
+                                  "be saved safely. Restore the file (or close without "
+                                  "saving) and reopen it.")
 
 
 def autosave_path(path: str | Path) -> Path:
@@ -302,11 +337,24 @@ def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
     return manifest
 
 
-#: Projects up to this size are read into private memory at open (copy-on-open); larger
-#: ones are mapped copy-on-write (see `load_project`).
-PRIVATE_COPY_LIMIT = 4 << 30
+def _private_copy_limit() -> int:
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (OSError, ValueError, AttributeError):
+        ram = 16 << 30
+    return int(min(4 << 30, ram // 4))
+
+
+#: Projects up to this size (4 GiB, or a quarter of the memory if less) are read into
+#: private memory at open (copy-on-open); larger ones are mapped copy-on-write (see
+#: `load_project`).
+PRIVATE_COPY_LIMIT = _private_copy_limit()
 
 _NPY_HEADER_MAX = 1 << 16
+#: Private reads of members bigger than this wait for `_Members.verify` (bytes).
+_DEFERRED_READ = 8 << 20
+#: Read and checksum step (bytes).
+_CHUNK = 1 << 24
 
 
 def _npy_spec(path: Path, name: str, spec: Any) -> tuple[tuple[int, ...], np.dtype[Any]]:
@@ -365,6 +413,13 @@ class _Members:
                 self._map = None
         # (name, expected CRC, buffers whose concatenation is the member's bytes)
         self._checks: list[tuple[str, int, list[Any]]] = []
+        # deferred private reads: (name, expected CRC, npy header, destination, offset)
+        self._reads: list[tuple[str, int, bytes, memoryview, int]] = []
+
+    @property
+    def mapped(self) -> bool:
+        """Arrays are views of the file's mapping (not private copies)."""
+        return self._map is not None
 
     def close(self) -> None:
         self._fh.close()  # the mapping stays valid on its own
@@ -436,14 +491,26 @@ class _Members:
             return arr
         arr = np.empty(shape, dtype=dtype)
         flat = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else memoryview(b"")
-        pos, done = start + hlen, 0
-        while done < nbytes:
-            n = os.preadv(self._fh.fileno(), [flat[done:done + (1 << 28)]], pos + done)
+        if nbytes > _DEFERRED_READ:
+            # read in verify(), on two threads together with the CRC (only shapes of
+            # the big arrays are looked at before that)
+            self._reads.append((name, info.CRC, head[:hlen], flat, start + hlen))
+            return arr
+        if self._pread_into(name, flat, start + hlen, zlib.crc32(head[:hlen])) != info.CRC:
+            raise CaraFileError(self.path, f"the array {name} is damaged (checksum mismatch)")
+        return arr
+
+    def _pread_into(self, name: str, flat: memoryview, pos: int, crc: int = 0) -> int:
+        """Fill ``flat`` from file offset ``pos``; returns the CRC-32 of what was read
+        (continuing ``crc``)."""
+        done = 0
+        while done < len(flat):
+            n = os.preadv(self._fh.fileno(), [flat[done:done + _CHUNK]], pos + done)
             if n <= 0:
                 raise CaraFileError(self.path, f"the array {name} is truncated")
+            crc = zlib.crc32(flat[done:done + n], crc)
             done += n
-        self._checks.append((name, info.CRC, [head[:hlen], flat]))
-        return arr
+        return crc
 
     def _read_deflated(self, name: str, info: zipfile.ZipInfo, shape: tuple[int, ...],
                        dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
@@ -467,8 +534,9 @@ class _Members:
         return arr
 
     def verify(self) -> None:
-        """Check the CRC-32 of every member read (zlib releases the GIL: two threads)."""
-        if not self._checks:
+        """Read the deferred arrays and check the CRC-32 of every member (preadv and zlib
+        release the GIL: two threads, biggest members first)."""
+        if not self._checks and not self._reads:
             return
 
         def crc(item: tuple[str, int, list[Any]]) -> tuple[str, bool]:
@@ -476,16 +544,23 @@ class _Members:
             value = 0
             for part in parts:
                 view = memoryview(part)
-                for a in range(0, len(view), 1 << 26):  # 64 MB steps
-                    value = zlib.crc32(view[a : a + (1 << 26)], value)
+                for a in range(0, len(view), _CHUNK):
+                    value = zlib.crc32(view[a : a + _CHUNK], value)
             return name, value == expected
 
-        def size(item: tuple[str, int, list[Any]]) -> int:
-            return -sum(len(memoryview(p)) for p in item[2])
+        def read(item: tuple[str, int, bytes, memoryview, int]) -> tuple[str, bool]:
+            name, expected, head, flat, pos = item
+            # the CRC of the header, continued over the payload as it comes in
+            return name, self._pread_into(name, flat, pos, zlib.crc32(head)) == expected
 
+        tasks: list[tuple[int, Callable[[Any], tuple[str, bool]], Any]] = [
+            (sum(len(memoryview(p)) for p in c[2]), crc, c) for c in self._checks]
+        tasks += [(len(r[3]), read, r) for r in self._reads]
+        tasks.sort(key=lambda t: -t[0])
         with ThreadPoolExecutor(max_workers=2) as pool:
-            results = list(pool.map(crc, sorted(self._checks, key=size)))
+            results = list(pool.map(lambda t: t[1](t[2]), tasks))
         self._checks.clear()
+        self._reads.clear()
         bad = [name for name, ok in results if not ok]
         if bad:
             raise CaraFileError(self.path, f"the array {bad[0]} is damaged (checksum mismatch)")
@@ -554,6 +629,12 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None,
         try:
             project = _build(members, manifest, path, relocate)
             members.verify()
+            if members.mapped:
+                # saves check that the file under the mapping did not change (see
+                # check_mapped_source)
+                st = os.stat(path)
+                source = (str(path.absolute()), st.st_size, st.st_mtime_ns, st.st_ino)
+                project.mapped_source = source  # type: ignore[attr-defined]
             return project
         except CaraFileError:
             raise
