@@ -451,3 +451,21 @@ def test_xcp_unknown_content_survives_import_save_reopen_export(tmp_path: Path) 
         assert piece in written, piece
     assert json.loads(json.dumps(reopened.calibration.xcp_extras)) == \
         project.calibration.xcp_extras
+
+
+def test_a_fifo_given_as_any_file_is_refused_not_waited_on(tmp_path: Path) -> None:
+    from tests.fuzz.harness import Worker
+
+    worker = Worker(timeout=10.0)
+    try:
+        for reader, name in (("cara_open", "p.cara"), ("cara_labels", "l.cara"),
+                             ("label_file", "l.txt"), ("brim_csv", "b.csv"),
+                             ("brim_svg", "b.svg"), ("xcp", "t.xcp"), ("take_json", "t.json"),
+                             ("c3d", "p.c3d"), ("video", "take_cam0.mkv")):
+            fifo = tmp_path / name
+            os.mkfifo(fifo)
+            res = worker.run(reader, fifo)
+            assert res["status"] == "documented", (reader, res)
+            assert "not a regular file" in res["message"], (reader, res)
+    finally:
+        worker.stop()

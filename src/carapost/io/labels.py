@@ -44,6 +44,7 @@ def read_label_file(path: str | os.PathLike[str]) -> list[str]:
         If the file cannot be read or is binary.
     """
     path = Path(path)
+    check_input_file(path)  # a FIFO would block the read
     try:
         data = path.read_bytes()
     except OSError as exc:
