@@ -412,7 +412,7 @@ def poisson_marker_set(count: int, rng: np.random.Generator,
     from scipy.stats import qmc
 
     lo, hi = np.array([-50.0, -50.0]), np.array([50.0, 45.0])
-    r = 0.9 / np.sqrt(count)
+    r = 0.75 / np.sqrt(count)  # about 1.2 count samples on the rectangle
     for _ in range(40):
         seed = int(rng.integers(2**31))
         pts = qmc.scale(qmc.PoissonDisk(2, radius=r, seed=seed).fill_space(), lo, hi)
