@@ -127,7 +127,8 @@ def test_track_take_fills_sigma_for_triangulated_samples():
         per = []
         for c in range(C):
             v = scene.visible[f, :, c]
-            cen = np.concatenate([scene.uv[f, v, c], scene.brim_uv[f, scene.brim_visible[f, :, c], c]])
+            bv = scene.brim_visible[f, :, c]
+            cen = np.concatenate([scene.uv[f, v, c], scene.brim_uv[f, bv, c]])
             cen = cen + rng.normal(0, 0.1, cen.shape)
             per.append((cen, np.full((len(cen), 2), 5.0)))
         dets.append(per)
