@@ -206,6 +206,7 @@ def export_c3d(
     frame_range: FrameRange = "all",
     include_brim: bool = False,
     stabilized: bool = False,
+    residual: str = "sigma",
 ) -> Path:
     """Export points as C3D (File > Export C3D).
 
@@ -220,6 +221,10 @@ def export_c3d(
         Also write the brim points.
     stabilized : bool
         Write stabilised coordinates (needs a stabilised project).
+    residual : {"sigma", "rays"}
+        What the residual word (the spec's "average residual", mm) holds: ``"sigma"``
+        the sample's estimated 3D error standard deviation where it has one, else its
+        RMS distance to its rays; ``"rays"`` always the distance to the rays.
 
     Returns
     -------
@@ -227,8 +232,9 @@ def export_c3d(
 
     Notes
     -----
-    Residuals are the points' residuals, the camera contribution mask comes from
-    `carapost.model.queries.contribution_mask`, interpolated and filtered samples are
+    Residuals are as ``residual`` says (docs/file-formats.md), the camera contribution
+    mask comes from `carapost.model.queries.contribution_mask`, interpolated and filtered
+    samples are
     written as modified, the first frame number is the burnt-in number (index + 1) and
     the start timecode is that of the first exported frame.
     """
@@ -236,6 +242,8 @@ def export_c3d(
     from carapost.model.queries import contribution_mask
 
     path = check_output(path, ".c3d")
+    if residual not in ("sigma", "rays"):
+        raise ValueError(f"residual must be 'sigma' or 'rays', got {residual!r}")
     if stabilized:
         raise ValueError("stabilised export needs a stabilised project; this project has no "
                          "stabilisation (run Stabilize first, or export without it)")
@@ -247,12 +255,16 @@ def export_c3d(
     mask = None
     if 1 <= len(cams) <= 16:
         mask = contribution_mask(project, (a, b))[:, cols]
+    res = pts.residual[sl][:, cols].astype(np.float64)
+    if residual == "sigma":
+        sig = pts.arrays["sigma"][sl][:, cols].astype(np.float64)
+        res = np.where(np.isfinite(sig), sig, res)
     write_c3d(
         path,
         positions,
         labels=labels,
         rate=project.take.fps,
-        residuals=pts.residual[sl][:, cols].astype(np.float64),
+        residuals=res,
         camera_mask=mask,
         modified=np.isin(recon, (RECON_INTERPOLATED, RECON_FILTERED)),
         first_frame=a + 1,
@@ -262,6 +274,19 @@ def export_c3d(
     )
     log.info("Exported %d points x %d frames to %s", len(cols), b - a + 1, path)
     return path
+
+
+def export_sigma_csv(project: Project, path: str | Path, *, frame_range: FrameRange = "all",
+                     include_brim: bool = False) -> Path:
+    """Write the per-sample uncertainty sidecar CSV of an export
+    (`carapost.io.sigma_csv`): the same points and frames as `export_c3d`."""
+    from carapost.io.sigma_csv import write_sigma_csv
+
+    path = check_output(path, ".csv")
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim)
+    sl = slice(a, b + 1)
+    return write_sigma_csv(path, positions, project.points.arrays["sigma"][sl][:, cols],
+                           project.points.recon[sl][:, cols], labels, first_frame=a + 1)
 
 
 def export_fbx(
