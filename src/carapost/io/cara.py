@@ -338,6 +338,9 @@ def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
 
 
 def _private_copy_limit() -> int:
+    env = os.environ.get("CARAPOST_COPY_ON_OPEN_MB")
+    if env and env.strip().isdigit():
+        return int(env) << 20
     try:
         ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (OSError, ValueError, AttributeError):
@@ -345,8 +348,9 @@ def _private_copy_limit() -> int:
     return int(min(4 << 30, ram // 4))
 
 
-#: Projects up to this size (4 GiB, or a quarter of the memory if less) are read into
-#: private memory at open (copy-on-open); larger ones are mapped copy-on-write (see
+#: Projects up to this size (4 GiB, or a quarter of the memory if less;
+#: ``CARAPOST_COPY_ON_OPEN_MB`` overrides, 0 maps every project) are read into private
+#: memory at open (copy-on-open); larger ones are mapped copy-on-write (see
 #: `load_project`).
 PRIVATE_COPY_LIMIT = _private_copy_limit()
 
