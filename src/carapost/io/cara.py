@@ -27,6 +27,7 @@ import math
 import mmap
 import os
 import struct
+import threading
 import time
 import zipfile
 import zlib
@@ -405,6 +406,7 @@ class _Members:
         self.zf = zf
         self.path = path
         self._fh = open(path, "rb")  # closed in close()
+        self._lock = threading.Lock()
         self.size = os.fstat(self._fh.fileno()).st_size
         if private is None:
             private = self.size <= PRIVATE_COPY_LIMIT
@@ -429,7 +431,18 @@ class _Members:
         self._fh.close()  # the mapping stays valid on its own
 
     def _pread(self, offset: int, n: int) -> bytes:
-        return os.pread(self._fh.fileno(), n, offset)
+        if hasattr(os, "pread"):
+            return os.pread(self._fh.fileno(), n, offset)
+        with self._lock:  # Windows: no positional reads, one file position for all
+            self._fh.seek(offset)
+            return self._fh.read(n)
+
+    def _preadv(self, view: memoryview, offset: int) -> int:
+        if hasattr(os, "preadv"):
+            return os.preadv(self._fh.fileno(), [view], offset)
+        with self._lock:
+            self._fh.seek(offset)
+            return self._fh.readinto(view) or 0
 
     def _payload(self, info: zipfile.ZipInfo) -> tuple[int, int]:
         """Start and end (file offsets) of a stored member's bytes."""
@@ -509,7 +522,7 @@ class _Members:
         (continuing ``crc``)."""
         done = 0
         while done < len(flat):
-            n = os.preadv(self._fh.fileno(), [flat[done:done + _CHUNK]], pos + done)
+            n = self._preadv(flat[done:done + _CHUNK], pos + done)
             if n <= 0:
                 raise CaraFileError(self.path, f"the array {name} is truncated")
             crc = zlib.crc32(flat[done:done + n], crc)
