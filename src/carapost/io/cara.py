@@ -279,6 +279,26 @@ def untitled_autosave_folder() -> Path:
     return Path(state) / "carapost" / "autosave"
 
 
+def untitled_autosaves() -> list[Path]:
+    """Autosave copies of never-saved projects left by sessions that did not end
+    normally, newest first (a normal close removes its own)."""
+    folder = untitled_autosave_folder()
+    try:
+        found = [p for p in folder.glob("*.cara") if p.is_file()]
+    except OSError:
+        return []
+    return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
+
+
+def discard_untitled_autosave(project: Project) -> None:
+    """Remove the autosave copy of a never-saved project (closed without saving)."""
+    copy = getattr(project, "untitled_autosave", None)
+    if copy is not None:
+        with contextlib.suppress(OSError):
+            Path(copy).unlink(missing_ok=True)
+        project.untitled_autosave = None  # type: ignore[attr-defined]
+
+
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
     """Write the autosave copy of a project (beside its file, or ``path``).
 
