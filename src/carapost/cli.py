@@ -44,7 +44,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     from carapost.api import evaluate
 
-    print(json.dumps(evaluate(args.project, args.truth), indent=1))
+    with _open_session(args) as session:
+        print(json.dumps(evaluate(session.project, args.truth), indent=1))
     return 0
 
 
@@ -178,6 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")
     sp.add_argument("truth")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
 
     for name, func, what in (
         ("export-c3d", _cmd_export_c3d, "C3D"),

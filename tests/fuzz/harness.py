@@ -209,14 +209,14 @@ def take_base_files(work: Path) -> dict[str, bytes]:
     return base
 
 
-_SEED_CACHE: dict[str, list[Seed]] = {}
+_SEED_CACHE: list[list[Seed]] = []
 
 
 def _writer_seeds_cached(work: Path) -> list[Seed]:
-    key = str(work)
-    if key not in _SEED_CACHE:
-        _SEED_CACHE[key] = _writer_seeds(work)
-    return _SEED_CACHE[key]
+    """The writer seeds, made once per process (in ``work``, left for the caller)."""
+    if not _SEED_CACHE:
+        _SEED_CACHE.append(_writer_seeds(work))
+    return _SEED_CACHE[0]
 
 
 def _fixture_seeds(fixtures: Path | None) -> list[Seed]:
@@ -442,17 +442,19 @@ def write_case(folder: Path, reader: str, seed: Seed, data: bytes) -> Path:
 def run_fuzz(readers: list[str], n: int, *, timeout: float = 10.0, seed: int = 0,
              fixtures: Path | None = None, mem_limit_mb: int = 4096,
              on_outcome: Callable[[Outcome], None] | None = None,
-             keep: Path | None = None) -> list[Outcome]:
+             keep: Path | None = None, worker: Worker | None = None) -> list[Outcome]:
     """Run ``n`` cases of every reader in ``readers``; returns every outcome.
 
     ``keep``: a folder where the input of every non-contract outcome is copied.
+    ``worker``: reuse this worker (else one is started per reader and stopped after).
     """
     root = Path(tempfile.mkdtemp(prefix="carapost-fuzz-"))
     outcomes: list[Outcome] = []
+    given = worker
     try:
         seeds = make_seeds(root / "_seeds", fixtures)
         for reader in readers:
-            worker = Worker(timeout=timeout, mem_limit_mb=mem_limit_mb)
+            worker = given or Worker(timeout=timeout, mem_limit_mb=mem_limit_mb)
             try:
                 for k, s, data, what in cases(seeds, reader, n, seed):
                     folder = root / f"{reader}-{k}"
@@ -470,7 +472,8 @@ def run_fuzz(readers: list[str], n: int, *, timeout: float = 10.0, seed: int = 0
                         on_outcome(out)
                     shutil.rmtree(folder, ignore_errors=True)
             finally:
-                worker.stop()
+                if given is None:
+                    worker.stop()
     finally:
         shutil.rmtree(root, ignore_errors=True)
     return outcomes

@@ -469,3 +469,32 @@ def test_a_fifo_given_as_any_file_is_refused_not_waited_on(tmp_path: Path) -> No
             assert "not a regular file" in res["message"], (reader, res)
     finally:
         worker.stop()
+
+
+def test_no_permission_is_a_cara_file_error_with_the_path(tmp_path: Path, monkeypatch) -> None:
+    import errno
+
+    import carapost.io.atomic as atomic
+
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+    else:  # root writes anywhere: make the folder refuse new files as it would for a user
+        real_open = os.open
+
+        def refuse(path, flags, *args):
+            if str(path).startswith(str(folder)) and flags & os.O_CREAT:
+                raise PermissionError(errno.EACCES, "Permission denied", str(path))
+            return real_open(path, flags, *args)
+
+        monkeypatch.setattr(atomic.os, "open", refuse)
+    try:
+        for kind, write in _writers(_small_project()).items():
+            target = folder / f"out.{kind if kind != 'labels' else 'txt'}"
+            with pytest.raises(CaraFileError, match="Permission denied") as info:
+                write(target)
+            assert str(target) in str(info.value), kind
+        assert os.listdir(folder) == []
+    finally:
+        folder.chmod(0o755)

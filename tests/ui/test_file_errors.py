@@ -60,3 +60,26 @@ def test_import_shows_the_message_of_each_damaged_take_file(make_window, damaged
         assert len(w.dialogs.errors) == 1, name
         assert str(folder / name) in w.dialogs.errors[0][1], w.dialogs.errors[0]
         assert w.project.n_frames == 0  # no half-imported take
+
+
+def test_a_never_saved_project_is_autosaved_and_offered_after_a_crash(
+        make_window, tmp_path: Path, monkeypatch) -> None:
+    from carapost.ui.handlers import file as file_menu
+
+    monkeypatch.setenv("CARAPOST_AUTOSAVE_DIR", str(tmp_path / "auto"))
+    w = make_window(_small_project())
+    w.context.session.set_active_range(1, 4)  # an unsaved change
+    file_menu.autosave(w.context)
+    copies = list((tmp_path / "auto").glob("*.cara"))
+    assert len(copies) == 1
+    # the window "crashed": a new one offers the copy and opens it unsaved, untitled
+    w2 = make_window()
+    w2.dialogs.confirm_answers.append(True)
+    assert file_menu.offer_untitled_recovery(w2.context)
+    assert w2.project.path is None and w2.project.active_range == (1, 4)
+    assert w2.context.is_modified
+    # leaving it without saving removes the copy: it is not offered again
+    w2.dialogs.ask_save_answers.append("discard")
+    assert file_menu.maybe_save(w2.context)
+    assert not copies[0].exists()
+    assert not file_menu.offer_untitled_recovery(make_window().context)

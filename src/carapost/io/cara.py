@@ -27,6 +27,7 @@ import math
 import mmap
 import os
 import struct
+import threading
 import time
 import zipfile
 import zlib
@@ -278,6 +279,26 @@ def untitled_autosave_folder() -> Path:
     return Path(state) / "carapost" / "autosave"
 
 
+def untitled_autosaves() -> list[Path]:
+    """Autosave copies of never-saved projects left by sessions that did not end
+    normally, newest first (a normal close removes its own)."""
+    folder = untitled_autosave_folder()
+    try:
+        found = [p for p in folder.glob("*.cara") if p.is_file()]
+    except OSError:
+        return []
+    return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
+
+
+def discard_untitled_autosave(project: Project) -> None:
+    """Remove the autosave copy of a never-saved project (closed without saving)."""
+    copy = getattr(project, "untitled_autosave", None)
+    if copy is not None:
+        with contextlib.suppress(OSError):
+            Path(copy).unlink(missing_ok=True)
+        project.untitled_autosave = None  # type: ignore[attr-defined]
+
+
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
     """Write the autosave copy of a project (beside its file, or ``path``).
 
@@ -338,6 +359,9 @@ def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
 
 
 def _private_copy_limit() -> int:
+    env = os.environ.get("CARAPOST_COPY_ON_OPEN_MB")
+    if env and env.strip().isdigit():
+        return int(env) << 20
     try:
         ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (OSError, ValueError, AttributeError):
@@ -345,8 +369,9 @@ def _private_copy_limit() -> int:
     return int(min(4 << 30, ram // 4))
 
 
-#: Projects up to this size (4 GiB, or a quarter of the memory if less) are read into
-#: private memory at open (copy-on-open); larger ones are mapped copy-on-write (see
+#: Projects up to this size (4 GiB, or a quarter of the memory if less;
+#: ``CARAPOST_COPY_ON_OPEN_MB`` overrides, 0 maps every project) are read into private
+#: memory at open (copy-on-open); larger ones are mapped copy-on-write (see
 #: `load_project`).
 PRIVATE_COPY_LIMIT = _private_copy_limit()
 
@@ -401,6 +426,7 @@ class _Members:
         self.zf = zf
         self.path = path
         self._fh = open(path, "rb")  # closed in close()
+        self._lock = threading.Lock()
         self.size = os.fstat(self._fh.fileno()).st_size
         if private is None:
             private = self.size <= PRIVATE_COPY_LIMIT
@@ -425,7 +451,18 @@ class _Members:
         self._fh.close()  # the mapping stays valid on its own
 
     def _pread(self, offset: int, n: int) -> bytes:
-        return os.pread(self._fh.fileno(), n, offset)
+        if hasattr(os, "pread"):
+            return os.pread(self._fh.fileno(), n, offset)
+        with self._lock:  # Windows: no positional reads, one file position for all
+            self._fh.seek(offset)
+            return self._fh.read(n)
+
+    def _preadv(self, view: memoryview, offset: int) -> int:
+        if hasattr(os, "preadv"):
+            return os.preadv(self._fh.fileno(), [view], offset)
+        with self._lock:
+            self._fh.seek(offset)
+            return self._fh.readinto(view) or 0
 
     def _payload(self, info: zipfile.ZipInfo) -> tuple[int, int]:
         """Start and end (file offsets) of a stored member's bytes."""
@@ -505,7 +542,7 @@ class _Members:
         (continuing ``crc``)."""
         done = 0
         while done < len(flat):
-            n = os.preadv(self._fh.fileno(), [flat[done:done + _CHUNK]], pos + done)
+            n = self._preadv(flat[done:done + _CHUNK], pos + done)
             if n <= 0:
                 raise CaraFileError(self.path, f"the array {name} is truncated")
             crc = zlib.crc32(flat[done:done + n], crc)

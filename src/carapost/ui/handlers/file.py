@@ -23,14 +23,44 @@ EXPORT_FILTERS = {"c3d": "C3D (*.c3d)", "fbx": "FBX (*.fbx)", "xcp": "XCP (*.xcp
 
 
 def maybe_save(ctx: ActionContext) -> bool:
-    """Ask about unsaved changes; False if the user cancelled."""
+    """Ask about unsaved changes; False if the user cancelled.
+
+    When the project is left (saved or discarded), the autosave copy of a never-saved
+    project goes with it.
+    """
+    from carapost.io.cara import discard_untitled_autosave
+
     if not ctx.is_modified or ctx.project.n_frames == 0:
+        discard_untitled_autosave(ctx.project)
         return True
     answer = ctx.dialogs.ask_save(ctx.project_name())
     if answer == "cancel":
         return False
     if answer == "save":
         return save_project(ctx)
+    discard_untitled_autosave(ctx.project)
+    return True
+
+
+def offer_untitled_recovery(ctx: ActionContext) -> bool:
+    """At start: offer the newest autosave of a never-saved project that a session
+    which did not end normally left behind; opened unsaved, as it was."""
+    from carapost.io.cara import untitled_autosaves
+    from carapost.session import Session
+
+    found = untitled_autosaves()
+    if not found or not ctx.dialogs.confirm(
+            "Recover", f"carapost stopped before an unsaved project was saved. Open its "
+            f"autosaved copy ({found[0].name})?"):
+        return False
+    session = ctx.act("Recover", Session.open, found[0], recover=False)
+    if session is None:
+        return False
+    session.project.path = None
+    session.project.untitled_autosave = found[0]  # type: ignore[attr-defined]
+    session.stack.mark_unsaved()
+    ctx.set_session(session)
+    log.info("Recovered the unsaved project from %s", found[0])
     return True
 
 
