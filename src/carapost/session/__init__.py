@@ -469,8 +469,9 @@ class Session(ProcessActions, StabiliseActions):
 
     def export_fbx(self, path: str | Path, **overrides: Any) -> Path:
         """File > Export FBX with the Export properties (range, brim, FBX Up Axis, FBX
-        Include Cameras, FBX Include Sticks); keywords ``frame_range``, ``include_brim``,
-        ``up_axis``, ``include_cameras``, ``include_sticks`` replace them.
+        Include Cameras, FBX Include Sticks, Export Stabilized Coordinates); keywords
+        ``frame_range``, ``include_brim``, ``up_axis``, ``include_cameras``,
+        ``include_sticks``, ``stabilized`` replace them.
 
         Cameras asked for by the property (not by a keyword) are left out, with a
         warning, when the project has no calibration.
@@ -486,7 +487,8 @@ class Session(ProcessActions, StabiliseActions):
             cameras = False
         return export_fbx(self.project, path, frame_range=o.frame_range,
                           include_brim=o.include_brim, up_axis=o.up_axis,
-                          include_cameras=cameras, include_sticks=o.include_sticks)
+                          include_cameras=cameras, include_sticks=o.include_sticks,
+                          stabilized=o.stabilized)
 
     def export_xcp(self, path: str | Path, frame: int | None = None) -> Path:
         """File > Export XCP [Current Frame] (or the cameras of ``frame``)."""
