@@ -78,7 +78,7 @@ def _cmd_export_fbx(args: argparse.Namespace) -> int:
     with _open_session(args) as session:
         session.export_fbx(args.output, frame_range=args.range, include_brim=args.brim,
                            up_axis=args.up, include_cameras=args.cameras,
-                           include_sticks=args.sticks)
+                           include_sticks=args.sticks, stabilized=args.stabilized)
     print(f"wrote {args.output}")
     return 0
 
@@ -110,6 +110,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
         c3d=args.c3d,
         fbx=args.fbx,
         patch_tracking=args.patch_tracking,
+        stabilize=args.stabilize,
     )
     for key, value in result.items():
         print(f"{key}: {value}")
@@ -175,6 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="patch track point-cameras without a blob (a little more "
                          "coverage, about 2.5x slower: every image is decoded again "
                          "while tracking)")
+    sp.add_argument("--stabilize", choices=("auto", "assisted"),
+                    help="stabilise the tracked take (Stabilize Data [Automatic], or "
+                         "[Assisted] seeded with the automatically chosen stable points "
+                         "and base frame 0); the exports are then stabilised")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")
@@ -191,10 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("output")
         sp.add_argument("--range", choices=("active", "all"), default="all")
         sp.add_argument("--brim", action="store_true", help="include brim points")
-        if name == "export-c3d":
-            sp.add_argument("--stabilized", action="store_true",
-                            help="export stabilised coordinates")
-        else:
+        sp.add_argument("--stabilized", action="store_true",
+                        help="export stabilised (and aligned) coordinates; the project must "
+                             "be stabilised")
+        if name == "export-fbx":
             sp.add_argument("--up", choices=("y", "z"), default="y", help="up axis")
             sp.add_argument("--cameras", action="store_true", help="include animated cameras")
             sp.add_argument("--sticks", action="store_true", help="include the stick mesh")

@@ -1,6 +1,6 @@
 """The ``.cara`` project file: a ZIP container of ``manifest.json`` and ``.npy`` arrays.
 
-Layout (format version 1)::
+Layout (format version 2)::
 
     manifest.json              metadata (see :func:`_manifest`)
     points/<name>.npy          per-point arrays [F, P, ...] (positions, recon, obs, ...)
@@ -8,6 +8,11 @@ Layout (format version 1)::
     detections/<field>.npy     flat detection fields (centre, axes, angle, colour, score)
     calibration/R.npy, t.npy, solved.npy   per-frame extrinsics
     calibration/xcp_extras.json    optional: unknown content of an imported XCP file
+    stabilization/transforms.npy           [F, 4, 4] float64, only in a stabilised project
+
+Version 2 added the stabilisation (manifest ``stabilization`` + the transforms member),
+the alignment (manifest ``alignment``) and ``show_stabilized``; a version-1 file opens
+with none of them.
 
 Members are stored uncompressed: the arrays are mostly noise-like floats that deflate
 barely shrinks, and storing keeps save and open close to disk speed.
@@ -58,7 +63,7 @@ from carapost.model.project import (
 
 log = logging.getLogger("carapost.io")
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 AUTOSAVE_SUFFIX = ".autosave"
 #: Optional member: the unknown content of the imported XCP calibration (JSON).
 XCP_EXTRAS_MEMBER = "calibration/xcp_extras.json"
@@ -135,6 +140,10 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "selected_points": sorted(project.selection.points),
         "rom": project.rom.path if project.rom else None,
         "imported_blob_parameters": project.imported_blob_parameters,
+        "stabilization": None if project.stabilization is None
+        else project.stabilization.to_manifest(),
+        "alignment": None if project.alignment is None else project.alignment.to_manifest(),
+        "show_stabilized": bool(project.show_stabilized),
     }
 
 
@@ -149,6 +158,9 @@ def _arrays(project: Project) -> dict[str, np.ndarray]:
     out["calibration/R.npy"] = cal.R
     out["calibration/t.npy"] = cal.t
     out["calibration/solved.npy"] = cal.solved
+    if project.stabilization is not None:
+        out["stabilization/transforms.npy"] = np.asarray(project.stabilization.transforms,
+                                                         np.float64)
     return out
 
 
@@ -767,6 +779,25 @@ def _build(
     if m.get("rom"):
         project.rom = RomReference(path=str(m["rom"]))
     project.imported_blob_parameters = m.get("imported_blob_parameters")
+    _build_stabilization(project, members, m, path)
     project.path = str(path.absolute())
     project.modified = False
     return project
+
+
+def _build_stabilization(project: Project, members: _Members, m: dict[str, Any],
+                         path: Path) -> None:
+    """Format 2: the stabilisation, alignment and Show Stabilized (absent in format 1)."""
+    from carapost.model.stabilization import Alignment, Stabilization
+
+    F = project.n_frames
+    st = m.get("stabilization")
+    if st is not None:
+        key = "stabilization/transforms.npy"
+        T = members.read(key, m["arrays"][key])
+        if T.shape != (F, 4, 4):
+            raise CaraFileError(path, f"{key} does not fit {F} frames")
+        project.stabilization = Stabilization.from_manifest(st, T)
+    if m.get("alignment") is not None:
+        project.alignment = Alignment.from_manifest(m["alignment"])
+    project.show_stabilized = bool(m.get("show_stabilized", False))

@@ -58,6 +58,7 @@ from carapost.session.process import (
     one_of,
 )
 from carapost.session.quality import QualityActions
+from carapost.session.stabilise import StabiliseActions
 
 log = logging.getLogger("carapost.session")
 
@@ -96,7 +97,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions, QualityActions):
+class Session(ProcessActions, QualityActions, StabiliseActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
@@ -470,8 +471,9 @@ class Session(ProcessActions, QualityActions):
 
     def export_fbx(self, path: str | Path, **overrides: Any) -> Path:
         """File > Export FBX with the Export properties (range, brim, FBX Up Axis, FBX
-        Include Cameras, FBX Include Sticks); keywords ``frame_range``, ``include_brim``,
-        ``up_axis``, ``include_cameras``, ``include_sticks`` replace them.
+        Include Cameras, FBX Include Sticks, Export Stabilized Coordinates); keywords
+        ``frame_range``, ``include_brim``, ``up_axis``, ``include_cameras``,
+        ``include_sticks``, ``stabilized`` replace them.
 
         Cameras asked for by the property (not by a keyword) are left out, with a
         warning, when the project has no calibration.
@@ -487,7 +489,8 @@ class Session(ProcessActions, QualityActions):
             cameras = False
         return export_fbx(self.project, path, frame_range=o.frame_range,
                           include_brim=o.include_brim, up_axis=o.up_axis,
-                          include_cameras=cameras, include_sticks=o.include_sticks)
+                          include_cameras=cameras, include_sticks=o.include_sticks,
+                          stabilized=o.stabilized)
 
     def export_xcp(self, path: str | Path, frame: int | None = None) -> Path:
         """File > Export XCP [Current Frame] (or the cameras of ``frame``)."""

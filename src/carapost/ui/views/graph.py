@@ -10,6 +10,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMenu, QVBoxLayout
 
 from carapost.model.events import Change
+from carapost.model.stabilization import display_positions
 from carapost.ui.context import ViewContext
 from carapost.ui.views import BaseView
 
@@ -120,7 +121,7 @@ class GraphView(BaseView):
         bands = self._bands(n_band)
         for i, col in enumerate(cols):
             if self.recon_data:
-                pos = p.points.positions[:, col].astype(np.float64)
+                pos = display_positions(p, slice(None), [col])[:, 0].astype(np.float64)
                 for k in range(3):
                     c3[3 * i + k].setData(x, pos[:, k], connect="finite")
                 if n_band:
