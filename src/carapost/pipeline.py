@@ -284,8 +284,6 @@ def remove_spurious(session: Session) -> list[dict[str, str]]:
     return removed
 
 
-def write_outputs(session: Session, inputs: TakeInputs) -> dict[str, str | None]:
-    """Stage: save the project, then the exports (each file atomically)."""
 def stabilise_take(session: Session, mode: str) -> str:
     """Stage: Stabilize Data over the whole take, without a selection.
 
