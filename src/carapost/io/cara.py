@@ -409,13 +409,16 @@ def _npy_spec(path: Path, name: str, spec: Any) -> tuple[tuple[int, ...], np.dty
 def _parse_npy_header(raw: bytes | io.BufferedIOBase) -> tuple[tuple[int, ...], np.dtype[Any], int]:
     """Shape, dtype and header length of an ``.npy`` stream (no pickles, no Fortran)."""
     buf = io.BytesIO(raw) if isinstance(raw, bytes) else raw
-    version = np.lib.format.read_magic(buf)
-    if version == (1, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
-    elif version == (2, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
-    else:
-        raise ValueError(f"unsupported .npy version {version}")
+    try:
+        version = np.lib.format.read_magic(buf)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
+        else:
+            raise ValueError(f"unsupported .npy version {version}")
+    except Exception as exc:  # numpy's parser raises tokenize and syntax errors too
+        raise ValueError(f"its .npy header is malformed: {exc}") from None
     if dtype.hasobject or fortran:
         raise ValueError("object or Fortran-ordered arrays are not allowed")
     return tuple(shape), dtype, buf.tell()
