@@ -33,6 +33,7 @@ from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
+from carapost.ui.settings import frame_cache_mb
 
 log = logging.getLogger("carapost.ui")
 
@@ -359,7 +360,7 @@ class ActionContext(QObject):
         session.stack.on_change = self.history_changed.emit
         project = session.project
         if frames is None:
-            frames = frame_source_for(project, on_ready=self.on_frame_ready)
+            frames = self.video_frames(project)
         self.view.set_project(project, frames)
         self._bind_images()
         self.bridge.attach(project)
@@ -382,7 +383,13 @@ class ActionContext(QObject):
 
     def reload_frames(self) -> None:
         """Open the project's videos again (after their paths changed)."""
-        self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
+        self.set_frames(self.video_frames(self.project))
+
+    def video_frames(self, project: Project) -> FrameSource:
+        """The frame service of ``project``'s videos, its cache sized by the user's
+        setting (none when the take has no videos)."""
+        return frame_source_for(project, on_ready=self.on_frame_ready,
+                                cache_mb=frame_cache_mb(self.settings))
 
     def refuse_busy(self, what: str) -> bool:
         """True (and the refusal shown in the status bar) while a job is running."""
@@ -448,10 +455,12 @@ class ActionContext(QObject):
         p = self.project
         if p.n_frames == 0:
             return
-        p.set_current_frame(int(frame))
-        if self.playback.playing:
-            self.frames.prefetch(range(p.current_frame + 1, p.current_frame + 16),
-                                 list(range(p.n_cameras)))
+        frame = min(max(int(frame), 0), p.n_frames - 1)
+        step = frame - p.current_frame
+        # The decoders start before the views redraw; a step sets the read-ahead's
+        # direction, a jump keeps it.
+        self.frames.request(frame, None, direction=step if abs(step) == 1 else 0)
+        p.set_current_frame(frame)
 
     def on_frame_ready(self, frame: int, camera: int) -> None:
         """Decoder-thread callback: hop to the GUI thread through a queued signal."""

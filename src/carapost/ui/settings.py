@@ -72,6 +72,33 @@ def make_settings() -> QSettings:
                      APPLICATION)
 
 
+#: Settings key of the decoded-image cache size (megabytes).
+FRAME_CACHE_KEY = "frames/cache_mb"
+#: Bounds of the cache size a user may set (megabytes).
+FRAME_CACHE_RANGE = (64.0, 65536.0)
+
+
+def frame_cache_mb(settings: QSettings) -> float:
+    """Size of the decoded-image cache in megabytes (default 1500: ~500 frames of four
+    1280x720 cameras). It holds 8-bit gray images of the open take, shared by the
+    views, playback and the jobs that read images."""
+    from carapost.io.frameservice import DEFAULT_CACHE_MB
+
+    try:
+        value = float(settings.value(FRAME_CACHE_KEY, DEFAULT_CACHE_MB))
+    except (TypeError, ValueError):
+        value = DEFAULT_CACHE_MB
+    lo, hi = FRAME_CACHE_RANGE
+    return min(max(value, lo), hi)
+
+
+def set_frame_cache_mb(settings: QSettings, value: float) -> None:
+    """Store the decoded-image cache size (clamped to `FRAME_CACHE_RANGE`); it applies
+    to the next take opened."""
+    lo, hi = FRAME_CACHE_RANGE
+    settings.setValue(FRAME_CACHE_KEY, min(max(float(value), lo), hi))
+
+
 def recent_files(settings: QSettings) -> list[str]:
     """The recent project files, newest first (at most eight)."""
     value = settings.value("recent_files", [])
