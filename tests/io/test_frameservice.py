@@ -183,3 +183,41 @@ def test_keyframe_index_is_cached_and_invalidated(tmp_path, rng):
     _write(path, _frames(rng, 20, 0))  # the file changes: the stored index is stale
     assert KeyframeIndex.load(path) is None
     assert AVReader(path).n_frames == 20
+
+
+def test_proxies_stand_in_while_playing_and_never_for_processing(videos):
+    from carapost.io.proxy import existing_proxy, proxy_path, write_proxy
+
+    refs = [_sequential(p) for p in videos]
+    calls = []
+    assert write_proxy(videos[0], progress=lambda d, n: calls.append(d) or d < 10) is None
+    assert existing_proxy(videos[0]) is None  # cancelled: no partial file left
+    assert not list(proxy_path(videos[0]).parent.glob("*partial*"))
+    for v in videos:
+        assert write_proxy(v) == existing_proxy(v)
+    with FrameService(_take(videos, N)) as fs:
+        assert fs.attach_proxies() == 2
+        fs.set_read_ahead(30, playing=True)
+        assert fs.showing_proxies
+        fs.request(90, direction=1)
+        t0 = time.perf_counter()
+        while fs.get_display(90, 1) is None and time.perf_counter() - t0 < 10:
+            time.sleep(0.002)
+        shown = fs.get_display(90, 1)
+        assert shown is not None and fs.get_cached(90, 1) is None  # a proxy image
+        diff = np.abs(shown.astype(int) - refs[1][90].astype(int))
+        assert diff.mean() < 3 and not np.array_equal(shown, refs[1][90])
+        # processing reads the originals, bit for bit, even while playing
+        np.testing.assert_array_equal(fs.get(90, 1), refs[1][90])
+        fs.set_read_ahead(24, playing=False)
+        assert not fs.showing_proxies and fs.get_display(91, 1) is None
+
+
+def test_a_changed_video_never_plays_a_stale_proxy(tmp_path, rng):
+    from carapost.io.proxy import existing_proxy, write_proxy
+
+    path = _write(tmp_path / "p_cam0.mkv", _frames(rng, 20, 0))
+    write_proxy(path)
+    assert existing_proxy(path) is not None
+    _write(path, _frames(rng, 25, 0))
+    assert existing_proxy(path) is None

@@ -47,6 +47,9 @@ __all__ = ["DEFAULT_CACHE_MB", "FrameService"]
 DEFAULT_CACHE_MB = 1500.0
 
 _Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
+_UNOPENED: Any = object()
+# Proxy images share the cache under (frame, camera + _PROXY_KEY).
+_PROXY_KEY = 1 << 20
 
 
 class _Camera:
@@ -91,16 +94,26 @@ class FrameService(TakeFrames):
         self._errors: dict[int, str] = {}  # camera -> why it has no images
         self._frame_errors: dict[tuple[int, int], str] = {}
         self._service_threads: set[int] = set()
+        self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
+        self._playing = False
+        self._proxies: dict[int, VideoSource] = {}
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
     def source(self, camera: int) -> VideoSource | None:
-        """The camera's opened video (None, with `message` saying why, when unreadable)."""
-        with self._source_lock:
-            if camera in self._sources:
-                return self._sources[camera]
+        """The camera's opened video (None, with `message` saying why, when unreadable).
+
+        Opening (index, frame count check) happens under a lock of that camera only, so
+        the GUI thread's `get_cached` never waits for a decoder opening a file.
+        """
+        src = self._sources.get(camera, _UNOPENED)
+        if src is not _UNOPENED:
+            return src
+        with self._open_locks[camera]:
+            src = self._sources.get(camera, _UNOPENED)
+            if src is not _UNOPENED:
+                return src
             cam = self.take.cameras[camera]
-            src: VideoSource | None = None
             try:
                 if not cam.video_path:
                     raise CaraFileError(f"<{cam.name}>", "the camera has no video file")
@@ -110,7 +123,8 @@ class FrameService(TakeFrames):
                 self._errors[camera] = str(exc)
                 log.warning("Camera %s shows no images: %s", cam.name, exc)
                 src = None
-            self._sources[camera] = src
+            with self._source_lock:
+                self._sources[camera] = src
             return src
 
     def message(self, frame: int, camera: int) -> str | None:
@@ -120,14 +134,75 @@ class FrameService(TakeFrames):
         err = self._frame_errors.get((frame, camera))
         if err is not None:
             return err
-        with self._source_lock:
-            src = self._sources.get(camera)
+        src = self._sources.get(camera)
         if src is not None:
             index = frame + int(self.take.cameras[camera].frame_offset)
             if not 0 <= index < src.n_frames:
                 return (f"{src.path.name} has frames 0-{src.n_frames - 1}; take frame "
                         f"{frame} is video frame {index}")
         return None
+
+    # -- playback proxies (display only; processing reads the originals) --------------
+    def attach_proxies(self) -> int:
+        """Open the complete, current proxies of the take's videos (see
+        `carapost.io.proxy`); returns how many cameras have one."""
+        from carapost.io.proxy import existing_proxy
+
+        for c, cam in enumerate(self.take.cameras):
+            if c in self._proxies or not cam.video_path:
+                continue
+            path = existing_proxy(cam.video_path)
+            if path is None:
+                continue
+            try:
+                proxy = VideoSource(path)
+            except CaraFileError as exc:
+                log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
+                continue
+            src = self.source(c)
+            if src is not None and proxy.n_frames == src.n_frames:
+                self._proxies[c] = proxy
+            else:
+                proxy.close()
+        return len(self._proxies)
+
+    @property
+    def proxies(self) -> int:
+        """Number of cameras with an open proxy."""
+        return len(self._proxies)
+
+    def _use_proxy(self, camera: int) -> bool:
+        return self._playing and camera in self._proxies
+
+    @property
+    def showing_proxies(self) -> bool:
+        """Whether images come from proxies now (while playing, when there are some)."""
+        return self._playing and bool(self._proxies)
+
+    def get_display(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
+        """What a view shows without waiting: the original if cached, else while playing
+        the proxy image if decoded, else (blank frames outside a video) `get_cached`."""
+        img = self.get_cached(frame, camera)
+        if img is None and self._use_proxy(camera):
+            img = self._cache_get((int(frame), int(camera) + _PROXY_KEY))
+        return img
+
+    def _decode_proxy(self, frame: int, camera: int) -> None:
+        index = self._video_index(frame, camera)
+        proxy = self._proxies.get(camera)
+        if index is None or proxy is None:
+            self._notify(frame, camera)
+            return
+        key = (frame, camera + _PROXY_KEY)
+        if self._cache_get(key) is None:
+            try:
+                self._cache_put(key, proxy.read(index))
+            except CaraFileError as exc:  # a damaged proxy: back to the original
+                log.warning("Camera %s: %s; playing the original",
+                            self.take.cameras[camera].name, exc)
+                self._proxies.pop(camera, None)
+                return
+        self._notify(frame, camera)
 
     def reset_sources(self) -> None:
         """Reopen videos on next use (after a camera's video path changed)."""
@@ -136,10 +211,16 @@ class FrameService(TakeFrames):
         self._frame_errors.clear()
 
     # -- requests -------------------------------------------------------------------------
-    def set_read_ahead(self, frames: int) -> None:
-        """Frames to decode ahead of the current one (e.g. 2 s of the take while playing)."""
+    def set_read_ahead(self, frames: int, *, playing: bool = False) -> None:
+        """Frames to decode ahead of the current one (e.g. 2 s of the take while playing).
+
+        While ``playing``, a decode on its way to a frame is finished even when a later
+        frame is requested meanwhile (so playback shows frames, dropping the ones it
+        cannot decode in time); while scrubbing, it stops for the newer request.
+        """
         with self._cond:
             self._read_ahead = max(int(frames), 0)
+            self._playing = bool(playing)
             self._cond.notify_all()
 
     def request(self, frame: int, cameras: Any = None, *, direction: int = 0) -> None:
@@ -164,7 +245,7 @@ class FrameService(TakeFrames):
             for c in cams:
                 state = self._cams[c]
                 state.origin = frame
-                if self._cache_get((frame, c)) is not None:
+                if self.get_display(frame, c) is not None:
                     if state.wanted is not None:
                         self.dropped += 1
                     state.wanted = None
@@ -225,11 +306,13 @@ class FrameService(TakeFrames):
                               (c.image_size for c in self.take.cameras)), 1)
         limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
         step = self._direction
+        key_cam = camera + _PROXY_KEY if self._use_proxy(camera) else camera
         for k in range(1, limit + 1):
             f = state.origin + step * k
             if not 0 <= f < self.take.n_frames:
                 return None
-            if self._cache_get((f, camera)) is None and (f, camera) not in self._frame_errors:
+            if (self._cache_get((f, key_cam)) is None and self._cache_get((f, camera)) is None
+                    and (f, camera) not in self._frame_errors):
                 return f
         return None
 
@@ -256,6 +339,10 @@ class FrameService(TakeFrames):
                         frame, kind, fut = ahead, "ahead", None
                         break
                     self._cond.wait()
+            if kind != "job" and self._use_proxy(camera):
+                state.target = None
+                self._decode_proxy(frame, camera)
+                continue
             try:
                 img = self._decode_to(frame, camera, kind)
             except Exception as exc:  # the waiting job gets the error; the view a message
@@ -278,17 +365,33 @@ class FrameService(TakeFrames):
             if fut is not None and not fut.done():
                 fut.set_exception(CaraFileError("<frames>", "the take's videos were closed"))
 
-    def _superseded(self, camera: int, kind: str) -> bool:
-        """Whether a decode of ``kind`` should give way (a newer view request or a job
-        arrived); only read-ahead and view decodes give way."""
+    def _next_step(self, camera: int, kind: str, i: int, index: int,
+                   reader: Any) -> str | tuple[int, int]:
+        """Before decoding video frame ``i`` on the way to ``index``: ``"go"``,
+        ``"stop"`` (give way to newer work), or a new (frame, index) target reached by
+        decoding on (a newer view request beyond ``i`` before the next keyframe)."""
         state = self._cams[camera]
-        if self._closed:
-            return True
-        if kind == "ahead":
-            return state.wanted is not None or bool(state.jobs)
-        if kind == "view":
-            return state.wanted is not None
-        return False
+        with self._cond:
+            if self._closed:
+                return "stop"
+            if kind == "job":
+                return "go"
+            if kind == "ahead":
+                return "stop" if state.wanted is not None or state.jobs else "go"
+            wanted = state.wanted
+            if wanted is None:
+                return "go"
+            w_index = wanted + int(self.take.cameras[camera].frame_offset)
+            on_the_way = w_index >= i and (
+                reader is None or reader.index.keyframe_before(w_index) <= i)
+            if on_the_way or not self._playing:
+                self.dropped += 1  # the older target is given up
+                if on_the_way:
+                    state.wanted = None
+                    state.target = wanted
+                    return wanted, w_index
+                return "stop"
+            return "go"
 
     def _decode_to(self, frame: int, camera: int, kind: str) -> NDArray[np.uint8] | None:
         """Decode ``frame`` of ``camera`` into the cache, with every frame decoded on
@@ -309,12 +412,13 @@ class FrameService(TakeFrames):
             key = reader.index.keyframe_before(index)
             start = reader._next if key <= reader._next <= index else key
         offset = int(self.take.cameras[camera].frame_offset)
-        for i in range(start, index + 1):
-            if i < index and self._superseded(camera, kind):
-                if kind == "view":
-                    with self._cond:
-                        self.dropped += 1
+        i = start
+        while i <= index:
+            step = self._next_step(camera, kind, i, index, reader)
+            if step == "stop":
                 return None
+            if isinstance(step, tuple):
+                frame, index = step
             f = i - offset
             try:
                 img = src.read(i)
@@ -325,9 +429,8 @@ class FrameService(TakeFrames):
                 raise
             if 0 <= f < self.take.n_frames and self._cache_get((f, camera)) is None:
                 self._cache_put((f, camera), img)
-                if i < index:
-                    self._notify(f, camera)
-        self._notify(frame, camera)
+                self._notify(f, camera)
+            i += 1
         return img
 
     def _notify(self, frame: int, camera: int) -> None:
@@ -350,3 +453,6 @@ class FrameService(TakeFrames):
                 state.thread.join(timeout=5.0)
         self._closed = False  # let TakeFrames.close run its own shutdown
         super().close()
+        for proxy in self._proxies.values():
+            proxy.close()
+        self._proxies.clear()

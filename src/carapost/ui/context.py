@@ -33,7 +33,8 @@ from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
-from carapost.ui.settings import frame_cache_mb
+from carapost.ui.proxies import ProxyBuilder
+from carapost.ui.settings import build_proxies, frame_cache_mb
 
 log = logging.getLogger("carapost.ui")
 
@@ -311,6 +312,7 @@ class ActionContext(QObject):
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
+        self.proxies = ProxyBuilder(self)
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -361,8 +363,10 @@ class ActionContext(QObject):
         project = session.project
         if frames is None:
             frames = self.video_frames(project)
+        self.proxies.stop()
         self.view.set_project(project, frames)
         self._bind_images()
+        self._start_proxies()
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
@@ -373,11 +377,24 @@ class ActionContext(QObject):
         frames = self.view.frames
         self.session.set_image_source(frames.require if frames.has_images else None)
 
+    def _start_proxies(self) -> None:
+        # Proxies already written are used at once; missing ones are written in the
+        # background when the user wants that (View > Build Playback Proxies otherwise).
+        frames = self.view.frames
+        if not hasattr(frames, "attach_proxies"):
+            return
+        if build_proxies(self.settings):
+            self.proxies.start(frames)
+        else:
+            frames.attach_proxies()
+
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
+        self.proxies.stop()
         self.view.frames.close()
         self.view.frames = frames
         self._bind_images()
+        self._start_proxies()
         for view in self.shell.all_views() if self.shell is not None else ():
             view.refresh(None)
 
@@ -483,6 +500,7 @@ class ActionContext(QObject):
     def shutdown(self) -> None:
         """Stop playback and the worker, stop listening, close the images."""
         self.playback.stop()
+        self.proxies.stop()
         if self.runner.busy:
             self.runner.cancel()
             self.runner.wait(30)

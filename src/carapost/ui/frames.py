@@ -164,7 +164,11 @@ class VideoFrameSource(FrameSource):
         return self._call("get", frame, camera)
 
     def cached(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
-        return self._call("get_cached", frame, camera)
+        return self._call("get_display", frame, camera)
+
+    def require(self, frame: int, camera: int) -> NDArray[np.uint8]:
+        """The image, or `CaraFileError` saying which video is missing or damaged."""
+        return self._frames.get(frame, camera)
 
     def request(self, frame: int, camera: int | None = None, direction: int = 0) -> None:
         self._frames.request(frame, None if camera is None else [camera], direction=direction)
@@ -174,7 +178,7 @@ class VideoFrameSource(FrameSource):
 
     def set_playing(self, fps: float | None) -> None:
         # two seconds of the take ahead while playing; a short run while stepping
-        self._frames.set_read_ahead(int(2 * fps) if fps else 24)
+        self._frames.set_read_ahead(int(2 * fps) if fps else 24, playing=bool(fps))
 
     def prefetch(self, frames: range, cameras: list[int]) -> None:
         frames = list(frames)
@@ -184,7 +188,16 @@ class VideoFrameSource(FrameSource):
     def stats(self) -> dict[str, float]:
         f = self._frames
         return {"cache_mb": f.cache_used_bytes / 1e6, "cache_limit_mb": f.cache_bytes / 1e6,
-                "dropped": float(f.dropped)}
+                "dropped": float(f.dropped), "proxies": float(f.proxies),
+                "showing_proxies": float(f.showing_proxies)}
+
+    def attach_proxies(self) -> int:
+        """Use the playback proxies written so far (see `carapost.io.proxy`)."""
+        return self._frames.attach_proxies()
+
+    def video_paths(self) -> list[str]:
+        """The take's camera videos (for the proxy writer)."""
+        return [cam.video_path for cam in self._project.take.cameras if cam.video_path]
 
     def worker_copy(self) -> FrameSource:
         return self

@@ -2,8 +2,9 @@
 
 The frame shown follows the wall clock: frame = start + elapsed x fps. When the images
 of a frame are not decoded by the time the next one is due, that frame is dropped (the
-views show the newest frame that arrives) and the status bar says how many frames per
-second are really shown, so a take that plays slowly is never mistaken for slow motion.
+views show the newest frame whose images have all arrived) and the status bar says how
+many frames per second are really shown, so a take that plays slowly is never mistaken
+for slow motion.
 """
 
 from __future__ import annotations
@@ -83,6 +84,11 @@ class Playback(QObject):
         else:
             self.timer.stop()
             self.ctx.frames.set_playing(None)
+            # back to the original images (the views may show a proxy frame)
+            shell = self.ctx.shell
+            for view in shell.all_views() if shell is not None else ():
+                if view.kind == "sensor":
+                    view.refresh(None)
             if self.shown or self.dropped:
                 self._report(final=True)
         self.playing_changed.emit(self.playing)
@@ -100,26 +106,32 @@ class Playback(QObject):
     def _tick(self) -> None:
         p = self.ctx.project
         now = time.perf_counter()
-        due = self._f0 + int((now - self._t0) * self._fps)
+        end = p.view_range[1]
+        due = min(self._f0 + int((now - self._t0) * self._fps), end)
         if due <= p.current_frame:
+            if p.current_frame >= end:
+                self._finish()
             return
-        # The frame on screen until now counts as shown if its images had arrived.
-        if self._ready(p.current_frame):
+        # Show the newest frame up to the due one whose images of every camera have
+        # arrived (the cameras stay in step); the frames passed over are dropped.
+        show = next((f for f in range(due, p.current_frame, -1) if self._ready(f)), None)
+        if show is not None:
+            skipped = show - p.current_frame - 1
             self.shown += 1
             self._window[0] += 1
-        else:
-            self.dropped += 1
-            self._window[1] += 1
-        skipped = due - p.current_frame - 1
-        self.dropped += skipped
-        self._window[1] += skipped
+            self.dropped += skipped
+            self._window[1] += skipped
+            self.ctx.set_frame(show)
+        # the decoders head for the clock, not for the frame on screen
+        self.ctx.frames.request(due, None, direction=1)
         if now - self._last_report >= REPORT_EVERY_S:
             self._report()
             self._last_report = now
-        if p.current_frame >= p.view_range[1]:
-            self.stop()
-            return
-        self.ctx.set_frame(min(due, p.view_range[1]))
+        if p.current_frame >= end:
+            self._finish()
+
+    def _finish(self) -> None:
+        self.stop()
 
     def _report(self, final: bool = False) -> None:
         shown, dropped = (self.shown, self.dropped) if final else self._window

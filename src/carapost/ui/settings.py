@@ -59,6 +59,8 @@ PREFERENCES: tuple[Preference, ...] = (
                "Show each tracked frame in the views while target tracking (slower)."
                " Default is our choice (the guide gives none)."),
 )
+#: Settings key: write playback proxies in the background when a take opens.
+BUILD_PROXIES_KEY = "frames/build_proxies"
 _PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES}
 
 
@@ -97,6 +99,21 @@ def set_frame_cache_mb(settings: QSettings, value: float) -> None:
     to the next take opened."""
     lo, hi = FRAME_CACHE_RANGE
     settings.setValue(FRAME_CACHE_KEY, min(max(float(value), lo), hi))
+
+
+def build_proxies(settings: QSettings) -> bool:
+    """Whether playback proxies (fast-decoding copies of the camera videos, in the user
+    cache, for display only) are written in the background when a take opens (default
+    yes; View > Build Playback Proxies writes them on request)."""
+    value = settings.value(BUILD_PROXIES_KEY, True)
+    if isinstance(value, str):
+        return value.strip().lower() in ("true", "1", "yes", "on")
+    return bool(value)
+
+
+def set_build_proxies(settings: QSettings, on: bool) -> None:
+    """Store whether proxies are written after a take opens."""
+    settings.setValue(BUILD_PROXIES_KEY, bool(on))
 
 
 def recent_files(settings: QSettings) -> list[str]:

@@ -337,13 +337,15 @@ class CameraView(BaseView):
         if opts.image:
             src = self.ctx.frames
             img = src.cached(frame, self.camera)
+            if src.asynchronous:
+                note = src.message(frame, self.camera)
             if img is None and src.asynchronous:
                 # Decoded on the frame service's threads: keep the previous image until
                 # ``frame_ready`` brings this one (the GUI never waits for a decoder).
                 src.request(frame, self.camera)
-                note = src.message(frame, self.camera)
                 if note is None and self._current_image is not None:
                     self._image_frame = None
+                    self._set_notice(None)
                     return
             elif img is None:
                 img = src.image(frame, self.camera)
@@ -355,7 +357,7 @@ class CameraView(BaseView):
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
-        self._image_frame = frame if img is not None else None
+        self._image_frame = frame if img is not None and note is None else None
         self._set_notice(note)
 
     def _set_notice(self, text: str | None) -> None:
