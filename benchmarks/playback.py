@@ -133,6 +133,12 @@ class Bench:
 
     # -- the measurements ------------------------------------------------------------
     def open_and_first_jump(self) -> None:
+        try:  # proxies are measured on their own, later
+            from carapost.ui.settings import set_build_proxies
+
+            set_build_proxies(self.w.context.settings, False)
+        except ImportError:
+            pass
         t0 = time.perf_counter()
         self.w.context.set_session(self.session)
         self.w.flush()
@@ -186,6 +192,36 @@ class Bench:
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source="originals",
              take_fps=p.take.fps, seconds=round(elapsed, 2))
 
+    def playback_from_proxies(self, seconds: float = 6.0) -> None:
+        """Write the proxies (View > Build Playback Proxies), then play from them."""
+        ctx = self.w.context
+        if not hasattr(ctx, "proxies"):
+            return
+        t0 = time.perf_counter()
+        self.w.action("view.build_proxies").trigger()
+        while ctx.proxies.running:
+            self.pump(0.05)
+        self.pump(0.2)
+        emit("proxy_build_s", time.perf_counter() - t0, "s", cameras=self.p.n_cameras,
+             frames=self.p.n_frames)
+        p = self.p
+        self.go(0)
+        self.pump(0.5)
+        drawn: set[int] = set()
+        t0 = time.perf_counter()
+        ctx.playback.toggle(True)
+        while ctx.playback.playing and time.perf_counter() - t0 < seconds:
+            self.app.processEvents()
+            if all(ctx.frames.cached(p.current_frame, c) is not None
+                   for c in range(p.n_cameras)):
+                drawn.add(p.current_frame)
+            time.sleep(0.0005)
+        elapsed = time.perf_counter() - t0
+        ctx.playback.stop()
+        emit("playback_fps", len(drawn) / elapsed, "frames/s", source="proxies",
+             take_fps=p.take.fps, seconds=round(elapsed, 2),
+             reported_dropped=ctx.playback.dropped)
+
     def detect_current(self) -> None:
         rng = random.Random(7)
         times = []
@@ -226,6 +262,66 @@ class Bench:
         emit("cache_mb_max", cache_peak, "MB", limit_mb=stats.get("cache_limit_mb"))
 
 
+def bench_codecs(take: Path) -> None:
+    """Readers and proxy formats on the take's first video (one core, no window)."""
+    import av
+    import cv2
+
+    from carapost.io.decode import AVReader
+
+    video = sorted(p for p in take.parent.glob("*cam0.*") if p.suffix != ".json")[0]
+    rng = random.Random(5)
+    n = AVReader(video).n_frames
+    targets = [rng.randrange(n) for _ in range(15)]
+    cap = cv2.VideoCapture(str(video))
+    t0 = time.perf_counter()
+    for _ in range(60):
+        cap.read()
+    emit("opencv_sequential_ms", (time.perf_counter() - t0) / 60 * 1e3, "ms/frame")
+    t0 = time.perf_counter()
+    for k in targets:
+        cap.set(cv2.CAP_PROP_POS_FRAMES, k)
+        cap.read()
+    emit("opencv_random_ms", (time.perf_counter() - t0) / len(targets) * 1e3, "ms/read")
+    reader = AVReader(video)
+    t0 = time.perf_counter()
+    for i in range(60):
+        reader.read(i)
+    emit("pyav_sequential_ms", (time.perf_counter() - t0) / 60 * 1e3, "ms/frame")
+    t0 = time.perf_counter()
+    for k in targets:
+        reader.read(k)
+    emit("pyav_random_ms", (time.perf_counter() - t0) / len(targets) * 1e3, "ms/read",
+         keyframe_interval=reader.index.max_interval)
+    frames = [reader.read(i) for i in range(60)]
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, codec, pix, half, opts in (
+                ("mjpeg_full", "mjpeg", "yuvj420p", False, {"q:v": "4"}),
+                ("mjpeg_half", "mjpeg", "yuvj420p", True, {"q:v": "4"}),
+                ("ffv1_allkey_full", "ffv1", "gray", False, {"g": "1"}),
+                ("ffv1_allkey_half", "ffv1", "gray", True, {"g": "1"})):
+            path = Path(tmp) / f"{name}.{'avi' if codec == 'mjpeg' else 'mkv'}"
+            out = av.open(str(path), "w")
+            st = out.add_stream(codec, rate=60)
+            h, w = frames[0].shape
+            if half:
+                h, w = h // 2, w // 2
+            st.width, st.height, st.pix_fmt, st.options = w, h, pix, opts
+            for img in frames:
+                im = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if half else img
+                for pk in st.encode(av.VideoFrame.from_ndarray(im, format="gray")):
+                    out.mux(pk)
+            for pk in st.encode():
+                out.mux(pk)
+            out.close()
+            c = av.open(str(path))
+            t0 = time.perf_counter()
+            count = sum(1 for fr in c.decode(c.streams.video[0]) if fr.to_ndarray() is not None)
+            c.close()
+            emit(f"proxy_{name}_decode_ms", (time.perf_counter() - t0) / count * 1e3,
+                 "ms/frame", kb_per_frame=round(path.stat().st_size / count / 1e3))
+
+
 def render_take(folder: Path, frames: int) -> Path:
     from carapost.synth import SynthConfig, generate_take
 
@@ -243,6 +339,8 @@ def main() -> None:
 
     tmp = tempfile.TemporaryDirectory()
     take = Path(args.take) if args.take else render_take(Path(tmp.name), 300)
+    if args.codecs:
+        bench_codecs(take)
     app = application()
     b = Bench(app, take)
     cpu0 = time.process_time()
@@ -253,6 +351,9 @@ def main() -> None:
     b.detect_current()
     emit("gui_stall_ms_max", b.stalls.max_gap * 1e3, "ms")
     b.scrub_session(args.scrub_s)
+    b.playback_from_proxies()
+    emit("gui_stall_ms_max_all", b.stalls.max_gap * 1e3, "ms",
+         note="including the scrub session and proxy playback")
     emit("cpu_s", time.process_time() - cpu0, "s")
     b.w.context.shutdown()
     b.w.close()

@@ -100,6 +100,8 @@ class Playback(QObject):
 
     def _ready(self, frame: int) -> bool:
         frames = self.ctx.frames
+        if not frames.asynchronous:  # images made on demand (synthetic takes, tests)
+            return True
         return all(frames.cached(frame, c) is not None
                    for c in range(self.ctx.project.n_cameras))
 
