@@ -412,6 +412,23 @@ class FrameService(TakeFrames):
             key = reader.index.keyframe_before(index)
             start = reader._next if key <= reader._next <= index else key
         offset = int(self.take.cameras[camera].frame_offset)
+        if (kind == "view" and self._playing and reader is not None
+                and 0 <= reader._next < index
+                and index - reader._next <= 2 * reader.index.max_interval):
+            # Playing and a little behind the clock: the next frame in decode order
+            # costs one decode and is shown if it is still due; a seek would cost a
+            # keyframe interval. The clock's frame stays wanted.
+            with self._cond:
+                if self._cams[camera].wanted is None:
+                    self._cams[camera].wanted = frame
+            index = start = reader._next
+            frame = index - offset
+            img = self._cache_get((frame, camera))
+            if img is not None:
+                # cached already (a job read it): step the decoder past it all the same
+                src.read(index)
+                self._notify(frame, camera)
+                return img
         i = start
         while i <= index:
             step = self._next_step(camera, kind, i, index, reader)
