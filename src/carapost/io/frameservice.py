@@ -159,11 +159,9 @@ class FrameService(TakeFrames):
             except CaraFileError as exc:
                 log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
                 continue
-            src = self.source(c)
-            if src is not None and proxy.n_frames == src.n_frames:
-                self._proxies[c] = proxy
-            else:
-                proxy.close()
+            # checked against the original on the camera's thread (`_decode_proxy`):
+            # opening the original here would make the GUI thread wait
+            self._proxies[c] = proxy
         return len(self._proxies)
 
     @property
@@ -190,6 +188,13 @@ class FrameService(TakeFrames):
     def _decode_proxy(self, frame: int, camera: int) -> None:
         index = self._video_index(frame, camera)
         proxy = self._proxies.get(camera)
+        src = self._sources.get(camera)
+        if proxy is not None and src is not None and proxy.n_frames != src.n_frames:
+            log.warning("Camera %s: the playback proxy has %d frames, the video %d; "
+                        "playing the original", self.take.cameras[camera].name,
+                        proxy.n_frames, src.n_frames)
+            self._proxies.pop(camera, None)
+            proxy = None
         if index is None or proxy is None:
             self._notify(frame, camera)
             return
