@@ -39,6 +39,12 @@ def fixtures_dir() -> Path:
 
 
 @pytest.fixture(autouse=True, scope="session")
+def _autosaves_in_a_temporary_folder(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Autosaves of never-saved projects go to a temporary folder, never the user's."""
+    os.environ["CARAPOST_AUTOSAVE_DIR"] = str(tmp_path_factory.mktemp("autosave"))
+
+
+@pytest.fixture(autouse=True, scope="session")
 def _user_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Keyframe indexes and playback proxies of test videos go to a temporary cache."""
     os.environ["CARAPOST_CACHE_DIR"] = str(tmp_path_factory.mktemp("user_cache"))
