@@ -71,6 +71,8 @@ class Stalls:
         self.timer.timeout.connect(self._tick)
         self.last = time.perf_counter()
         self.max_gap = 0.0
+        self.phase = "open"
+        self.by_phase: dict[str, float] = {}
 
     def start(self) -> None:
         self.last = time.perf_counter()
@@ -78,7 +80,9 @@ class Stalls:
 
     def _tick(self) -> None:
         now = time.perf_counter()
-        self.max_gap = max(self.max_gap, now - self.last)
+        gap = now - self.last
+        self.max_gap = max(self.max_gap, gap)
+        self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
         self.last = now
 
 
@@ -148,6 +152,7 @@ class Bench:
         emit("first_jump_s", self.go(int(n * 0.8)), "s", frame=int(n * 0.8))
 
     def jumps(self, count: int = 25) -> None:
+        self.stalls.phase = "jumps"
         rng = random.Random(1)
         n = self.p.n_frames
         times = []
@@ -161,6 +166,7 @@ class Bench:
              jumps=count)
 
     def steps(self, count: int = 30) -> None:
+        self.stalls.phase = "steps"
         n = self.p.n_frames
         times = []
         for direction in (1, -1):
@@ -174,6 +180,7 @@ class Bench:
              steps=len(times))
 
     def playback(self, seconds: float = 6.0) -> None:
+        self.stalls.phase = "playback"
         ctx = self.w.context
         p = self.p
         p.set_view_range((0, p.n_frames - 1)) if hasattr(p, "set_view_range") else None
@@ -194,6 +201,7 @@ class Bench:
 
     def playback_from_proxies(self, seconds: float = 6.0) -> None:
         """Write the proxies (View > Build Playback Proxies), then play from them."""
+        self.stalls.phase = "playback_from_proxies"
         ctx = self.w.context
         if not hasattr(ctx, "proxies"):
             return
@@ -223,6 +231,7 @@ class Bench:
              reported_dropped=ctx.playback.dropped)
 
     def detect_current(self) -> None:
+        self.stalls.phase = "detect_current"
         rng = random.Random(7)
         times = []
         for _ in range(3):
@@ -240,6 +249,7 @@ class Bench:
              runs=[round(t, 3) for t in times])
 
     def scrub_session(self, seconds: float) -> None:
+        self.stalls.phase = "scrub_session"
         rng = random.Random(3)
         n = self.p.n_frames
         peak = rss_mb()
@@ -349,10 +359,12 @@ def main() -> None:
     b.steps()
     b.playback()
     b.detect_current()
-    emit("gui_stall_ms_max", b.stalls.max_gap * 1e3, "ms")
+    emit("gui_stall_ms_max", b.stalls.max_gap * 1e3, "ms",
+         by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()})
     b.scrub_session(args.scrub_s)
     b.playback_from_proxies()
     emit("gui_stall_ms_max_all", b.stalls.max_gap * 1e3, "ms",
+         by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()},
          note="including the scrub session and proxy playback")
     emit("cpu_s", time.process_time() - cpu0, "s")
     b.w.context.shutdown()
