@@ -59,7 +59,8 @@ class ProxyBuilder(QObject):
         self.stop()
         self._frames = None
         paths = getattr(frames, "video_paths", lambda: [])()
-        todo = [p for p in paths if existing_proxy(p) is None]
+        # a missing video already says so in its view; there is nothing to copy
+        todo = [p for p in paths if os.path.isfile(p) and existing_proxy(p) is None]
         self._frames = frames
         if not todo:
             if paths:
