@@ -121,3 +121,19 @@ def test_proxies_are_written_after_import_and_shown_while_playing(make_window, t
     for v in views:  # the original frame once playback stops
         np.testing.assert_array_equal(v._current_image, refs[min(v.camera, 1)][N - 1])
     assert "Images: Original" in label.text() and "Proxies 3/3" in label.text()
+
+
+def test_cache_size_and_proxy_settings_are_user_settings(make_window):
+    from carapost.ui.panes import PropertiesPane
+    from carapost.ui.settings import build_proxies, frame_cache_mb
+
+    w = make_window()
+    pane = next(p for p in w.findChildren(PropertiesPane) if hasattr(p, "frame_editors"))
+    pane.frame_editors["cache_mb"].setValue(800)
+    pane.frame_editors["build_proxies"].setChecked(False)
+    assert frame_cache_mb(w.context.settings) == 800
+    assert build_proxies(w.context.settings) is False
+    p = new_project(4, 1, image_size=(W, H))
+    p.take.cameras[0].video_path = "/nonexistent/x_cam0.mkv"
+    w.set_project(p)
+    assert w.context.frames.stats()["cache_limit_mb"] == 800
