@@ -198,6 +198,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.play", "View", "Play", "Space", navigation.toggle_play, checkable=True),
     _A("view.next", "View", "Next Frame", "Right", partial(navigation.step, delta=1)),
     _A("view.prev", "View", "Prev Frame", "Left", partial(navigation.step, delta=-1)),
+    _A("view.build_proxies", "View", "Build Playback Proxies", "", navigation.build_proxies),
     _A("view.lock", "View", "Lock To Point", "", navigation.toggle_lock, checkable=True),
     _A("view.next_key", "View", "Next Key Frame", "Shift+Right",
        partial(navigation.step_key, delta=1)),

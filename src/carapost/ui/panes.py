@@ -233,9 +233,14 @@ class PropertiesPane(QWidget):
                 self.tree.setItemWidget(item, 1, editor)
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
-        if preferences is None and sections is None:
+        main_pane = preferences is None and sections is None
+        if main_pane:
             preferences = ("show_version_check_dialog",)
         self.preference_editors = self._add_preferences(preferences or (), preferences_title)
+        if main_pane:
+            from carapost.ui.frame_settings import add_frame_settings
+
+            self.frame_editors = add_frame_settings(self.tree, ctx)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 

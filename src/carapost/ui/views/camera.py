@@ -222,6 +222,13 @@ class CameraView(BaseView):
         self.header = QLabel(self.gv)
         self.header.setStyleSheet("color: white; background: rgba(0,0,0,120); padding: 2px;")
         self.header.move(4, 4)
+        # why there is no image (missing or damaged video), over the view's lower left
+        self.notice = QLabel(self.gv)
+        self.notice.setStyleSheet("color: #ffb0a0; background: rgba(0,0,0,160); padding: 3px;")
+        self.notice.setWordWrap(True)
+        self.notice.hide()
+        self._current_image: NDArray | None = None
+        self._image_frame: int | None = None  # frame of the image shown
         self.report = QLabel(self.gv)
         self.report.setStyleSheet("color: #8ff; background: rgba(0,0,0,140); padding: 2px;")
         self.report.move(4, 26)
@@ -326,10 +333,21 @@ class CameraView(BaseView):
     def _draw_image(self, frame: int) -> None:
         opts = self.ctx.options
         img = None
+        note = None
         if opts.image:
             src = self.ctx.frames
             img = src.cached(frame, self.camera)
-            if img is None:
+            if src.asynchronous:
+                note = src.message(frame, self.camera)
+            if img is None and src.asynchronous:
+                # Decoded on the frame service's threads: keep the previous image until
+                # ``frame_ready`` brings this one (the GUI never waits for a decoder).
+                src.request(frame, self.camera)
+                if note is None and self._current_image is not None:
+                    self._image_frame = None
+                    self._set_notice(None)
+                    return
+            elif img is None:
                 img = src.image(frame, self.camera)
         if img is None:
             self.image.hide()
@@ -339,6 +357,24 @@ class CameraView(BaseView):
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
+        self._image_frame = frame if img is not None and note is None else None
+        self._set_notice(note)
+
+    def _set_notice(self, text: str | None) -> None:
+        if not text:
+            self.notice.hide()
+            return
+        self.notice.setText(f"No image: {text}")
+        self.notice.setFixedWidth(max(self.gv.width() - 8, 120))
+        self.notice.adjustSize()
+        self.notice.move(4, max(self.gv.height() - self.notice.height() - 4, 24))
+        self.notice.show()
+
+    @property
+    def image_frame(self) -> int | None:
+        """Take frame of the image on screen (None while none, or while a newer
+        frame's image is being decoded)."""
+        return self._image_frame
 
     def _draw_overlays(self, frame: int) -> None:
         ctx, p, opts, c = self.ctx, self.ctx.project, self.ctx.options, self.camera
@@ -371,7 +407,8 @@ class CameraView(BaseView):
             self.det_selected.hide()
         # blob preview
         self.preview.hide()
-        if opts.blob_preview and getattr(self, "_current_image", None) is not None:
+        if (opts.blob_preview and self._current_image is not None
+                and self._image_frame == frame):
             prev = ctx.blob_preview(frame, c, self._current_image)
             if prev is not None and len(prev.centre):
                 xy, conn = ellipse_polyline(prev.centre.astype(np.float64),
