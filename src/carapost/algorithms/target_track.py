@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -94,8 +94,8 @@ class TargetTrackerParameters:
     auto_add_keyframes: bool = param(
         True, label="Automatically Add Keyframes", section=TARGET_TRACKER,
         key="tracker_auto_add_keyframes",
-        help="Key the selected points at the current frame before tracking if they have "
-             "no keyframe there." + _OURS)
+        help="Key the selected points at the current frame before tracking, in every "
+             "camera where they have no keyframe yet." + _OURS)
     stop_on_next_keyframe: bool = param(
         True, label="Stop On Next Keyframe", section=TARGET_TRACKER,
         key="tracker_stop_on_next_keyframe",
@@ -128,9 +128,18 @@ class TargetTrackerParameters:
         0.05, min=0.0, max=1.0,
         help="NCC subtracted per (half search size) squared of distance from the "
              "prediction, to break near-ties towards the expected place.")
-    weight_sigma: float = param(
-        3.0, min=0.0, unit="px",
-        help="Gaussian weight of the refinement around the pattern centre (0: uniform).")
+    weight_fraction: float = param(
+        0.18, min=0.0,
+        help="Gaussian weight of the refinement and the score around the pattern centre, "
+             "sigma as a fraction of the Pattern Size (0: uniform).")
+    ambiguity_margin: float = param(
+        0.05, min=0.0, max=1.0,
+        help="A match whose second-best peak (another place in the search region) is "
+             "within this NCC of the best is ambiguous: the track stops there.")
+    check_step_px: float = param(
+        2.0, min=0.0, unit="px",
+        help="Steps longer than this are checked backwards (the patch found must lead "
+             "back to the previous position): a step onto a neighbour fails the check.")
     max_refine_px: float = param(
         1.5, min=0.0, min_exclusive=True,
         help="A refinement moving farther than this from the integer peak failed.")
@@ -315,12 +324,17 @@ class _Refiner:
         if weight_sigma > 0:   # weigh the marker at the centre over its surroundings
             g = np.arange(n) - n // 2
             wt = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / weight_sigma ** 2)
-            JW = J * wt.ravel()
         else:
-            JW = J
+            wt = np.ones((n, n))
+        self.wt = wt.ravel() / wt.sum()
+        JW = J * self.wt
         self.J = JW
         self.Hinv = np.linalg.pinv(JW @ J.T)
-        self.tpl = tpl.ravel().astype(np.float64)
+        t = tpl.ravel().astype(np.float64)
+        tc = t - self.wt @ t
+        self.tpl_w = self.wt * tc / math.sqrt(float(self.wt @ (tc * tc)))
+        tu = t - t.mean()
+        self.tpl_u = tu / math.sqrt(float(tu @ tu))
 
     def refine(self, crop: NDArray[np.float64], origin: tuple[int, int], xy0: NDArray,
                iterations: int, tol: float) -> tuple[NDArray[np.float64], float, bool]:
@@ -352,11 +366,18 @@ class _Refiner:
         cx, cy = p[0] - ox, p[1] - oy
         if not (lo <= cx <= hi_x and lo <= cy <= hi_y):
             return np.array([np.nan, np.nan]), 0.0, False
+        # the score: the lower of the NCC over the whole pattern (the surroundings match,
+        # not a look-alike neighbour) and the NCC weighted to the centre like the
+        # refinement (the marker itself is there: one that vanishes from an unchanged
+        # background scores low)
         w = _shift(crop, cx, cy, size).ravel()
-        wc = w - w.mean()
-        den = math.sqrt(float(wc @ wc)) * math.sqrt(float(self.tpl @ self.tpl))
-        ncc = float(wc @ self.tpl) / den if den > 0 else 0.0
-        return p, ncc, converged
+        wc = w - self.wt @ w
+        den = math.sqrt(float(self.wt @ (wc * wc)))
+        ncc_w = float(self.tpl_w @ wc) / den if den > 1e-9 else 0.0
+        wu = w - w.mean()
+        den = math.sqrt(float(wu @ wu))
+        ncc_u = float(self.tpl_u @ wu) / den if den > 1e-9 else 0.0
+        return p, min(ncc_w, ncc_u), converged
 
 
 def match_patch(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
@@ -404,12 +425,26 @@ def match_patch(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
         uy = (np.arange(res.shape[0]) + y0 + m + hp - predicted[1]) / max(hs - hp, 1)
         res = res - np.float32(params.distance_penalty) * (
             uy[:, None] ** 2 + ux[None, :] ** 2).astype(np.float32)
-    _, _, _, (bx, by) = cv2.minMaxLoc(res)
-    peak = np.array([x0 + m + bx + hp, y0 + m + by + hp], dtype=np.float64)
+    _, best, _, (bx, by) = cv2.minMaxLoc(res)
     if refiner is None:
-        refiner = _Refiner(tpl, params.weight_sigma)
-    xy, ncc, ok = refiner.refine(crop, (x0, y0), peak, params.max_iterations,
-                                 params.tolerance_px)
+        refiner = _Refiner(tpl, params.weight_fraction * P)
+    peak = np.array([x0 + m + bx + hp, y0 + m + by + hp], dtype=np.float64)
+    xy, ncc, _ = refiner.refine(crop, (x0, y0), peak, params.max_iterations,
+                                params.tolerance_px)
+    if params.ambiguity_margin > 0 and res.size > 1:
+        # a second peak about as good, a pattern radius away or more: another marker (or
+        # the same edge further along) could be the one. Scored like the best (refined,
+        # centre-weighted), a clear loser is ignored; a near-tie stops the track
+        r = max(hp // 2, 2)
+        peaks = (res >= cv2.dilate(res, np.ones((3, 3), np.uint8))) & (
+            res > best - params.ambiguity_margin)
+        peaks[max(by - r, 0):by + r + 1, max(bx - r, 0):bx + r + 1] = False
+        for sy, sx in zip(*np.nonzero(peaks), strict=True):
+            other = np.array([x0 + m + sx + hp, y0 + m + sy + hp], dtype=np.float64)
+            _, ncc2, _ = refiner.refine(crop, (x0, y0), other, params.max_iterations,
+                                        params.tolerance_px)
+            if ncc2 > ncc - params.ambiguity_margin:
+                return nan, 0.0
     if (not np.all(np.isfinite(xy)) or np.hypot(*(xy - peak)) > params.max_refine_px
             or not (hp + 1 <= xy[0] <= W - hp - 2 and hp + 1 <= xy[1] <= H - hp - 2)):
         return nan, 0.0
@@ -539,6 +574,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
         velocity = np.asarray(start_velocity, dtype=np.float64).reshape(2).copy()
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
+    back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0)
+    prev_img = None
     f = start
     for done in range(1, total + 1):
         f = start + done * direction
@@ -549,6 +586,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             new = keys[f]
             velocity = new - pos
             pos = new.copy()
+            prev_img = None
             frames.append(f)
             xys.append(pos.copy())
             scores.append(1.0)
@@ -569,10 +607,15 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             rkey = (pp.frame, None if pn is None else pn.frame, f if pn is not None else 0)
             ref = refiners.get(rkey)
             if ref is None:
-                ref = _Refiner(tpl, params.weight_sigma)
+                ref = _Refiner(tpl, params.weight_fraction * params.pattern_size)
                 if pn is None:
                     refiners[rkey] = ref
             xy, score = match_patch(img, tpl, pos + velocity, params, ref)
+            if (np.all(np.isfinite(xy)) and prev_img is not None
+                    and np.hypot(*(xy - pos)) > params.check_step_px
+                    and not _consistent_backwards(img, prev_img, xy, pos, back_params)):
+                xy, score = np.array([np.nan, np.nan]), 0.0
+            prev_img = img
             frames.append(f)
             is_key.append(False)
             scores.append(score)
@@ -589,6 +632,22 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     return TargetTrackResult(np.array(frames, dtype=np.int64), np.array(xys, dtype=np.float64),
                              np.array(scores, dtype=np.float64), np.array(is_key, dtype=bool),
                              reason)
+
+
+def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
+                          pos: NDArray, params: TargetTrackerParameters) -> bool:
+    """Whether the patch found at ``xy`` leads back to ``pos`` in the previous image.
+
+    A long step may have landed on a neighbouring marker: searched back in the previous
+    image (around ``xy``, with no motion prior), the neighbour's patch finds the
+    neighbour, not the tracked marker. Only long steps are checked (the caller), so
+    this costs little on slow markers.
+    """
+    tpl = _normalise(sample_patch(img, xy, params.pattern_size))
+    if tpl is None:
+        return False
+    back, _ = match_patch(prev_img, tpl, xy, params)
+    return bool(np.all(np.isfinite(back)) and np.hypot(*(back - pos)) < params.max_refine_px)
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:

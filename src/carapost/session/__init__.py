@@ -57,6 +57,7 @@ from carapost.session.process import (
     ProgressFn,
     one_of,
 )
+from carapost.session.target import TargetActions
 
 log = logging.getLogger("carapost.session")
 
@@ -95,7 +96,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions):
+class Session(ProcessActions, TargetActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
