@@ -21,6 +21,7 @@ from PySide6.QtWidgets import QGraphicsPathItem, QGraphicsRectItem, QLabel, QMen
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.target_overlay import TargetOverlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
 
@@ -201,6 +202,7 @@ class CameraView(BaseView):
             # overlays never take the mouse: clicks and drags belong to the view box
             item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
             item.setAcceptHoverEvents(False)
+        self.targets = TargetOverlay(self.group)
         self._labels: list[pg.TextItem] = []
         self.band = QGraphicsRectItem()
         self.band.setPen(pg.mkPen((255, 255, 255), style=Qt.PenStyle.DashLine))
@@ -316,6 +318,10 @@ class CameraView(BaseView):
             parts.append("selected")
         if self.measuring:
             parts.append("Measure")
+        mode = {"add": "Add Target Track", "edit": "Edit Target Track"}.get(
+            getattr(self.ctx, "point_mode", ""))
+        if mode:
+            parts.append(mode)
         return ("  [" + ", ".join(parts) + "]") if parts else ""
 
     def _overlay_items(self) -> list:
@@ -448,6 +454,7 @@ class CameraView(BaseView):
                     self.sticks.show()
         # ROM points: projections of the ROM frame, when a ROM is loaded
         self.rom.hide()
+        self.targets.draw(p, frame, c)
         # labels
         self._draw_labels(obs, valid, proj)
 
@@ -520,6 +527,10 @@ class CameraView(BaseView):
     def click(self, scene_pos: QPointF, mods, double: bool) -> None:
         """Click: select what is under the mouse (Ctrl toggles, Shift selects the sensor)."""
         p = self.ctx.project
+        if getattr(self.ctx, "point_mode", ""):   # Add / Edit Target Track
+            q = self.to_image(scene_pos)
+            self.ctx.point_clicked.emit(self.camera, q.x(), q.y())
+            return
         if mods & Qt.KeyboardModifier.ShiftModifier and not mods & Qt.KeyboardModifier.AltModifier:
             if p.properties["select_sensors"]:
                 cams = set(p.selection.cameras)
