@@ -167,3 +167,46 @@ def test_refusals_go_to_the_status_bar(make_window, take, qtbot):
     _click_image(w, 0, (2.0, 2.0))
     assert "does not fit" in w.last_error
     assert snapshot(p) == before
+
+
+class _Drag:
+    """A mouse drag event as the view box passes it on (start, move, finish)."""
+
+    def __init__(self, down: QPointF, pos: QPointF, start: bool, finish: bool) -> None:
+        self._down, self._pos, self._start, self._finish = down, pos, start, finish
+
+    def isStart(self) -> bool:
+        return self._start
+
+    def isFinish(self) -> bool:
+        return self._finish
+
+    def buttonDownScenePos(self) -> QPointF:
+        return self._down
+
+    def scenePos(self) -> QPointF:
+        return self._pos
+
+
+def test_dragging_a_keyframe_is_one_undo_step(make_window, take, qtbot):
+    w, p, scene = _window(make_window, take, qtbot)
+    m = list(scene.labels).index("Cheek_L")
+    w.action("edit.add_target_track").trigger()
+    _click_image(w, 0, scene.uv[0, m, 0])
+    w.action("edit.stop_point_edit").trigger()
+    (pid,) = p.selection.points
+    col = int(p.points.index_of([pid])[0])
+    before = snapshot(p)
+    view = _view(w, 0)
+    start = scene.uv[0, m, 0] + 1.0
+    to_scene = view.group.mapToScene
+    down = to_scene(QPointF(*start))
+    for i, (s, f) in enumerate(((True, False), (False, False), (False, True))):
+        pos = to_scene(QPointF(*(start + [0.5 * i, -0.25 * i])))
+        view.drag(_Drag(down, pos, s, f), lasso=False)
+    # moved by the drag (1, -0.5) px, wherever in the box it was grabbed
+    assert np.allclose(p.points.obs[0, col, 0], scene.uv[0, m, 0] + [1.0, -0.5], atol=1e-3)
+    assert w.stack.history()[-1].description.startswith("Edit Target Track")
+    assert p.points.keyframe[0, col, 0]
+    w.action("edit.undo").trigger()
+    assert snapshot(p) == before

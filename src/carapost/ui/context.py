@@ -107,6 +107,8 @@ class ViewContext(QObject):
         A view asks for this active range (Ctrl+drag on the continuity chart or graph).
     point_clicked(int, float, float)
         A click at image (x, y) of a camera in Add / Edit Target Track mode.
+    keyframe_moved(int, int, float, float)
+        A selected keyframe (camera, point id) was dragged to image (x, y).
     """
 
     changed = Signal(object)
@@ -116,6 +118,7 @@ class ViewContext(QObject):
     frame_requested = Signal(int)
     range_requested = Signal(int, int)
     point_clicked = Signal(int, float, float)
+    keyframe_moved = Signal(int, int, float, float)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -316,6 +319,7 @@ class ActionContext(QObject):
         self.last_error = ""
         self.view.properties_requested.connect(self.set_properties)
         self.view.point_clicked.connect(self._point_clicked)
+        self.view.keyframe_moved.connect(self._keyframe_moved)
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
@@ -324,6 +328,10 @@ class ActionContext(QObject):
         from carapost.ui.handlers.target import clicked
 
         clicked(self, camera, x, y)
+
+    def _keyframe_moved(self, camera: int, point: int, x: float, y: float) -> None:
+        self.act("Drag Keyframe", self.session.edit_target_track, point, camera,
+                 self.project.current_frame, (x, y))
 
     # -- state -------------------------------------------------------------------------------
     @property

@@ -565,7 +565,23 @@ class CameraView(BaseView):
         p.set_selection(points=points, detections=dets)
 
     def drag(self, ev, lasso: bool) -> None:
-        """Rubber band, lasso or measurement drag."""
+        """Rubber band, lasso or measurement drag; dragging a selected keyframe moves it
+        (one History entry, on release)."""
+        f, p = self.ctx.project.current_frame, self.ctx.project
+        if ev.isStart():
+            d = self.to_image(ev.buttonDownScenePos())
+            pid = self.targets.grab(p, f, self.camera, (d.x(), d.y()))
+            self._key_drag = None if pid is None else (pid, d, p.points.obs[
+                f, int(p.points.index_of([pid])[0]), self.camera].astype(float))
+        if getattr(self, "_key_drag", None) is not None:
+            pid, d, orig = self._key_drag
+            q = self.to_image(ev.scenePos())
+            xy = (orig[0] + q.x() - d.x(), orig[1] + q.y() - d.y())
+            self.targets.draw(p, f, self.camera, (pid, xy))
+            if ev.isFinish():
+                self._key_drag = None
+                self.ctx.keyframe_moved.emit(self.camera, pid, *xy)
+            return
         pos = self.vb.mapSceneToView(ev.scenePos())
         if ev.isStart():
             down = self.vb.mapSceneToView(ev.buttonDownScenePos())

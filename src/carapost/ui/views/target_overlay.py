@@ -83,8 +83,23 @@ class TargetOverlay:
             item.setAcceptHoverEvents(False)
             item.hide()
 
-    def draw(self, project, frame: int, camera: int) -> None:
-        """Draw the target tracks of ``camera`` at ``frame``."""
+    def grab(self, project, frame: int, camera: int, xy) -> int | None:
+        """The id of the selected keyframe whose pattern box holds image point ``xy``."""
+        pts = project.points
+        if not pts.count or not 0 <= frame < project.n_frames or camera >= pts.n_cameras:
+            return None
+        cols = project.selected_columns()
+        if not len(cols):
+            return None
+        obs = pts.obs[frame, cols, camera].astype(np.float64)
+        key = pts.keyframe[frame, cols, camera] & np.isfinite(obs[:, 0])
+        half = TargetTrackerParameters().pattern_size / 2.0
+        inside = key & (np.abs(obs - np.asarray(xy, float)) <= half).all(axis=1)
+        return int(pts.ids[cols[np.flatnonzero(inside)[0]]]) if inside.any() else None
+
+    def draw(self, project, frame: int, camera: int, moved=None) -> None:
+        """Draw the target tracks of ``camera`` at ``frame``; ``moved`` = (point id,
+        (x, y)) draws that point's keyframe where it is being dragged to."""
         for item in self.items:
             item.hide()
         pts = project.points
@@ -100,6 +115,8 @@ class TargetOverlay:
         except ValueError:  # pragma: no cover - defaults are valid
             return
         obs = pts.obs[frame, :, camera].astype(np.float64)
+        if moved is not None:
+            obs[int(pts.index_of([moved[0]])[0])] = moved[1]
         key = target & pts.keyframe[frame, :, camera] & np.isfinite(obs[:, 0])
         tracked = target & ~key & np.isfinite(obs[:, 0])
         sel = np.zeros(pts.count, bool)
