@@ -27,6 +27,12 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``blink_attached_other`` (samples nearer another marker), ``blink_recovered_max_px`` and
   ``blink_recovered_fraction`` (visible frames between the keyframes tracked within
   0.3 px).
+- ``missed``: markers visible throughout whose 2D and 3D are removed after frame 0 (as a
+  marker the blob detector misses), recovered through the Session (Add Keyframe To
+  Current Frame, Track forward to end, default settings):
+  ``missed_marker_p95_px`` (median over markers of the 95th percentile 2D error),
+  ``missed_marker_rmse_mm`` (median over markers of the 3D RMSE over the stretch) and
+  ``missed_marker_complete_fraction``.
 - ``target_track_patch_frames_per_s``: one marker, one camera, one frame per call,
   default pattern and search sizes, single core, over CPU time.
 - ``target_track_4cam_600_s``: one point in 4 cameras over 600 frames (300 forwards,
@@ -240,6 +246,51 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8) -> None:
          visible_frames=n_vis)
 
 
+def bench_missed(frames: int, size: tuple[int, int]) -> None:
+    """Markers the blob detector missed after frame 0, recovered through the Session:
+    Add Keyframe To Current Frame at frame 0, Track forward to end (default settings)."""
+    import functools
+
+    from carapost import Session
+    from carapost.synth.demo_project import scene_project
+
+    project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=3)
+    get = functools.lru_cache(maxsize=None)(get)
+    markers = np.flatnonzero(scene.visible.all(axis=(0, 2)))
+    px, rmse, complete = [], [], 0
+    t = time.process_time()
+    for m in markers:
+        s = Session(project, get_image=get)
+        pts = project.points
+        saved = {k: v[:, m].copy() for k, v in pts.arrays.items()}
+        pts.obs[0, m] = scene.uv[0, m]
+        pts.positions[0, m] = scene.points3d[0, m]
+        for name, fill in (("obs", np.nan), ("positions", np.nan), ("source", 0),
+                           ("detection", -1), ("recon", 0), ("keyframe", False)):
+            pts.arrays[name][1:, m] = fill
+        s.select(points=[int(pts.ids[m])])
+        s.current_frame = 0
+        s.add_keyframe()
+        s.target_track(+1)
+        e2 = np.linalg.norm(pts.obs[1:, m] - scene.uv[1:, m], axis=-1)
+        e3 = np.linalg.norm(pts.positions[1:, m] - scene.points3d[1:, m], axis=-1)
+        if np.isfinite(e2).all():
+            complete += 1
+        px.append(float(np.nanpercentile(e2, 95)) if np.isfinite(e2).any() else np.nan)
+        rmse.append(float(np.sqrt(np.nanmean(e3 ** 2))) if np.isfinite(e3).any() else np.nan)
+        for k, v in saved.items():
+            pts.arrays[k][:, m] = v
+    cpu = time.process_time() - t
+    common = {"case": "missed", "markers": len(markers), "frames": frames,
+              "size": f"{size[0]}x{size[1]}"}
+    emit("missed_marker_p95_px", round(float(np.nanmedian(px)), 4), "px", **common,
+         worst=round(float(np.nanmax(px)), 3), statistic="median over markers of p95")
+    emit("missed_marker_rmse_mm", round(float(np.nanmedian(rmse)), 4), "mm", **common,
+         worst=round(float(np.nanmax(rmse)), 3), statistic="median over markers")
+    emit("missed_marker_complete_fraction", round(complete / len(markers), 3), "fraction",
+         **common, cpu_s=round(cpu, 1))
+
+
 def bench_speed(size: tuple[int, int]) -> None:
     cfg = SynthConfig(preset="speech", frames=600, size=size)
     scene = build_scene(cfg)
@@ -292,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--skip-blink", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--skip-missed", action="store_true")
     a = ap.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
     if not a.skip_speed:
@@ -300,6 +352,8 @@ def main(argv: list[str] | None = None) -> int:
         bench_case(name, a.frames, size)
     if not a.skip_blink:
         bench_blink(a.frames, size)
+    if not a.skip_missed:
+        bench_missed(min(a.frames, 120), size)
     emit("load_average", _load(), "")
     return 0
 

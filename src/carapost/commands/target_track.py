@@ -419,6 +419,12 @@ class TargetTrackJob(Job):
     auto_keys: list[tuple[int, int]]       # (point index, camera) keyed at start
     description: str
 
+    @property
+    def stop(self) -> int:
+        """The farthest frame any track may reach (the views follow up to it)."""
+        stops = [tr.stop for tr in self.tracks] or [self.start]
+        return max(stops) if self.direction > 0 else min(stops)
+
     def compute(self, progress: Progress = None) -> TargetTrackResult:
         d, P = self.direction, self.params
         block = {k: v.copy() for k, v in self.block.items()}
