@@ -150,7 +150,11 @@ def _stats(e: np.ndarray) -> tuple[float, float]:
     return float(np.nanmedian(e)), float(np.nanpercentile(e, 95))
 
 
-def bench_case(name: str, frames: int, size: tuple[int, int]) -> None:
+KLT_CONFIGS = ((9, 3), (15, 3), (21, 3), (31, 4))
+
+
+def bench_case(name: str, frames: int, size: tuple[int, int],
+               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS) -> None:
     cfg = SynthConfig(frames=frames, size=size, **CASES[name])
     t = time.time()
     scene, imgs = render(cfg)
@@ -175,7 +179,7 @@ def bench_case(name: str, frames: int, size: tuple[int, int]) -> None:
          median_px_tracked=round(float(np.nanmedian(E9)), 4))
     emit("target_track_wrong_marker_default", wrong9, "tracks", **common, break_threshold=0.9)
     best = None
-    for win, lev in ((9, 3), (15, 3), (21, 3), (31, 4)):
+    for win, lev in klt_configs:
         K = klt(imgs, uv, markers, win, lev)
         k = _stats(K)
         if best is None or k[0] < best[0][0]:
@@ -291,8 +295,12 @@ def bench_missed(frames: int, size: tuple[int, int]) -> None:
          **common, cpu_s=round(cpu, 1))
 
 
-def bench_speed(size: tuple[int, int]) -> None:
-    cfg = SynthConfig(preset="speech", frames=600, size=size)
+def bench_speed(size: tuple[int, int], frames: int = 600) -> None:
+    """Per-frame speed, and one point in 4 cameras over 600 frames: the take has
+    ``frames`` frames (600 by default), tracked forwards and backwards over it as many
+    times as make 600 frames per camera; decoding is timed over the whole take and
+    scaled to 600 frames."""
+    cfg = SynthConfig(preset="speech", frames=frames, size=size)
     scene = build_scene(cfg)
     labels = list(scene.labels)
     m = labels.index("Cheek_L")
@@ -306,16 +314,17 @@ def bench_speed(size: tuple[int, int]) -> None:
         t = time.perf_counter()
         frames = TakeFrames(take, strict=True)
         imgs = np.stack([np.stack([frames.get(f, c) for c in range(scene.n_cameras)])
-                         for f in range(600)])
-        decode = time.perf_counter() - t
+                         for f in range(cfg.frames)])
+        decode = (time.perf_counter() - t) * 600.0 / cfg.frames
         frames.close()
     params = TargetTrackerParameters()
     uv = scene.uv
     # per-frame speed: one match per call over 300 frames of one camera, CPU time
     runs = []
+    last = cfg.frames - 1
     for _ in range(5):
         t = time.process_time()
-        r = track_target(lambda f: imgs[f, 0], {0: uv[0, m, 0]}, start=0, stop=299,
+        r = track_target(lambda f: imgs[f, 0], {0: uv[0, m, 0]}, start=0, stop=last,
                          direction=1, params=params)
         runs.append((len(r.frames) - 1) / (time.process_time() - t))
     emit("target_track_patch_frames_per_s", round(statistics.median(runs)), "frames/s",
@@ -323,12 +332,15 @@ def bench_speed(size: tuple[int, int]) -> None:
     walls = []
     for _ in range(3):
         t = time.perf_counter()
-        for c in range(scene.n_cameras):
-            track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0, stop=299,
-                         direction=1, params=params)
-            track_target(lambda f, c=c: imgs[f, c], {599: uv[599, m, c]}, start=599,
-                         stop=300, direction=-1, params=params)
-        walls.append(time.perf_counter() - t)
+        done = 0
+        while done < 600:
+            for c in range(scene.n_cameras):
+                track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0,
+                             stop=last, direction=1, params=params)
+                track_target(lambda f, c=c: imgs[f, c], {last: uv[last, m, c]},
+                             start=last, stop=0, direction=-1, params=params)
+            done += 2 * last
+        walls.append((time.perf_counter() - t) * 600.0 / done)
     w = statistics.median(walls)
     emit("target_track_4cam_600_s", round(w, 3), "s", runs=[round(v, 3) for v in walls],
          load_average=_load())
@@ -344,12 +356,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-blink", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-missed", action="store_true")
+    ap.add_argument("--klt", default="9x3,15x3,21x3,31x4",
+                    help="KLT window x pyramid levels to try (the best is reported)")
+    ap.add_argument("--speed-frames", type=int, default=600)
     a = ap.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
+    klt_configs = tuple(tuple(int(v) for v in k.split("x")) for k in a.klt.split(","))
     if not a.skip_speed:
-        bench_speed(size)
+        bench_speed(size, a.speed_frames)
     for name in [c for c in a.cases.split(",") if c]:
-        bench_case(name, a.frames, size)
+        bench_case(name, a.frames, size, klt_configs)
     if not a.skip_blink:
         bench_blink(a.frames, size)
     if not a.skip_missed:
