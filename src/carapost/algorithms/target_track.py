@@ -132,6 +132,10 @@ class TargetTrackerParameters:
         0.18, min=0.0,
         help="Gaussian weight of the refinement and the score around the pattern centre, "
              "sigma as a fraction of the Pattern Size (0: uniform).")
+    near_px: int = param(
+        6, min=0, max=100, unit="px",
+        help="First search this far around the prediction (0: always the whole search "
+             "region); a clear match inside it is taken.")
     ambiguity_margin: float = param(
         0.05, min=0.0, max=1.0,
         help="A match whose second-best peak (another place in the search region) is "
@@ -404,7 +408,25 @@ def match_patch(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
     score : float
         NCC at ``xy`` clipped to [0, 1] (0 when not found).
     """
-    P, S = params.pattern_size, params.search_size
+    if refiner is None:
+        refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
+    small = params.pattern_size + 2 * params.near_px
+    if params.near_px > 0 and small < params.search_size:
+        # most frames move little: search near the prediction first and accept a clear
+        # match that is not on the small region's edge; otherwise the whole region
+        xy, score, edge = _search(image, tpl, predicted, params, refiner, small)
+        if not edge and np.isfinite(xy[0]) and score >= params.break_threshold:
+            return xy, score
+    xy, score, _ = _search(image, tpl, predicted, params, refiner, params.search_size)
+    return xy, score
+
+
+def _search(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
+            params: TargetTrackerParameters, refiner: _Refiner, S: int
+            ) -> tuple[NDArray[np.float64], float, bool]:
+    """One search of :func:`match_patch` in a region of side ``S``; also returns whether
+    the integer peak lies on the region's edge (the marker may be beyond it)."""
+    P = params.pattern_size
     hp, hs = P // 2, S // 2
     H, W = image.shape[:2]
     cx, cy = int(round(float(predicted[0]))), int(round(float(predicted[1])))
@@ -414,20 +436,20 @@ def match_patch(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
     x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
     y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
     if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
-        return nan, 0.0
+        return nan, 0.0, False
     crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
     win = crop[m:-m, m:-m]
     crop = crop.astype(np.float64)
     res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
     if params.distance_penalty > 0 and S > P:
         # centres of the candidates relative to the prediction, in half search sizes
-        ux = (np.arange(res.shape[1]) + x0 + m + hp - predicted[0]) / max(hs - hp, 1)
-        uy = (np.arange(res.shape[0]) + y0 + m + hp - predicted[1]) / max(hs - hp, 1)
+        norm = max(params.search_size // 2 - hp, 1)
+        ux = (np.arange(res.shape[1]) + x0 + m + hp - predicted[0]) / norm
+        uy = (np.arange(res.shape[0]) + y0 + m + hp - predicted[1]) / norm
         res = res - np.float32(params.distance_penalty) * (
             uy[:, None] ** 2 + ux[None, :] ** 2).astype(np.float32)
     _, best, _, (bx, by) = cv2.minMaxLoc(res)
-    if refiner is None:
-        refiner = _Refiner(tpl, params.weight_fraction * P)
+    edge = bx in (0, res.shape[1] - 1) or by in (0, res.shape[0] - 1)
     peak = np.array([x0 + m + bx + hp, y0 + m + by + hp], dtype=np.float64)
     xy, ncc, _ = refiner.refine(crop, (x0, y0), peak, params.max_iterations,
                                 params.tolerance_px)
@@ -444,11 +466,11 @@ def match_patch(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
             _, ncc2, _ = refiner.refine(crop, (x0, y0), other, params.max_iterations,
                                         params.tolerance_px)
             if ncc2 > ncc - params.ambiguity_margin:
-                return nan, 0.0
+                return nan, 0.0, edge
     if (not np.all(np.isfinite(xy)) or np.hypot(*(xy - peak)) > params.max_refine_px
             or not (hp + 1 <= xy[0] <= W - hp - 2 and hp + 1 <= xy[1] <= H - hp - 2)):
-        return nan, 0.0
-    return xy, min(max(ncc, 0.0), 1.0)
+        return nan, 0.0, edge
+    return xy, min(max(ncc, 0.0), 1.0), edge
 
 
 ProgressFn = Callable[[int, int], "bool | None"] | None
@@ -574,7 +596,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
         velocity = np.asarray(start_velocity, dtype=np.float64).reshape(2).copy()
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
-    back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0)
+    back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
     prev_img = None
     f = start
     for done in range(1, total + 1):
