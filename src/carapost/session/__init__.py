@@ -59,6 +59,7 @@ from carapost.session.process import (
 )
 from carapost.session.quality import QualityActions
 from carapost.session.stabilise import StabiliseActions
+from carapost.session.target import TargetActions
 
 log = logging.getLogger("carapost.session")
 
@@ -97,7 +98,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions, QualityActions, StabiliseActions):
+class Session(ProcessActions, QualityActions, StabiliseActions, TargetActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from

@@ -32,6 +32,7 @@ from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
 from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
+from carapost.ui.handlers import target as target_menu
 from carapost.ui.handlers import view as view_menu
 
 NOT_AVAILABLE = "Not available yet"
@@ -152,12 +153,13 @@ ACTIONS: tuple[ActionSpec, ...] = (
        separator=True),
     _A("edit.increment_offset", "Edit", "Increment Image Sequence Offset", "",
        _do(S.increment_image_sequence_offset)),
-    # the Target Tracker's items wait for carapost.commands.target_track
-    _A("edit.add_target_track", "Edit", "Add Target Track", "Shift+A", separator=True),
-    _A("edit.edit_target_track", "Edit", "Edit Target Track", "Shift+E"),
+    _A("edit.add_target_track", "Edit", "Add Target Track", "Shift+A",
+       partial(target_menu.set_mode, mode="add"), separator=True),
+    _A("edit.edit_target_track", "Edit", "Edit Target Track", "Shift+E",
+       partial(target_menu.set_mode, mode="edit")),
     _A("edit.stop_point_edit", "Edit", "Stop Point Edit mode", "Shift+S",
-       partial(edit_menu.point_edit_mode, mode="")),
-    _A("edit.gaps_to_keys", "Edit", "Gaps To Keys", ""),
+       partial(target_menu.set_mode, mode="")),
+    _A("edit.gaps_to_keys", "Edit", "Gaps To Keys", "", target_menu.gaps_to_keys),
     _A("edit.remove_unused", "Edit", "Remove Unused Detections", "",
        _do(S.remove_unused_detections), separator=True),
     _A("edit.remove_interpolated", "Edit", "Remove Interpolated 3D Points", "",

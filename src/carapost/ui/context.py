@@ -107,6 +107,10 @@ class ViewContext(QObject):
         A view asks to go to a frame.
     range_requested(int, int)
         A view asks for this active range (Ctrl+drag on the continuity chart or graph).
+    point_clicked(int, float, float)
+        A click at image (x, y) of a camera in Add / Edit Target Track mode.
+    keyframe_moved(int, int, float, float)
+        A selected keyframe (camera, point id) was dragged to image (x, y).
     """
 
     changed = Signal(object)
@@ -115,10 +119,14 @@ class ViewContext(QObject):
     frame_ready = Signal(int, int)
     frame_requested = Signal(int)
     range_requested = Signal(int, int)
+    point_clicked = Signal(int, float, float)
+    keyframe_moved = Signal(int, int, float, float)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self.project: Project = new_project(0, 0)
+        #: Target Track point edit mode shown in the camera views ("add", "edit", "")
+        self.point_mode = ""
         self.frames: FrameSource = FrameSource()
         self.options = DisplayOptions()
         self.preselected: int | None = None  # point id under the mouse
@@ -148,9 +156,12 @@ class ViewContext(QObject):
 
     def projections(self, frame: int) -> NDArray[np.float64] | None:
         """Every point projected into every camera at ``frame``: [P, C, 2] px, NaN if none."""
-        if frame in self._proj_cache:
-            return self._proj_cache[frame]
         p = self.project
+        cached = self._proj_cache.get(frame)
+        # an entry made before a point was added (the change event is still queued) has
+        # the old point count: recompute it
+        if frame in self._proj_cache and (cached is None or len(cached) == p.n_points):
+            return cached
         cal = p.calibration
         out = None
         if (cal.intrinsics is not None and p.n_points and 0 <= frame < p.n_frames
@@ -309,10 +320,21 @@ class ActionContext(QObject):
         self.point_mode = ""
         self.last_error = ""
         self.view.properties_requested.connect(self.set_properties)
+        self.view.point_clicked.connect(self._point_clicked)
+        self.view.keyframe_moved.connect(self._keyframe_moved)
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
         self.proxies = ProxyBuilder(self)
+
+    def _point_clicked(self, camera: int, x: float, y: float) -> None:
+        from carapost.ui.handlers.target import clicked
+
+        clicked(self, camera, x, y)
+
+    def _keyframe_moved(self, camera: int, point: int, x: float, y: float) -> None:
+        self.act("Drag Keyframe", self.session.edit_target_track, point, camera,
+                 self.project.current_frame, (x, y))
 
     # -- state -------------------------------------------------------------------------------
     @property

@@ -387,8 +387,8 @@ class SelectionPane(QWidget):
 class TrackerPane(QWidget):
     """Target Tracker controls and settings.
 
-    The buttons stay disabled until ``carapost.commands.target_track`` exists; the
-    Target Tracker wires them to its handlers.
+    The buttons call the Target Tracker handlers (:mod:`carapost.ui.handlers.target`):
+    a track button reads Pause while its run is on the worker.
     """
 
     BUTTONS = (("<<", "Track back to start", "back_to_start"),
@@ -398,7 +398,7 @@ class TrackerPane(QWidget):
                ("Clear Tracked Points", "Clear Tracked Points", "clear"),
                ("Add Keyframe To Current Frame", "Add Keyframe To Current Frame",
                 "add_keyframe"))
-    REQUIRES = "carapost.commands.target_track:track_points"
+    REQUIRES = "carapost.commands.target_track:prepare_target_track"
 
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
@@ -428,6 +428,10 @@ class TrackerPane(QWidget):
         self.settings.tree.expandAll()
         layout.addWidget(self.settings, 1)
         self.settings_box.toggled.connect(self.settings.setVisible)
+        if available:
+            from carapost.ui.handlers.target import wire_tracker_pane
+
+            wire_tracker_pane(self, ctx)
 
 
 class SelectedPointPane(QWidget):

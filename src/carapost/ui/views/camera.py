@@ -21,6 +21,7 @@ from PySide6.QtWidgets import QGraphicsPathItem, QGraphicsRectItem, QLabel, QMen
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.target_overlay import TargetOverlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
 
@@ -201,6 +202,7 @@ class CameraView(BaseView):
             # overlays never take the mouse: clicks and drags belong to the view box
             item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
             item.setAcceptHoverEvents(False)
+        self.targets = TargetOverlay(self.group)
         self._labels: list[pg.TextItem] = []
         self.band = QGraphicsRectItem()
         self.band.setPen(pg.mkPen((255, 255, 255), style=Qt.PenStyle.DashLine))
@@ -323,6 +325,10 @@ class CameraView(BaseView):
             parts.append("selected")
         if self.measuring:
             parts.append("Measure")
+        mode = {"add": "Add Target Track", "edit": "Edit Target Track"}.get(
+            getattr(self.ctx, "point_mode", ""))
+        if mode:
+            parts.append(mode)
         return ("  [" + ", ".join(parts) + "]") if parts else ""
 
     def _overlay_items(self) -> list:
@@ -485,6 +491,7 @@ class CameraView(BaseView):
                     self.sticks.show()
         # ROM points: projections of the ROM frame, when a ROM is loaded
         self.rom.hide()
+        self.targets.draw(p, frame, c)
         # labels
         self._draw_labels(obs, valid, proj)
 
@@ -557,6 +564,10 @@ class CameraView(BaseView):
     def click(self, scene_pos: QPointF, mods, double: bool) -> None:
         """Click: select what is under the mouse (Ctrl toggles, Shift selects the sensor)."""
         p = self.ctx.project
+        if getattr(self.ctx, "point_mode", ""):   # Add / Edit Target Track
+            q = self.to_image(scene_pos)
+            self.ctx.point_clicked.emit(self.camera, q.x(), q.y())
+            return
         if mods & Qt.KeyboardModifier.ShiftModifier and not mods & Qt.KeyboardModifier.AltModifier:
             if p.properties["select_sensors"]:
                 cams = set(p.selection.cameras)
@@ -591,7 +602,23 @@ class CameraView(BaseView):
         p.set_selection(points=points, detections=dets)
 
     def drag(self, ev, lasso: bool) -> None:
-        """Rubber band, lasso or measurement drag."""
+        """Rubber band, lasso or measurement drag; dragging a selected keyframe moves it
+        (one History entry, on release)."""
+        f, p = self.ctx.project.current_frame, self.ctx.project
+        if ev.isStart():
+            d = self.to_image(ev.buttonDownScenePos())
+            pid = self.targets.grab(p, f, self.camera, (d.x(), d.y()))
+            self._key_drag = None if pid is None else (pid, d, p.points.obs[
+                f, int(p.points.index_of([pid])[0]), self.camera].astype(float))
+        if getattr(self, "_key_drag", None) is not None:
+            pid, d, orig = self._key_drag
+            q = self.to_image(ev.scenePos())
+            xy = (orig[0] + q.x() - d.x(), orig[1] + q.y() - d.y())
+            self.targets.draw(p, f, self.camera, (pid, xy))
+            if ev.isFinish():
+                self._key_drag = None
+                self.ctx.keyframe_moved.emit(self.camera, pid, *xy)
+            return
         pos = self.vb.mapSceneToView(ev.scenePos())
         if ev.isStart():
             down = self.vb.mapSceneToView(ev.buttonDownScenePos())
