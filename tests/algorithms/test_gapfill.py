@@ -90,7 +90,7 @@ def test_auto_estimate_follows_the_real_error():
     assert len(est) >= 0.8 * len(g)
     assert spearmanr(est, real).statistic > 0.6
     assert np.isfinite(out.sigma[out.filled]).mean() > 0.8
-    assert set(g.method) <= {"guide", "lowrank", "spline"}
+    assert set(g.method) <= {"guide", "lowrank", "spline", "mix", "cubic"}
 
 
 def test_bad_input_leaves_those_gaps_and_fills_the_rest():

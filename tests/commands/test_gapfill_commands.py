@@ -215,3 +215,31 @@ def test_import_c3d_of_a_real_facial_capture_and_fill():
     assert filled.sum() > 0.8 * (missing[:, :37]).sum()
     labelled = filled[:, :37]                  # the last point (Unlabeled1) is 1 % present
     assert np.isfinite(p.points.sigma[:, :37][labelled]).mean() > 0.9
+
+
+def test_fill_gaps_command_line_c3d_to_c3d_and_cara(tmp_path, capsys):
+    from carapost.cli import main
+    from carapost.io.c3d import read_c3d, write_c3d
+
+    X = face_take(frames=400, points=12, seed=2)
+    Xg = X.copy()
+    Xg[100:130, 4] = np.nan
+    Xg[:, 9] = np.nan                              # a marker never seen: left, with a message
+    src = tmp_path / "in.c3d"
+    write_c3d(src, Xg, labels=[f"L{i}" for i in range(12)], rate=100.0)
+    out, rep = tmp_path / "out.c3d", tmp_path / "rep.json"
+    assert main(["fill-gaps", str(src), "-o", str(out), "--method", "guide",
+                 "--report", str(rep)]) == 0
+    d = read_c3d(out)
+    assert d.labels[:12] == [f"L{i}" for i in range(12)]
+    err = np.linalg.norm(d.positions[100:130, 4] - X[100:130, 4], axis=-1)
+    assert err.max() < 3.0 and d.processed[100:130, 4].all()
+    assert np.isnan(d.positions[:, 9]).all()
+    data = json.loads(rep.read_text())
+    assert data["filled_samples"] == 30 and any("L9" in m for m in data["messages"])
+    assert "filled 1 of 2 gaps" in capsys.readouterr().out
+    cara = tmp_path / "out.cara"
+    assert main(["fill-gaps", str(src), "-o", str(cara), "--max-gap", "10"]) == 0
+    s = Session.open(cara)
+    assert np.isnan(s.project.points.positions[100:130, 4]).all()   # 30 > 10: left
+    assert main(["fill-gaps", str(src), "-o", str(tmp_path / "x.txt")]) == 2

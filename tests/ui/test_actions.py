@@ -202,7 +202,7 @@ def test_unimplemented_guide_items_are_listed_disabled(make_window):
     assert missing == {"edit.add_target_track", "edit.edit_target_track",
                        "edit.gaps_to_keys", "view.brim_svg", "view.show_stabilized",
                        "process.stab_manual", "process.stab_assisted", "process.align",
-                       "process.interpolate", "help.updates"}
+                       "help.updates"}
     w = make_window()
     for id_ in missing:
         assert not w.action(id_).isEnabled()

@@ -77,7 +77,10 @@ GAP_FILLING = "Gap-Filling Parameters"
 CLEAN_UP = "Clean-up Parameters"
 #: Fill methods; ``auto`` chooses one per gap by the hold-out self-test.
 METHODS = ("auto", "guide", "lowrank", "spline")
-_SINGLE = ("guide", "lowrank", "spline")
+#: Candidates of auto: besides the methods, "mix" (mean of guide and spline) and "cubic"
+#: (the local cubic of the trajectory in the capture frame, no neighbours: for data whose
+#: markers do not move with their neighbours, such as a body's).
+_SINGLE = ("guide", "lowrank", "spline", "mix", "cubic")
 
 Progress = Callable[[int, int], bool] | None
 
@@ -253,11 +256,28 @@ def _ends_blend(fit: NDArray, Y: NDArray, point: NDArray, start: NDArray, end: N
 
 def _method_fills(name: str, Y: NDArray, known: NDArray, point: NDArray, start: NDArray,
                   end: NDArray, left: NDArray, right: NDArray, nb: NDArray, nbw: NDArray,
-                  fit: NDArray | None) -> NDArray:
+                  fit: NDArray | None, world: tuple[NDArray, NDArray, NDArray] | None = None
+                  ) -> NDArray:
+    if name == "cubic":
+        assert world is not None
+        Xw, R, t = world
+        g, f = gap_samples(start, end)
+        # context grows with the gap: 3 samples a side for the shortest, up to 20
+        L = end - start + 1
+        side = np.select([L <= 5, L <= 15, L <= 40], [3, 6, 12], 20)
+        x = np.full((len(g), 3), np.nan)
+        for sd in np.unique(side):
+            sel = side == sd
+            x[sel[g]] = spline_fill(Xw, known, point[sel], start[sel], end[sel], left[sel],
+                                    right[sel], side=int(sd))
+        return np.einsum("sji,sj->si", R[f], x - t[f])          # to the head frame
     if name == "guide":
         return guide_fill(Y, known, point, start, end, left, right, nb, nbw)
     if name == "spline":
         return spline_fill(Y, known, point, start, end, left, right, nb, nbw)
+    if name == "mix":
+        return 0.5 * (guide_fill(Y, known, point, start, end, left, right, nb, nbw)
+                      + spline_fill(Y, known, point, start, end, left, right, nb, nbw))
     assert fit is not None
     return _ends_blend(fit, Y, point, start, end, left, right)
 
@@ -362,6 +382,7 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
     del Xz
     Y[~kn] = np.nan
     nb, nbw = neighbour_table(Y, kn, prm.neighbours)
+    world = (np.where(kn[..., None], X, np.nan).astype(np.float32), Rh, th)
     if not tick(1):
         return _empty(F, P, point, start, end, status, messages, cancelled=True)
 
@@ -375,6 +396,8 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
         "spline": usable & left & right & ((L <= prm.spline_max_frames) | (want == "spline")),
         "lowrank": usable & (nknown[point] >= prm.lowrank_min_known) & (P >= 3),
     }
+    can["mix"] = can["spline"] & (want == "auto")
+    can["cubic"] = usable & left & right & (want == "auto")
     if want == "spline":
         refuse(~can["spline"], "the spline needs known samples on both sides")
     if want == "lowrank":
@@ -420,7 +443,7 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
             errors[m] = np.full(G, np.nan)
             continue
         pred = _method_fills(m, Y, kn, hp, hs, he, hl, hr, nb, nbw,
-                             fits.get("test"))
+                             fits.get("test"), world)
         e = np.linalg.norm(pred - truth, axis=-1)
         err_samples[m] = e
         per_hold = _rms_per_gap(e**2, hgs, len(hg))
@@ -445,6 +468,26 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
         chosen[:] = want
     chosen[~usable] = ""
 
+    # a safeguard for auto: the global method can go wrong where the data near a gap are
+    # odd (an outlier pulls a component). The local neighbour prediction is the
+    # reference: a low-rank fill far from it, by much more than the two local methods
+    # (neighbours, spline) differ from each other, is not trusted and the neighbour
+    # prediction fills the gap.
+    alt = np.flatnonzero(chosen == "lowrank")
+    if want == "auto" and len(alt):
+        args = (point[alt], start[alt], end[alt], left[alt], right[alt])
+        ga, _ = gap_samples(start[alt], end[alt])
+        gp = guide_fill(Y, kn, *args, nb, nbw)
+        sp = spline_fill(Y, kn, *args, nb, nbw)
+        lr = _method_fills("lowrank", Y, kn, *args, nb, nbw, fits.get("lowrank"))
+
+        def dist(u: NDArray, v: NDArray) -> NDArray:
+            return _rms_per_gap(np.sum((u - v) ** 2, -1), ga, len(alt))
+
+        spread = np.maximum(2.0, 3.0 * dist(gp, sp))
+        far = dist(lr, gp) > spread                               # NaN compares False
+        chosen[alt[far]] = "guide"
+
     out = np.full((F, P, 3), np.nan)
     sigma = np.full((F, P), np.nan, np.float32)
     filled = np.zeros((F, P), bool)
@@ -455,7 +498,7 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
             continue
         idx = np.flatnonzero(sel)
         pred = _method_fills(m, Y, kn, point[idx], start[idx], end[idx], left[idx],
-                             right[idx], nb, nbw, fits.get("lowrank"))
+                             right[idx], nb, nbw, fits.get("lowrank"), world)
         g2, f2 = gap_samples(start[idx], end[idx])
         gg = idx[g2]
         p2 = point[gg]

@@ -220,7 +220,7 @@ def guide_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDAr
 
 def spline_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDArray,
                 end: NDArray, left: NDArray, right: NDArray, nb: NDArray | None = None,
-                nbw: NDArray | None = None, side: int = 4) -> NDArray:
+                nbw: NDArray | None = None, side: int = 3) -> NDArray:
     """Local cubic through the ``side`` frames either side of the gap, after taking out
     the neighbours' own motion.
 

@@ -102,17 +102,26 @@ class GapFillActions:
         label, first, last, length, method, estimated_rmse_mm, holdouts, status}],
         "messages"}`` (None before the first run). The per-sample estimate is the
         project's ``points.sigma`` (mm)."""
-        return self._gap_report
+        if self._gap_report is not None:
+            return self._gap_report
+        from carapost.commands.gapfill import GapFillResult
+
+        for cmd in reversed(self.stack.applied()):   # a run from the window's worker
+            result = getattr(cmd, "result", None)
+            if isinstance(result, GapFillResult):
+                return result.report()
+        return None
 
     def write_gap_report(self, path: str | Path) -> Path:
         """Write :meth:`gap_report` as JSON (atomically)."""
         from carapost.io.atomic import atomic_output
 
-        if self._gap_report is None:
+        rep = self.gap_report()
+        if rep is None:
             raise CommandError("no Interpolate Gaps run to report")
         path = Path(path)
         with atomic_output(path) as fh:
-            fh.write(json.dumps(self._gap_report, indent=1).encode("utf-8"))
+            fh.write(json.dumps(rep, indent=1).encode("utf-8"))
         return path
 
     def prepare_filter_trajectories(self, cutoff_hz: float | None = None,
@@ -173,3 +182,44 @@ class GapFillActions:
                    or "nothing left to fill there (run Find Problems again)")
             raise CommandError(f"Repair: {problem.text}: {why}")
         return self.apply(result)  # type: ignore[attr-defined]
+
+
+def fill_gaps_file(source: str | Path, output: str | Path, *, method: str | None = None,
+                   max_gap: int | None = None, report: str | Path | None = None,
+                   progress: Any = None) -> dict[str, Any]:
+    """``carapost fill-gaps``: fill every gap of a ``.c3d`` or ``.cara`` file and write
+    a ``.c3d`` or ``.cara`` file (all frames, all points).
+
+    Returns the gap report (see ``Session.gap_report``), also written to ``report``.
+
+    Raises
+    ------
+    CaraFileError
+        Unreadable input, a C3D without points, an unwritable output.
+    CommandError
+        Bad options.
+    """
+    from carapost.io.errors import CaraFileError
+    from carapost.session import Session
+
+    src, out = Path(source), Path(output)
+    kinds = (".c3d", ".cara")
+    for p, what in ((src, "input"), (out, "output")):
+        if p.suffix.lower() not in kinds:
+            raise CaraFileError(p, f"the {what} must be a .c3d or .cara file")
+    session = Session.import_c3d(src) if src.suffix.lower() == ".c3d" else Session.open(src)
+    with session:
+        p = session.project
+        p.active_range = (0, max(p.n_frames - 1, 0))
+        p.selection = type(p.selection)()
+        session.interpolate_gaps(method=method, max_gap=max_gap, progress=progress)
+        rep = session.gap_report() or {"filled_samples": 0, "gaps": [], "messages": []}
+        if out.suffix.lower() == ".c3d":
+            session.export_c3d(out, frame_range="all", include_brim=True)
+        else:
+            session.save(out)
+        rep = {"input": str(src), "output": str(out), **rep}
+        session._gap_report = rep
+        if report is not None:
+            session.write_gap_report(report)
+    return rep

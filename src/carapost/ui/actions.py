@@ -26,11 +26,11 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import cleanup, navigation
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
-from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
 from carapost.ui.handlers import view as view_menu
 
@@ -120,6 +120,8 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("file.import_brim", "File", "Import Calibration Brim [svg]...", "",
        file_menu.import_brim),
     _A("file.import_xcp", "File", "Import XCP...", "", file_menu.import_xcp),
+    _A("file.import_c3d", "File", "Import C3D...", "", cleanup.import_c3d,
+       tip="A new project from the 3D points and labels of any C3D file"),
     _A("file.import_labels_cara", "File", "Import Labels From Cara File...", "",
        partial(file_menu.import_labels, kind="cara"), separator=True),
     _A("file.import_labels_text", "File", "Import Labels From Text File...", "",
@@ -257,11 +259,14 @@ ACTIONS: tuple[ActionSpec, ...] = (
           shortcut="Ctrl+W", images=True, direction="forwards", single_frame=True),
     _proc("process.track_bwd_one", "Track Backwards [Single Frame]", "track", images=True,
           direction="backwards", single_frame=True),
-    # Stabilize, Align and Interpolate wait for their algorithms
+    # Stabilize and Align wait for their algorithms
     _proc("process.stab_manual", "Stabilize Data [Manual]", None, separator=True),
     _proc("process.stab_assisted", "Stabilize Data [Assisted]", None),
     _proc("process.align", "Align Data", None),
-    _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
+    _proc("process.interpolate", "Interpolate Gaps", "interpolate_gaps", separator=True),
+    _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
+    _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
+       tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),
