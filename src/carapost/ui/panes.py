@@ -425,6 +425,26 @@ class TrackerPane(QWidget):
         self.settings_box.toggled.connect(self.settings.setVisible)
 
 
+def sample_text(project: Any) -> str:
+    """One line on the selected point's sample at the current frame ("" unless exactly
+    one point is selected)."""
+    from carapost.algorithms.codes import RECON_NAMES
+
+    ids = list(project.selection.points)
+    if len(ids) != 1 or ids[0] not in set(project.points.ids.tolist()):
+        return ""
+    col = int(project.points.index_of(ids)[0])
+    f = project.current_frame
+    if not 0 <= f < project.n_frames:
+        return ""
+    kind = RECON_NAMES.get(int(project.points.recon[f, col]), "?")
+    text = f"{project.point_label(col)} at frame {f}: {kind}"
+    sig = float(project.points.sigma[f, col])
+    if np.isfinite(sig):
+        text += f", estimated error {sig:.2f} mm"
+    return text
+
+
 class SelectedPointPane(QWidget):
     """Continuity of the one selected point, overall and per camera."""
 
@@ -434,6 +454,11 @@ class SelectedPointPane(QWidget):
         self.chart = ContinuityView(ctx.view, single=True)
         self.chart.setMinimumHeight(90)
         layout.addWidget(self.chart)
+        # the sample at the current frame: how it was made and, for a fill, its
+        # estimated error (the self-test of Interpolate Gaps)
+        self.sample = QLabel("")
+        layout.addWidget(self.sample)
+        self.ctx = ctx
         ctx.view.changed.connect(self.refresh)
 
     def refresh(self, change: Change | None) -> None:
@@ -442,3 +467,5 @@ class SelectedPointPane(QWidget):
             self.chart.refresh(None)
         else:
             self.chart.refresh(change)
+        self.sample.setText(sample_text(self.ctx.project))
+        self.chart.setToolTip(self.sample.text())

@@ -51,6 +51,7 @@ class ProblemsPane(QWidget):
         self.list.itemDoubleClicked.connect(lambda item: self.repair(item.data(_ROLE)))
         layout.addWidget(self.list)
         self.summary = QLabel("Process > Find Problems, or Find")
+        self._scope: frozenset[int] = frozenset()
         layout.addWidget(self.summary)
         ctx.project_replaced.connect(lambda: self.show_problems([]))
 
@@ -58,15 +59,24 @@ class ProblemsPane(QWidget):
         """The problems listed, in order."""
         return [self.list.item(i).data(_ROLE) for i in range(self.list.count())]
 
-    def find(self) -> list[Any]:
-        """Run Find Problems and list the result."""
-        found = self.ctx.act("Find Problems", self.ctx.session.find_problems)
-        self.show_problems(found or [])
+    def find(self, again: bool = False) -> list[Any]:
+        """Run Find Problems on the selected (or all) points and list the result;
+        ``again``: on the points of the previous search (clicking an entry selects its
+        point, which must not narrow the next search)."""
+        scope = self._scope if again else self.ctx.selection.points
+        found = self.ctx.act("Find Problems", self.ctx.session.find_problems,
+                             sorted(scope) if scope else
+                             [int(i) for i in self.ctx.project.points.ids])
+        self.show_problems(found or [], scope)
         return found or []
 
-    def show_problems(self, problems: list[Any]) -> None:
-        """List ``problems`` (and bring the pane to the front)."""
+    def show_problems(self, problems: list[Any], scope: Any = None) -> None:
+        """List ``problems`` found on the points ``scope`` (None: all) and bring the
+        pane to the front."""
+        self._scope = frozenset(scope) if scope else frozenset()
+        self.list.blockSignals(True)
         self.list.clear()
+        self.list.blockSignals(False)
         for p in problems:
             item = QListWidgetItem(p.text)
             item.setData(_ROLE, p)
@@ -102,7 +112,7 @@ class ProblemsPane(QWidget):
         if done is None:
             return False
         row = self.list.currentRow()
-        self.find()
+        self.find(again=True)
         if self.list.count():
             self.list.setCurrentRow(min(max(row, 0), self.list.count() - 1))
         return True

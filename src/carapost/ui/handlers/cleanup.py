@@ -35,11 +35,14 @@ def find_problems(ctx: ActionContext) -> None:
     """Process > Find Problems: list gaps, spikes and suspected swaps in the Find
     Problems pane (shown and raised)."""
     pane = getattr(ctx, "problems_pane", None)
-    problems = ctx.act("Find Problems", ctx.session.find_problems)
+    scope = ctx.selection.points
+    problems = ctx.act("Find Problems", ctx.session.find_problems,
+                       sorted(scope) if scope else
+                       [int(i) for i in ctx.project.points.ids])
     if problems is None:
         return
     if pane is not None:
-        pane.show_problems(problems)
+        pane.show_problems(problems, scope)
     counts = {k: sum(1 for p in problems if p.kind == k) for k in ("gap", "spike", "swap")}
     ctx.status(f"Find Problems: {counts['gap']} gaps, {counts['spike']} spikes, "
                f"{counts['swap']} suspected swaps", 6000)
