@@ -16,7 +16,7 @@ Metrics (one JSON object per line): ``gapfill_rmse_mm_L{L}_{method}``,
 ``gapfill_p95_mm_L{L}_{method}``, ``gapfill_estimate_spearman`` (estimated vs real RMS
 error per hidden stretch, ``auto``, all lengths), ``gapfill_s`` (all gaps of a synthetic
 300 points x 36,000 frames, ``auto`` with the self-test) and ``gapfill_guide_s``.
-A held-out file (``--holdout``, default the Vicon Nexus 1.6.1 capture) is reported
+A held-out file (``--holdout``, default the Oxford Metrics gait capture) is reported
 with the suffix ``_holdout``: it is never used for tuning.
 
 Run from the repository root: ``python benchmarks/gapfill.py [--quick] [--no-speed]``.
@@ -206,7 +206,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="40 stretches per length")
     ap.add_argument("--no-speed", action="store_true")
-    ap.add_argument("--holdout", default="vicon_nexus161_zerowire.c3d")
+    ap.add_argument("--holdout", default="oxfordmetrics_gait-pig-nz.c3d")
     ap.add_argument("--runs", type=int, default=3)
     args = ap.parse_args()
     n = 40 if args.quick else 200

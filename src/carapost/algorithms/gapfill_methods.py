@@ -24,7 +24,8 @@ __all__ = ["gap_samples", "guide_fill", "head_frame", "interpolate_columns", "lo
 
 
 def head_frame(X: NDArray, known: NDArray[np.bool_], *, iterations: int = 1,
-               min_points: int = 3, zeroed: bool = False) -> tuple[NDArray, NDArray, NDArray]:
+               min_points: int = 3, zeroed: bool = False, max_residual: float = 0.15
+               ) -> tuple[NDArray, NDArray, NDArray]:
     """Per-frame rigid transform of the head: ``x = R_f y + t_f``.
 
     Parameters
@@ -39,6 +40,10 @@ def head_frame(X: NDArray, known: NDArray[np.bool_], *, iterations: int = 1,
     min_points : int
         Frames with fewer known points take the transform of the nearest frame that
         has enough.
+    max_residual : float
+        When the RMS distance of the aligned points from the reference shape exceeds
+        this fraction of the shape's RMS radius, the points do not move as one rigid
+        head and the identity is returned for every frame.
 
     Returns
     -------
@@ -109,8 +114,19 @@ def head_frame(X: NDArray, known: NDArray[np.bool_], *, iterations: int = 1,
             break
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        ref = np.nanmedian(np.where(known[sub][..., None], to_head(X[sub], R[sub], t[sub]),
-                                    np.nan), axis=0)
+        Ys = np.where(known[sub][..., None], to_head(X[sub], R[sub], t[sub]), np.nan)
+        ref = np.nanmedian(Ys, axis=0)
+        # not a head: when the points are far from moving rigidly (a body, several
+        # objects), a per-frame rigid fit swings with the motion and would rotate each
+        # point's offset from its neighbours; the capture frame is used instead
+        resid = np.sqrt(np.nanmean(np.sum((Ys - ref[None]) ** 2, -1)))
+        spread = np.sqrt(np.nanmean(np.sum((ref - np.nanmean(ref, 0)) ** 2, -1)))
+    if not resid <= max_residual * spread:
+        R = np.broadcast_to(np.eye(3), (F, 3, 3)).copy()
+        t = np.zeros((F, 3))
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ref = np.nanmedian(np.where(known[sub][..., None], X[sub], np.nan), axis=0)
     return R, t, ref
 
 
