@@ -156,6 +156,62 @@ def report(res: dict, suffix: str = "") -> None:
          stretches=int(ok.sum()))
 
 
+def problems(X: NDArray, suffix: str = "", seed: int = 3, n_spikes: int = 40,
+             n_swaps: int = 10) -> None:
+    """Find Problems on the capture with injected spikes (3-8 mm, one or two frames) and
+    identity swaps of neighbouring markers (swapped for 150 frames: two swap events).
+    Reports on the untouched file are the file's own problems and are not counted as
+    false; a report of an injected problem is found when its point(s) and frame (+-2)
+    match."""
+    from carapost.algorithms.cleanup import find_spikes, find_swaps
+
+    F, P, _ = X.shape
+    rng = np.random.default_rng(seed)
+    own = {(s.point, s.start) for s in find_spikes(X)} | {
+        (w.points, w.frame) for w in find_swaps(X)}
+    Y = X.copy()
+    spikes, swaps = [], []
+    ref = np.nanmedian(X, axis=0)
+    d = np.linalg.norm(ref[:, None] - ref[None], axis=-1) + np.eye(P) * 1e9
+    used = np.zeros((F, P), bool)
+    while len(spikes) < n_spikes:
+        f, p = int(rng.integers(10, F - 10)), int(rng.integers(P))
+        n = int(rng.integers(1, 3))
+        if used[f - 5:f + 6, p].any() or not np.isfinite(X[f - 3:f + 4, p]).all():
+            continue
+        v = rng.normal(size=3)
+        Y[f:f + n, p] += rng.uniform(3, 8) * v / np.linalg.norm(v)
+        used[f - 5:f + 6, p] = True
+        spikes.append((p, f))
+    while len(swaps) < n_swaps:
+        i = int(rng.integers(P))
+        j = int(np.argmin(d[i]))
+        f = int(rng.integers(20, F - 200))
+        if used[f - 10:f + 160, [i, j]].any() or not np.isfinite(X[f - 5:f + 155, [i, j]]).all():
+            continue
+        Y[f:f + 150, [i, j]] = Y[f:f + 150, [j, i]]
+        used[f - 10:f + 160, [i, j]] = True
+        swaps.append(((min(i, j), max(i, j)), f))
+        swaps.append(((min(i, j), max(i, j)), f + 150))
+    t0 = time.perf_counter()
+    got_s, got_w = find_spikes(Y), find_swaps(Y)
+    dt = time.perf_counter() - t0
+    found = sum(any(s.point == p and abs(s.start - f) <= 2 for s in got_s) for p, f in spikes)
+    found += sum(any(tuple(sorted(w.points)) == pr and abs(w.frame - f) <= 2 for w in got_w)
+                 for pr, f in swaps)
+    false = [s for s in got_s if (s.point, s.start) not in own
+             and not any(s.point == p and abs(s.start - f) <= 2 for p, f in spikes)
+             and not any(s.point in pr and abs(s.start - f) <= 3 for pr, f in swaps)]
+    false += [w for w in got_w if (w.points, w.frame) not in own
+              and not any(tuple(sorted(w.points)) == pr and abs(w.frame - f) <= 2
+                          for pr, f in swaps)]
+    total = len(spikes) + len(swaps)
+    emit(f"find_problems_recall{suffix}", found / total, "", injected=total)
+    emit(f"find_problems_false_per_1000_frames{suffix}", 1000 * len(false) / F, "",
+         false=len(false), own_reports=len(own), frames=F)
+    emit(f"find_problems_s{suffix}", dt, "s")
+
+
 def synthetic_take(frames: int, points: int, seed: int = 1, gap_rate: float = 0.03
                    ) -> tuple[NDArray, NDArray]:
     """A face-like cloud with smooth expressions and head motion, and gaps of 1-120
@@ -215,7 +271,9 @@ def main() -> None:
         emit("gapfill_skipped", 1, "",
              reason="CARAPOST_FIXTURES/c3d/facial_Sing_sample29.c3d missing")
     else:
-        report(evaluate(load_c3d(path), n=n))
+        X = load_c3d(path)
+        report(evaluate(X, n=n))
+        problems(X)
     hold = fixture(args.holdout) if args.holdout else None
     if hold is not None:
         report(evaluate(load_c3d(hold), n=n, seed=1), "_holdout")
