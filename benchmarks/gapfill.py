@@ -16,8 +16,9 @@ Metrics (one JSON object per line): ``gapfill_rmse_mm_L{L}_{method}``,
 ``gapfill_p95_mm_L{L}_{method}``, ``gapfill_estimate_spearman`` (estimated vs real RMS
 error per hidden stretch, ``auto``, all lengths), ``gapfill_s`` (all gaps of a synthetic
 300 points x 36,000 frames, ``auto`` with the self-test) and ``gapfill_guide_s``.
-A held-out file (``--holdout``, default the Oxford Metrics gait capture) is reported
-with the suffix ``_holdout``: it is never used for tuning.
+Held-out files (``--holdout``, default a BTS and a Codamotion gait capture: body
+markers, not faces) are reported with the suffix ``_holdout_<vendor>``; they were never
+used for tuning.
 
 Run from the repository root: ``python benchmarks/gapfill.py [--quick] [--no-speed]``.
 """
@@ -212,6 +213,56 @@ def problems(X: NDArray, suffix: str = "", seed: int = 3, n_spikes: int = 40,
     emit(f"find_problems_s{suffix}", dt, "s")
 
 
+def rendered(project_path: Path, truth_path: Path, n: int = 200, seed: int = 2) -> None:
+    """A rendered synthetic take after ``carapost process``: stretches of 10 frames hidden
+    in the tracked data (and the tracker's own gaps) filled by ``auto``, scored against
+    the truth; the tracked samples' own error is the floor (same run)."""
+    from carapost.algorithms.codes import RECON_SINGLE_SENSOR, RECON_TRIANGULATED
+    from carapost.io.cara import load_project
+    from carapost.synth.evaluation import load_truth
+    from carapost.synth.scoring import score_tracks
+
+    project = load_project(project_path)
+    truth = load_truth(truth_path)["points3d"]
+    pts = project.points
+    X = pts.positions.astype(np.float64)
+    score = score_tracks(X, truth)
+    cols = np.flatnonzero(score.match >= 0)
+    X, T = X[:, cols], truth[:, score.match[cols]]
+    recon = pts.recon[:, cols]
+    known = np.isin(recon, (RECON_TRIANGULATED, RECON_SINGLE_SENSOR)) & np.isfinite(X[..., 0])
+    F, P, _ = X.shape
+    floor = np.linalg.norm(X[known] - T[known], axis=-1)
+    emit("gapfill_rendered_tracked_rmse_mm", np.sqrt(np.nanmean(floor**2)), "mm",
+         points=int(P), frames=int(F))
+    rng = np.random.default_rng(seed)
+    L = 10
+    errs, lin = [], []
+    Xk = np.where(known[..., None], X, np.nan)
+    for batch in hidden_batches(known, L, n, rng, max(4, int(0.02 * F * P / L))):
+        fill = np.zeros((F, P), bool)
+        for p, s0 in batch:
+            fill[s0:s0 + L, p] = True
+        out = fill_gaps(Xk, fill | ~known, known & ~fill,
+                        params=GapFillParameters(method="auto"))
+        for p, s0 in batch:
+            errs.append(np.linalg.norm(out.positions[s0:s0 + L, p] - T[s0:s0 + L, p], axis=-1))
+            lin.append(np.linalg.norm(baseline(X, known & ~fill, p, s0, L, "linear")
+                                      - T[s0:s0 + L, p], axis=-1))
+    e = np.concatenate(errs)
+    emit("gapfill_rendered_rmse_mm_L10_auto", np.sqrt(np.nanmean(e**2)), "mm",
+         stretches=len(errs), unfilled=int(np.isnan(e).sum()))
+    emit("gapfill_rendered_rmse_mm_L10_linear", np.sqrt(np.nanmean(np.concatenate(lin) ** 2)),
+         "mm")
+    real = ~known & np.isfinite(T[..., 0])
+    out = fill_gaps(Xk, real, known, params=GapFillParameters(method="auto"))
+    ok = out.filled & real
+    e = np.linalg.norm(out.positions[ok] - T[ok], axis=-1)
+    emit("gapfill_rendered_real_gaps_rmse_mm", np.sqrt(np.mean(e**2)) if e.size else np.nan,
+         "mm", samples=int(ok.sum()), gaps=len(out.gaps))
+    problems(Xk, "_rendered", n_spikes=20, n_swaps=4)
+
+
 def synthetic_take(frames: int, points: int, seed: int = 1, gap_rate: float = 0.03
                    ) -> tuple[NDArray, NDArray]:
     """A face-like cloud with smooth expressions and head motion, and gaps of 1-120
@@ -262,21 +313,31 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="40 stretches per length")
     ap.add_argument("--no-speed", action="store_true")
-    ap.add_argument("--holdout", default="oxfordmetrics_gait-pig-nz.c3d")
+    ap.add_argument("--only-holdout", action="store_true", help="the held-out files only")
+    ap.add_argument("--rendered", nargs=2, metavar=("PROJECT.cara", "truth.npz"),
+                    help="also score a processed rendered take against its truth")
+    ap.add_argument("--holdout", default="bts.c3d,codamotion_gaitwands_19970212.c3d",
+                    help="comma-separated C3D fixtures reported as held-out data")
     ap.add_argument("--runs", type=int, default=3)
     args = ap.parse_args()
     n = 40 if args.quick else 200
-    path = fixture("facial_Sing_sample29.c3d")
-    if path is None:
+    path = None if args.only_holdout else fixture("facial_Sing_sample29.c3d")
+    if args.only_holdout:
+        pass
+    elif path is None:
         emit("gapfill_skipped", 1, "",
              reason="CARAPOST_FIXTURES/c3d/facial_Sing_sample29.c3d missing")
     else:
         X = load_c3d(path)
         report(evaluate(X, n=n))
         problems(X)
-    hold = fixture(args.holdout) if args.holdout else None
-    if hold is not None:
-        report(evaluate(load_c3d(hold), n=n, seed=1), "_holdout")
+    for name in filter(None, (args.holdout or "").split(",")):
+        hold = fixture(name)
+        if hold is not None:
+            report(evaluate(load_c3d(hold), n=n, seed=1),
+                   "_holdout_" + name.split("_")[0].split(".")[0])
+    if args.rendered:
+        rendered(Path(args.rendered[0]), Path(args.rendered[1]))
     if not args.no_speed:
         speed(runs=args.runs)
 
