@@ -263,6 +263,37 @@ def rendered(project_path: Path, truth_path: Path, n: int = 200, seed: int = 2) 
     problems(Xk, "_rendered", n_spikes=20, n_swaps=4)
 
 
+def scene_check(suffix: str, frames: int = 1200, noise_mm: float = 0.05, **config) -> None:
+    """The generator's face (carapost.synth scene: its expressions, head slip and rig
+    motion, no images): its true marker trajectories plus ``noise_mm`` of measurement
+    noise; 10-frame stretches hidden, filled with auto, scored against the noise-free
+    truth. Also Find Problems with injected spikes and swaps."""
+    from carapost.synth import SynthConfig, build_scene
+
+    scene = build_scene(SynthConfig(frames=frames, **config))
+    T = np.asarray(scene.points3d, np.float64)
+    rng = np.random.default_rng(5)
+    X = T + rng.normal(scale=noise_mm, size=T.shape)
+    F, P, _ = X.shape
+    known = np.isfinite(X[..., 0])
+    L = 10
+    errs, lin, cub = [], [], []
+    for batch in hidden_batches(known, L, 200, rng, max(4, int(0.02 * F * P / L))):
+        fill = np.zeros((F, P), bool)
+        for p, s0 in batch:
+            fill[s0:s0 + L, p] = True
+        out = fill_gaps(X, fill, known & ~fill, params=GapFillParameters(method="auto"))
+        for p, s0 in batch:
+            t = T[s0:s0 + L, p]
+            errs.append(np.linalg.norm(out.positions[s0:s0 + L, p] - t, axis=-1))
+            lin.append(np.linalg.norm(baseline(X, known & ~fill, p, s0, L, "linear") - t, axis=-1))
+            cub.append(np.linalg.norm(baseline(X, known & ~fill, p, s0, L, "cubic") - t, axis=-1))
+    for name, e in (("auto", errs), ("linear", lin), ("cubic", cub)):
+        emit(f"gapfill_scene_rmse_mm_L10_{name}{suffix}",
+             np.sqrt(np.nanmean(np.concatenate(e) ** 2)), "mm", points=P, frames=F)
+    problems(X, "_scene" + suffix, n_spikes=30, n_swaps=6)
+
+
 def synthetic_take(frames: int, points: int, seed: int = 1, gap_rate: float = 0.03
                    ) -> tuple[NDArray, NDArray]:
     """A face-like cloud with smooth expressions and head motion, and gaps of 1-120
@@ -336,6 +367,10 @@ def main() -> None:
         if hold is not None:
             report(evaluate(load_c3d(hold), n=n, seed=1),
                    "_holdout_" + name.split("_")[0].split(".")[0])
+    if not args.only_holdout:
+        scene_check("", preset="speech", seed=1)
+        # held out: another rig and marker layout, another motion preset
+        scene_check("_holdout_variant7_fast", preset="fast", seed=4, variant=7)
     if args.rendered:
         rendered(Path(args.rendered[0]), Path(args.rendered[1]))
     if not args.no_speed:
