@@ -113,6 +113,7 @@ class GapFillParameters:
     neighbours: int = param(6, min=1, max=64)
     holdouts: int = param(4, min=0, max=32)
     holdout_search: int = param(24, min=1, max=1000)
+    holdout_budget: int = param(1_500_000, min=1, max=10**12)
     min_known_frames: int = param(2, min=1, max=1_000_000)
     lowrank_min_known: int = param(20, min=2, max=1_000_000)
     lowrank_energy: float = param(0.99, min=0.5, max=1.0)
@@ -408,7 +409,10 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
     for m in can:
         can[m] &= usable
 
-    hg, hs = (_holdouts(kn, point, start, end, prm.holdouts, prm.holdout_search)
+    # the self-test's work grows with the stretches tested: on big takes fewer per gap
+    n_fill = int((L * usable).sum())
+    n_hold = min(prm.holdouts, max(1, prm.holdout_budget // max(n_fill, 1)))
+    hg, hs = (_holdouts(kn, point, start, end, n_hold, prm.holdout_search)
               if need_test else (np.zeros(0, np.intp), np.zeros(0, np.intp)))
     keep = usable[hg]
     hg, hs = hg[keep], hs[keep]
