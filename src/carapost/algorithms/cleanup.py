@@ -198,41 +198,71 @@ def _head(X: NDArray) -> NDArray:
     return Y
 
 
+def _median_deviation(y: NDArray, half: int = 2) -> NDArray:
+    """Distance of each sample of y (F, p, 3) from the median of its 2 half + 1 frame
+    window (NaN where fewer than 4 of the window's samples exist)."""
+    import warnings
+
+    pad = np.pad(y, ((half, half), (0, 0), (0, 0)), constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(win, axis=-1)
+        enough = np.isfinite(win[:, :, 0]).sum(-1) >= 4
+    dev = np.linalg.norm(y - med, axis=-1)
+    dev[~enough] = np.nan
+    return dev
+
+
 def find_spikes(X: NDArray, params: ProblemParameters | None = None,
                 Y: NDArray | None = None) -> list[Spike]:
     """Spikes of every point (see the module). ``Y``: the head-frame positions, if
-    already computed. Returns spikes ordered by point then frame."""
+    already computed. Returns spikes ordered by point then frame.
+
+    A sample is a spike when it stands out from the 5-frame running median both in its
+    own head-frame trajectory (by ``spike_threshold_mm``) and in its offset from its
+    neighbours (by ``spike_threshold_mm`` and ``spike_robust_factor`` robust standard
+    deviations of that offset's usual deviation): fast expressions move the neighbours
+    too, so the offset stays smooth where the trajectory alone does not.
+    """
+    import warnings
+
+    from carapost.algorithms.gapfill_methods import neighbour_table
+
     prm = params or ProblemParameters()
     Y = _head(np.asarray(X, np.float64)) if Y is None else Y
     F, P, _ = Y.shape
     if F < 5:
         return []
+    known = np.isfinite(Y[..., 0])
+    nb, nbw = neighbour_table(Y, known, 6)
     out: list[Spike] = []
-    half = 2
     for p0 in range(0, P, 32):
         y = Y[:, p0:p0 + 32]
-        pad = np.pad(y, ((half, half), (0, 0), (0, 0)), constant_values=np.nan)
-        win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
-        with np.errstate(all="ignore"):
-            import warnings
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                med = np.nanmedian(win, axis=-1)
-                enough = np.isfinite(win[:, :, 0]).sum(-1) >= 4
-        dev = np.linalg.norm(y - med, axis=-1)                      # (F, p)
-        dev[~enough] = np.nan
-        with np.errstate(all="ignore"):
-            import warnings
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                scale = 1.4826 * np.nanmedian(dev, axis=0)
+        dev_y = _median_deviation(y)
+        if nb.shape[1]:
+            q = nb[p0:p0 + 32]                                       # (p, K)
+            qq = np.maximum(q, 0)
+            vals = Y[:, qq]                                          # (F, p, K, 3)
+            w = np.where((q >= 0)[None] & np.isfinite(vals[..., 0]), nbw[p0:p0 + 32][None],
+                         0.0)
+            sw = w.sum(-1)
+            with np.errstate(all="ignore"):
+                mean = np.einsum("fpk,fpki->fpi", w, np.nan_to_num(vals)) / sw[..., None]
+            r = y - np.where((sw > 0)[..., None], mean, np.nan)
+            dev = _median_deviation(r)
+        else:
+            dev = dev_y
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            scale = 1.4826 * np.nanmedian(dev, axis=0)
         thr = np.maximum(prm.spike_threshold_mm, prm.spike_robust_factor * np.nan_to_num(scale))
-        flag = np.nan_to_num(dev) > thr[None]
+        flag = (np.nan_to_num(dev) > thr[None]) & (np.nan_to_num(dev_y) > prm.spike_threshold_mm)
         for j in range(flag.shape[1]):
             for a, b in _runs1(flag[:, j]):
                 if b - a + 1 > prm.max_spike_frames:
                     continue
-                out.append(Spike(p0 + j, a, b, float(np.nanmax(dev[a:b + 1, j]))))
+                out.append(Spike(p0 + j, a, b, float(np.nanmax(dev_y[a:b + 1, j]))))
     return out
 
 
