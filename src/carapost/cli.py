@@ -134,6 +134,20 @@ def _quiet_stdout() -> int:
     return 0
 
 
+def _cmd_fill_gaps(args: argparse.Namespace) -> int:
+    from carapost.session.gapfill import fill_gaps_file
+
+    rep = fill_gaps_file(args.input, args.output, method=args.method, max_gap=args.max_gap,
+                         report=args.report)
+    gaps = rep["gaps"]
+    done = sum(1 for g in gaps if g["method"])
+    print(f"filled {done} of {len(gaps)} gaps ({rep['filled_samples']} samples); "
+          f"wrote {args.output}")
+    for m in rep["messages"]:
+        print(f"  {m}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``carapost`` command."""
     p = argparse.ArgumentParser(
@@ -203,6 +217,17 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("--up", choices=("y", "z"), default="y", help="up axis")
             sp.add_argument("--cameras", action="store_true", help="include animated cameras")
             sp.add_argument("--sticks", action="store_true", help="include the stick mesh")
+
+    sp = add("fill-gaps", _cmd_fill_gaps,
+             "fill the gaps of a .c3d or .cara file (any vendor's C3D) and write one")
+    sp.add_argument("input", help="a .c3d or .cara file")
+    sp.add_argument("-o", "--output", required=True, help=".c3d or .cara file to write")
+    sp.add_argument("--method", choices=("auto", "guide", "lowrank", "spline"), default=None,
+                    help="fill method (default: the project's Gap-Filling Method, auto)")
+    sp.add_argument("--max-gap", type=int, default=None, metavar="N",
+                    help="leave gaps longer than N frames (default: fill all)")
+    sp.add_argument("--report", metavar="REPORT.json",
+                    help="write each gap's method, estimated error (mm) and status")
 
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
     sp.add_argument("project")

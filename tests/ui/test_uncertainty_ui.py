@@ -31,7 +31,7 @@ def test_graph_band_and_selected_point_sigma(make_window, demo, qtbot):
     pane = w.pane("Selected Point")
     p.current_frame = 20
     pane.refresh(None)
-    assert pane.sigma_label.text().startswith(f"Frame 20: sigma {sig[20]:.3f} mm")
+    assert f"at frame 20: triangulated, sigma {sig[20]:.3f} mm" in pane.sample.text()
     p.current_frame = 50
     pane.refresh(None)
-    assert pane.sigma_label.text() == "Frame 50: sigma unknown"
+    assert "at frame 50: triangulated, sigma unknown" in pane.sample.text()

@@ -44,6 +44,8 @@ from typing import Any
 
 from carapost.algorithms import params as _params
 from carapost.algorithms.blobs import BlobParameters
+from carapost.algorithms.cleanup import CleanupParameters
+from carapost.algorithms.gapfill import CLEAN_UP, GAP_FILLING, GapFillParameters
 from carapost.algorithms.init3d import Init3DParameters
 from carapost.algorithms.params import (
     BLOB,
@@ -81,7 +83,6 @@ __all__ = [
 # carapost.algorithms.params, beside the fields that fill them.
 DISPLAY = "Display"
 SELECTION = "Selection"
-GAP_FILLING = "Gap-Filling Parameters"
 STABILIZATION = "Stabilization Parameters"
 EXPORT = "Export"
 
@@ -272,6 +273,8 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     TriangulationParameters,
     StabilizationParameters,
     TargetTrackerParameters,
+    GapFillParameters,
+    CleanupParameters,
 )
 
 _KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
@@ -343,18 +346,6 @@ SPECS: tuple[PropertySpec, ...] = (
        help="Sticks can be picked in the 2D and 3D views."),
     # --- Blob, Initialize 3D, Initialize From ROM, Tracking, Triangulation ----------
     *_ALGORITHM_SPECS,
-    # --- Gap-Filling Parameters -------------------------------------------------------
-    _p(GAP_FILLING, "overwrite_existing_filled_gaps", "Overwrite Existing Filled Gaps", bool,
-       False,
-       help="Recompute frames filled earlier (points with at most one attached detection)."),
-    _p(GAP_FILLING, "use_forwards_prediction", "Use Forwards Prediction", bool, True,
-       help="Use the point before the gap when filling it."),
-    _p(GAP_FILLING, "use_backwards_prediction", "Use Backwards Prediction", bool, True,
-       help="Use the point after the gap when filling it."),
-    _p(GAP_FILLING, "allow_single_sensor_gap_filling",
-       "Allow Single Sensor Tracking Gap-Filling", bool, True,
-       help="Where one camera still sees the marker, keep the filled point on that camera's "
-            "ray."),
     # --- Stabilization Parameters (StabilizationParameters, algorithms/stabilise.py) --
     *_STABILIZATION_SPECS,
     # --- Export (contents are ours: the guide names the section only) -----------------
@@ -388,6 +379,7 @@ SECTIONS: tuple[str, ...] = (
     TRACKING,
     TRIANGULATION,
     GAP_FILLING,
+    CLEAN_UP,
     STABILIZATION,
     EXPORT,
     TARGET_TRACKER,

@@ -26,11 +26,11 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import cleanup, navigation
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
-from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
 from carapost.ui.handlers import target as target_menu
 from carapost.ui.handlers import view as view_menu
@@ -121,6 +121,8 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("file.import_brim", "File", "Import Calibration Brim [svg]...", "",
        file_menu.import_brim),
     _A("file.import_xcp", "File", "Import XCP...", "", file_menu.import_xcp),
+    _A("file.import_c3d", "File", "Import C3D...", "", cleanup.import_c3d,
+       tip="A new project from the 3D points and labels of any C3D file"),
     _A("file.import_labels_cara", "File", "Import Labels From Cara File...", "",
        partial(file_menu.import_labels, kind="cara"), separator=True),
     _A("file.import_labels_text", "File", "Import Labels From Text File...", "",
@@ -267,8 +269,10 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("process.align", "Process", "Align Data", "", process_menu.align_data),
     _A("process.remove_stab", "Process", "Remove Stabilization", "",
        process_menu.remove_stabilization),
-    # Interpolate waits for its algorithm
-    _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
+    _proc("process.interpolate", "Interpolate Gaps", "interpolate_gaps", separator=True),
+    _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
+    _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
+       tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),

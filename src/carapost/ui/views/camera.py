@@ -18,6 +18,7 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QPainterPath, QPen, QTransform
 from PySide6.QtWidgets import QGraphicsPathItem, QGraphicsRectItem, QLabel, QMenu, QVBoxLayout
 
+from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
@@ -88,6 +89,18 @@ def points_in_polygon(xy: NDArray, poly: NDArray) -> NDArray[np.bool_]:
     with np.errstate(divide="ignore", invalid="ignore"):
         crosses = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / (y1 - y0) + x0)
     return (crosses.sum(axis=1) % 2 == 1) & ~np.isnan(xy[:, 0])
+
+
+def crossed_circle() -> QPainterPath:
+    """The marker symbol of an interpolated sample: a unit circle with a cross in it."""
+    path = QPainterPath()
+    path.addEllipse(QPointF(0, 0), 0.5, 0.5)
+    r = 0.5 / math.sqrt(2)
+    path.moveTo(-r, -r)
+    path.lineTo(r, r)
+    path.moveTo(-r, r)
+    path.lineTo(r, -r)
+    return path
 
 
 def rotation_transform(rotation: int, width: int, height: int) -> QTransform:
@@ -195,9 +208,14 @@ class CameraView(BaseView):
                                               pen=pg.mkPen(ORANGE, width=1.5), brush=None)
         self.rom = _Scatter(pxMode=True, symbol="o", size=6,
                                       pen=None, brush=pg.mkBrush(150, 200, 255, 160))
+        # interpolated 3D samples: a small crossed circle at their projection
+        self.interp = _Scatter(pxMode=True, symbol=crossed_circle(), size=11,
+                               pen=pg.mkPen(RED, width=1.5), brush=None)
+        self.interp.setZValue(5)
         for item in (self.det_ellipses, self.det_cross, self.det_selected, self.preview,
                      self.errors, self.sticks, self.measure_line, self.points, self.selected,
-                     self.proj_conn, self.proj_unconn, self.rom, self.image, self.border):
+                     self.proj_conn, self.proj_unconn, self.rom, self.interp, self.image,
+                     self.border):
             item.setParentItem(self.group)
             # overlays never take the mouse: clicks and drags belong to the view box
             item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
@@ -334,7 +352,7 @@ class CameraView(BaseView):
     def _overlay_items(self) -> list:
         return [self.det_ellipses, self.det_cross, self.det_selected, self.preview,
                 self.errors, self.sticks, self.points, self.selected, self.proj_conn,
-                self.proj_unconn, self.rom]
+                self.proj_unconn, self.rom, self.interp]
 
     def _draw_image(self, frame: int) -> None:
         opts = self.ctx.options
@@ -489,6 +507,13 @@ class CameraView(BaseView):
                 if len(seg):
                     self.sticks.setData(seg[:, 0], seg[:, 1], connect="pairs")
                     self.sticks.show()
+        # interpolated samples (no camera measured them): crossed circles
+        self.interp.hide()
+        if proj is not None and opts.points and P:
+            fill = (pts.recon[frame] == RECON_INTERPOLATED) & ~np.isnan(proj[:, 0])
+            if fill.any():
+                self.interp.setData(pos=proj[fill])
+                self.interp.show()
         # ROM points: projections of the ROM frame, when a ROM is loaded
         self.rom.hide()
         self.targets.draw(p, frame, c)
