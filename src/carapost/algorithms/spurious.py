@@ -6,7 +6,8 @@ export than a gap: it is animated data nobody asked for. :func:`find_spurious_po
 judges each face point over the whole take by what a marker must satisfy:
 
 ``too few frames``
-    triangulated (seen by >= 2 cameras) in fewer than ``min_frames`` frames;
+    triangulated (seen by >= 2 cameras) in fewer than ``min_frames`` frames (half the
+    frames on a take shorter than twice that);
 ``too few cameras``
     fewer than ``min_triangulated_share`` of its samples are seen by two cameras or
     more (a single-sensor depth is only a guess from the neighbours);
@@ -113,13 +114,16 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
     n_tri = (rc == RECON_TRIANGULATED).sum(0)
     n_single = (rc == RECON_SINGLE_SENSOR).sum(0)
     n_present = present.sum(0)
+    # A take shorter than twice min_frames (a test take, a short pick-up) asks for
+    # half its frames instead, so that a real marker of a short take is never judged.
+    need = min(p.min_frames, max(2, X.shape[0] // 2))
     out: dict[int, str] = {}
     for i in face:
         if n_present[i] == 0:
             continue
-        if n_tri[i] < p.min_frames:
+        if n_tri[i] < need:
             out[int(i)] = (f"too few frames: triangulated in {int(n_tri[i])} frames "
-                           f"(needs {p.min_frames})")
+                           f"(needs {need})")
         elif n_single[i] > (1.0 - p.min_triangulated_share) * n_present[i]:
             out[int(i)] = (f"too few cameras: {int(n_single[i])} of its {int(n_present[i])} "
                            f"samples are from one camera only")
