@@ -84,6 +84,14 @@ def test_pipeline_on_rendered_speech_take(tmp_path, patch_tracking):
     info = process_take(take, output=out, c3d=tmp_path / "speech.c3d",
                         patch_tracking=patch_tracking)
     assert out.is_file() and (tmp_path / "speech.c3d").is_file()
+    # the C3D's uncertainty sidecar, and no marker of the standard set taken for spurious
+    assert info["sigma_csv"] == str(tmp_path / "speech.sigma.csv")
+    assert (tmp_path / "speech.sigma.csv").is_file()
+    assert info["removed_points"] == []
+    pts = open_project(out).points
+    face = pts.kind == 0
+    tri = pts.recon[1:, face] == 1  # triangulated, after the initialised frame
+    assert np.isfinite(pts.arrays["sigma"][1:, face][tri]).mean() > 0.99
     patched = int((open_project(out).points.source == SOURCE_PATCH).sum())
     assert (patched > 0) == patch_tracking
     assert info["initialised"] > 50

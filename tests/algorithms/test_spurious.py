@@ -50,3 +50,24 @@ def test_points_that_are_not_markers_are_found_with_their_reason(fast_truth):
 def test_brim_points_are_never_judged():
     X = np.zeros((20, 1, 3))
     assert find_spurious_points(X, np.zeros((20, 1), int), np.ones(1, int)) == []
+
+
+def test_a_blob_much_larger_than_the_markers_is_not_a_marker(fast_truth):
+    """A nostril or an eye corner tracked like a marker: moves with the face, but its blob
+    is twice the size of the take's markers at that depth."""
+    from carapost.algorithms.spurious import blob_sizes_mm
+
+    X = fast_truth[:40]
+    F, M, _ = X.shape
+    recon = np.full((F, M), RECON_TRIANGULATED)
+    rng = np.random.default_rng(1)
+    radius = rng.uniform(1.2, 2.0, M)  # mm, like the markers of another renderer
+    radius[7] = 2.0 * np.median(radius)
+    R = np.tile(np.eye(3), (F, 2, 1, 1))
+    t = np.tile([0.0, 0.0, 150.0], (F, 2, 1))
+    z = X[..., 2] + 150.0
+    ax = np.repeat((600.0 * radius / z)[..., None, None], 2, axis=2).repeat(2, axis=3)
+    size = blob_sizes_mm(X, ax, R, t, np.full(2, 600.0))
+    assert np.allclose(size, radius, rtol=0.01)
+    found = find_spurious_points(X, recon, np.zeros(M, int), blob_size_mm=size)
+    assert [(s.index, s.reason.split(":")[0]) for s in found] == [(7, "blob unlike a marker")]

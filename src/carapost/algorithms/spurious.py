@@ -11,6 +11,10 @@ judges each face point over the whole take by what a marker must satisfy:
 ``too few cameras``
     fewer than ``min_triangulated_share`` of its samples are seen by two cameras or
     more (a single-sensor depth is only a guess from the neighbours);
+``blob unlike a marker``
+    its blobs are, at its depth, more than ``max_size_ratio`` times as large as the
+    take's typical marker (the median over points of each point's median blob size in
+    mm): a nostril, an eye corner or a shadow is a dark blob too, but a larger one;
 ``moves unlike its neighbours``
     the RMS, over frames, of its displacement minus its neighbours' median displacement
     exceeds ``motion_share`` marker spacings: skin carries a marker along with the markers
@@ -24,12 +28,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from carapost.algorithms.codes import KIND_BRIM, RECON_SINGLE_SENSOR, RECON_TRIANGULATED
 
-__all__ = ["SpuriousPoint", "SpuriousParameters", "find_spurious_points"]
+__all__ = ["SpuriousParameters", "SpuriousPoint", "blob_sizes_mm", "find_spurious_points"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,7 @@ class SpuriousParameters:
     """
 
     min_frames: int = 10
+    max_size_ratio: float = 1.9
     min_triangulated_share: float = 0.1
     neighbours: int = 10
     motion_share: float = 0.75
@@ -65,7 +70,8 @@ class SpuriousPoint:
 
 
 def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike,
-                         params: SpuriousParameters | None = None) -> list[SpuriousPoint]:
+                         params: SpuriousParameters | None = None,
+                         blob_size_mm: ArrayLike | None = None) -> list[SpuriousPoint]:
     """Face points of a tracked take that are not markers (see the module docstring).
 
     Parameters
@@ -77,6 +83,9 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
     kind : array_like, shape (P,)
         ``KIND_*``; brim points are never judged.
     params : SpuriousParameters, optional
+    blob_size_mm : array_like, shape (P,), optional
+        Each point's median blob size in mm at its depth (`blob_sizes_mm`); NaN where
+        unknown. Without it the blob test is skipped.
 
     Returns
     -------
@@ -118,6 +127,15 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
         elif n_single[i] > (1.0 - p.min_triangulated_share) * n_present[i]:
             out[int(i)] = (f"too few cameras: {int(n_single[i])} of its {int(n_present[i])} "
                            f"samples are from one camera only")
+    if blob_size_mm is not None:
+        size = np.asarray(blob_size_mm, dtype=np.float64)
+        typical = np.nanmedian(size[face]) if np.isfinite(size[face]).any() else np.nan
+        for i in face:
+            if int(i) in out or not np.isfinite(size[i]) or not np.isfinite(typical):
+                continue
+            if size[i] > p.max_size_ratio * typical:
+                out[int(i)] = (f"blob unlike a marker: blob radius {size[i]:.1f} mm at its "
+                               f"depth against {typical:.1f} mm for the take's markers")
     judged = np.array([i for i in face if n_present[i] and int(i) not in out], dtype=np.intp)
     if judged.size >= 8:
         Xj = X[:, judged]
@@ -135,3 +153,36 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
                                f" mm RMS from their motion (limit "
                                f"{p.motion_share * spacing:.1f} mm)")
     return [SpuriousPoint(i, out[i]) for i in sorted(out)]
+
+
+def blob_sizes_mm(positions: ArrayLike, axes: ArrayLike, R: ArrayLike, t: ArrayLike,
+                  focal: ArrayLike, step: int = 4) -> NDArray[np.float64]:
+    """Each point's median blob size (mm): the geometric mean of its blobs' semi-axes
+    (px) times the depth over the focal length, over every ``step``-th frame.
+
+    Parameters
+    ----------
+    positions : array_like, shape (F, P, 3)
+    axes : array_like, shape (F, P, C, 2)
+        Semi-axes (px) of the blob attached to each point-camera, NaN where none.
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    focal : array_like, shape (C,)
+    step : int
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        NaN for a point without blobs.
+    """
+    X = np.asarray(positions, dtype=np.float64)[::step]
+    ax = np.asarray(axes, dtype=np.float64)[::step]
+    Rm = np.asarray(R, dtype=np.float64)[::step]
+    tm = np.asarray(t, dtype=np.float64)[::step]
+    z = np.einsum("fcj,fpj->fpc", Rm[..., 2, :], X) + tm[:, None, :, 2]  # (F, P, C)
+    size = np.sqrt(ax[..., 0] * ax[..., 1]) * z / np.asarray(focal, dtype=np.float64)
+    size = np.where(np.isfinite(size) & (z > 0), size, np.nan)
+    flat = size.transpose(1, 0, 2).reshape(size.shape[1], -1)
+    out = np.full(flat.shape[0], np.nan)
+    has = np.isfinite(flat).any(1)
+    out[has] = np.nanmedian(flat[has], axis=1)
+    return out

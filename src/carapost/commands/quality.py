@@ -11,7 +11,11 @@ import logging
 
 import numpy as np
 
-from carapost.algorithms.spurious import SpuriousParameters, find_spurious_points
+from carapost.algorithms.spurious import (
+    SpuriousParameters,
+    blob_sizes_mm,
+    find_spurious_points,
+)
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import Project
 
@@ -24,8 +28,30 @@ def spurious_points(project: Project, params: SpuriousParameters | None = None
                     ) -> list[tuple[int, str, str]]:
     """``(point id, label, reason)`` of every face point judged not to be a marker."""
     pts = project.points
-    found = find_spurious_points(pts.positions, pts.recon, pts.kind, params)
+    found = find_spurious_points(pts.positions, pts.recon, pts.kind, params,
+                                 blob_size_mm=_blob_sizes(project))
     return [(int(pts.ids[s.index]), project.point_label(s.index), s.reason) for s in found]
+
+
+def _blob_sizes(project: Project) -> np.ndarray | None:
+    """Each point's median blob size (mm), from its attached detections; None without
+    a calibration or detections."""
+    cal = project.calibration
+    pts = project.points
+    if cal.intrinsics is None or project.detections.total == 0:
+        return None
+    F, P, C = pts.detection.shape
+    frames = np.arange(0, F, 4)
+    axes = np.full((len(frames), P, C, 2), np.nan)
+    for i, f in enumerate(frames):
+        for c in range(C):
+            k = pts.detection[f, :, c]
+            got = k >= 0
+            if got.any():
+                table = project.detections.get(int(f), c)["axes"]
+                axes[i, got, c] = table[k[got]]
+    return blob_sizes_mm(pts.positions[frames], axes, cal.R[frames], cal.t[frames],
+                         cal.intrinsics.focal, step=1)
 
 
 class RemoveSpuriousPoints(Command):
