@@ -9,10 +9,10 @@ project file all read this one table.
 
 The algorithm sections are not written here: they are generated from the fields of the
 algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
-``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``,
-``GapFillParameters``, ``CleanupParameters``), which declare label, unit, range and help
-once with :func:`carapost.algorithms.params.param`. Display, Selection, Stabilization,
-Export and Target Tracker have no parameter class yet and are declared below by hand.
+``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``), which declare
+label, unit, range and help once with :func:`carapost.algorithms.params.param`. Display,
+Selection, Gap-Filling, Stabilization, Export and Target Tracker have no parameter class
+yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
 no range (or no default), the value is our choice and the help text says so. The guide's
