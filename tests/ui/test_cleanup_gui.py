@@ -49,6 +49,15 @@ def test_import_c3d_interpolate_filter_from_the_menus(make_window, qtbot, tmp_pa
     w.flush()
     pane = w.findChild(SelectedPointPane)
     assert "interpolated, estimated error" in pane.sample.text()
+    # the Graph view shades +- the estimate around the filled samples of the point
+    from carapost.ui.views.graph import GraphView
+
+    graph = GraphView(w.context.view)
+    qtbot.addWidget(graph)
+    graph.refresh(None)
+    xs = graph.bands[0].opts["x"]
+    assert len(xs) == 40 and xs.min() == 200 and xs.max() == 239
+    assert np.allclose(graph.bands[0].opts["height"], 2 * p.points.sigma[200:240, 3])
     _run(qtbot, w, "process.filter")
     assert len(w.stack.history()) == 2
     assert (p.points.recon[:200, 3] == RECON_FILTERED).all()

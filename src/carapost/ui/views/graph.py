@@ -76,6 +76,12 @@ class GraphView(BaseView):
         self.curves3: list[pg.PlotDataItem] = []
         self.bands: list[pg.ErrorBarItem] = []
         self.curves2: list[pg.PlotDataItem] = []
+        # the estimated error of filled samples (Interpolate Gaps) of the first selected
+        # point: a translucent bar of +- sigma around each of its x, y, z
+        self.bands = [pg.ErrorBarItem(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0),
+                                      pen=pg.mkPen((*c, 70), width=3)) for c in AXIS_COLOURS]
+        for band in self.bands:
+            self.plot3.addItem(band)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.layout_widget)
@@ -133,10 +139,23 @@ class GraphView(BaseView):
                 obs = p.points.obs[:, col, self.camera].astype(np.float64)
                 for k in range(2):
                     c2[2 * i + k].setData(x, obs[:, k], connect="finite")
+        self._draw_bands(cols[:1] if self.recon_data else cols[:0], x)
         self.plot3.setVisible(self.recon_data)
         self.plot2.setVisible(self.track_data)
         if change is None or change.parts & {"selection", "point_list", "file"}:
             self.fit()
+
+    def _draw_bands(self, cols: np.ndarray, x: np.ndarray) -> None:
+        p = self.ctx.project
+        if len(cols):
+            sig = p.points.sigma[:, cols[0]].astype(np.float64)
+            pos = p.points.positions[:, cols[0]].astype(np.float64)
+            m = np.isfinite(sig) & np.isfinite(pos[:, 0])
+        for k, band in enumerate(self.bands):
+            if len(cols) and m.any():
+                band.setData(x=x[m], y=pos[m, k], height=2 * sig[m])
+            else:
+                band.setData(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0))
 
     def fit(self) -> None:
         """Fit to data."""
