@@ -45,6 +45,7 @@ from typing import Any
 from carapost.algorithms import params as _params
 from carapost.algorithms.blobs import BlobParameters
 from carapost.algorithms.init3d import Init3DParameters
+from carapost.algorithms.labelling import LABEL_FROM_TEMPLATE, LabellingParameters
 from carapost.algorithms.params import (
     BLOB,
     INITIALIZE_3D,
@@ -268,6 +269,7 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     RomParameters,
     TrackingParameters,
     TriangulationParameters,
+    LabellingParameters,
 )
 
 _KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
@@ -422,6 +424,7 @@ SECTIONS: tuple[str, ...] = (
     STABILIZATION,
     EXPORT,
     TARGET_TRACKER,
+    LABEL_FROM_TEMPLATE,
 )
 
 _BY_KEY: dict[str, PropertySpec] = {s.key: s for s in SPECS}

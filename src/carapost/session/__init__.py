@@ -50,6 +50,7 @@ from carapost.commands import file as file_commands
 from carapost.commands.stack import Command, CommandError, CommandStack, HistoryEntry
 from carapost.export import ExportOptions
 from carapost.model.project import Project, new_project
+from carapost.session.labelling import LabellingActions
 from carapost.session.process import (
     PROCESS_ACTIONS,
     ImageFn,
@@ -95,7 +96,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions):
+class Session(ProcessActions, LabellingActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
