@@ -113,20 +113,46 @@ def test_process_command_bad_input_exits_2(tmp_path, capsys):
     assert not (tmp_path / "r.cara").exists()
 
 
-def test_demo_headless_with_a_cached_take(tmp_path, capsys, monkeypatch, synth_take):
-    """The headless demo on a short take standing in for the generated one."""
+def test_demo_headless_ends_labelled(tmp_path, capsys, monkeypatch, synth_take):
+    """The headless demo on a short take standing in for the generated ones: the ROM is
+    labelled from its truth, the take processed with it; every face point of the C3D
+    (read with ezc3d) and the FBX (read with ufbx) carries its truth label, the summary
+    says how many, and a second run reuses the results."""
+    import ezc3d
+
+    from carapost.synth.evaluation import load_truth
+    from tests.io.test_fbx import Loaded
+
     truth = synth_take.parent / "truth.npz"
     monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, truth))
+    monkeypatch.setattr(demo, "ensure_rom_take", lambda: (synth_take, truth))
     out = tmp_path / "results"
     assert main(["demo", "--headless", "--frames", "4", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"Project:     {out / 'demo.cara'}" in text and "C3D:" in text
     assert (out / "demo.cara").is_file() and (out / "demo.c3d").is_file()
     assert "Evaluation:" in text and (out / "evaluation.json").is_file()
+    names = set(load_truth(truth)["labels"])
+    c3d = ezc3d.c3d(str(out / "demo.c3d"))
+    c3d_labels = list(c3d["parameters"]["POINT"]["LABELS"]["value"])
+    assert len(c3d_labels) >= 0.9 * len(names)
+    assert set(c3d_labels) <= names                   # no "Point 24": every one labelled
+    n = len(c3d_labels)
+    assert f"Labelled:    {n} of {n} face points" in text and f"{n} agree with the truth" in text
+    fbx = Loaded(out / "demo.fbx")
+    try:
+        assert set(c3d_labels) <= {node.name for node in fbx.nodes}
+        assert not any(node.name.startswith("Point ") for node in fbx.nodes)
+    finally:
+        fbx.close()
+    assert main(["demo", "--headless", "--frames", "4", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "Using the demo results" in captured.err and f"Labelled:    {n} of {n}" in captured.out
 
 
 def test_demo_without_display_says_so(tmp_path, capsys, monkeypatch, synth_take):
     monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, None))
+    monkeypatch.setattr(demo, "ensure_rom_take", lambda: (synth_take, None))
     for key in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"):
         monkeypatch.delenv(key, raising=False)
     assert demo.run_demo(frames=3, out=str(tmp_path / "r")) == 0
@@ -141,6 +167,23 @@ def test_demo_without_generator_exits_1(tmp_path, capsys, monkeypatch):
     assert demo.run_demo(headless=True, frames=10, out=str(tmp_path)) == 1
     assert "not available yet" in capsys.readouterr().err
     assert main(["demo", "--frames", "1"]) == 2
+
+
+def test_every_subcommand_help_shows_defaults_and_positional_help(capsys):
+    for name in SUBCOMMANDS:
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        out = capsys.readouterr().out
+        assert "positional arguments:" not in out or all(
+            line.strip() == "" or len(line.split()) > 1 or line.strip().endswith(":")
+            for line in out.split("positional arguments:")[1].split("options:")[0]
+            .splitlines()), f"{name}: a positional argument without help"
+    with pytest.raises(SystemExit):
+        main(["synth", "--help"])
+    assert "(default: speech)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    assert "(default: 120)" in capsys.readouterr().out
 
 
 def test_demo_cache_folder_follows_xdg(tmp_path, monkeypatch):
