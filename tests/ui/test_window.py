@@ -483,7 +483,7 @@ def test_navigation_tools(make_window, demo, qtbot):
     qtbot.keyClick(w, Qt.Key.Key_G, Qt.KeyboardModifier.ControlModifier)
     assert p.current_frame == 17
     pid = int(p.points.ids[5])
-    w.dialogs.ints.append(pid)
+    w.dialogs.texts.append(str(pid))
     w.action("view.select_point").trigger()
     assert p.selection.points == {pid}
     w.action("view.point_info").trigger()

@@ -420,11 +420,11 @@ SECTIONS: tuple[str, ...] = (
     INITIALIZE_FROM_ROM,
     TRACKING,
     TRIANGULATION,
+    LABEL_FROM_TEMPLATE,
     GAP_FILLING,
     STABILIZATION,
     EXPORT,
     TARGET_TRACKER,
-    LABEL_FROM_TEMPLATE,
 )
 
 _BY_KEY: dict[str, PropertySpec] = {s.key: s for s in SPECS}

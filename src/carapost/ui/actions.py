@@ -30,6 +30,7 @@ from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
+from carapost.ui.handlers import labelling as labelling_menu
 from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
 from carapost.ui.handlers import view as view_menu
@@ -262,6 +263,9 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _proc("process.stab_assisted", "Stabilize Data [Assisted]", None),
     _proc("process.align", "Align Data", None),
     _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
+    _A("process.label_template", "Process", "Label From Template...", "",
+       labelling_menu.label_from_template, separator=True,
+       tip="Label the unlabelled points from a labelled take of the same marker set"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),
