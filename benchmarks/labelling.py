@@ -14,7 +14,9 @@ is checked against the target's truth (points matched to markers by geometry,
 Prints JSON lines per case (``case`` names it):
 
 - ``label_template_correct``: fraction of the target's face points that match a truth
-  marker and got that marker's label;
+  marker the template has a label for and got that marker's label
+  (``correct_of_all_matched`` also counts the points whose marker the template never
+  tracked, which no template-based method can label);
 - ``label_template_wrong``: labelled points whose label is not their marker's (a
   spurious point labelled counts as wrong);
 - ``label_template_s``: seconds of Label From Template (prepare + compute, median of
@@ -100,13 +102,20 @@ def run_case(name: str, cache: Path, frames: int, runs: int) -> None:
     face = np.flatnonzero(p.points.kind == KIND_FACE)
     face = [int(c) for c in face if np.isfinite(p.points.positions[:, c, 0]).any()]
     real = [c for c in face if int(p.points.ids[c]) in expected]
-    correct = sum(1 for c in real if p.points.labels[c] == expected[int(p.points.ids[c])])
+    # a marker the template never tracked has no label there to give
+    known = set(job.template_labels)
+    labelable = [c for c in real if expected[int(p.points.ids[c])] in known]
+    correct = sum(1 for c in labelable
+                  if p.points.labels[c] == expected[int(p.points.ids[c])])
     wrong = sum(1 for c in face if p.points.labels[c]
                 and p.points.labels[c] != expected.get(int(p.points.ids[c])))
     extra = {"case": name, "markers": markers, "preset": preset, "variant": variant,
              "points": len(face), "matched_points": len(real),
+             "labelable_points": len(labelable),
+             "correct_of_all_matched": round(correct / max(len(real), 1), 4),
              "unassigned": result.unassigned}
-    emit("label_template_correct", round(correct / max(len(real), 1), 4), "fraction", **extra)
+    emit("label_template_correct", round(correct / max(len(labelable), 1), 4), "fraction",
+         **extra)
     emit("label_template_wrong", wrong, "labels", case=name)
     if name == "dense156":
         emit("label_template_s", round(statistics.median(times), 4), "s", case=name,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QPointF, Qt
 
 from tests.ui.test_window import activate, settle
 
@@ -69,3 +69,119 @@ def test_ctrl_p_selects_a_point_by_label_and_ctrl_r_completes(make_window, demo,
     qtbot.keyClick(w, Qt.Key.Key_R, Qt.KeyboardModifier.ControlModifier)
     assert w.dialogs.completions[: len(free)] == free
     assert p.points.labels[other] == free[0]
+
+
+class _Drag:
+    """The parts of a pyqtgraph mouse drag event the views read."""
+
+    def __init__(self, vb, a: float, b: float, mods, finish: bool = True) -> None:
+        y = vb.viewRange()[1][0] + 0.5
+        self._a = vb.mapViewToScene(QPointF(a, y))
+        self._b = vb.mapViewToScene(QPointF(b, y))
+        self._mods, self._finish = mods, finish
+
+    def button(self):
+        return Qt.MouseButton.LeftButton
+
+    def modifiers(self):
+        return self._mods
+
+    def accept(self):
+        pass
+
+    def ignore(self):
+        pass
+
+    def isFinish(self):
+        return self._finish
+
+    def isStart(self):
+        return False
+
+    def buttonDownScenePos(self):
+        return self._a
+
+    def scenePos(self):
+        return self._b
+
+
+def _brim_project():
+    from carapost.model.project import SOURCE_NONE
+    from carapost.synth.demo_project import demo_project
+
+    p = demo_project(60, 24, 4, size=(640, 360), seed=1, brim=6)
+    brim = np.flatnonzero(p.points.kind == 1)
+    # the brim has 2D at frame 0 only (a solved brim): its 3D holds from the model
+    p.points.obs[1:, brim] = np.nan
+    p.points.source[1:, brim] = SOURCE_NONE
+    return p, brim
+
+
+def test_continuity_brim_rows_collapsed_in_their_own_colour(make_window, qtbot):
+    from carapost.ui.views.continuity import BRIM, BRIM_HEADER, INTERPOLATED, LUT
+
+    p, brim = _brim_project()
+    w = make_window(p)
+    w.show()
+    w.workspace.containers[0].set_spec("continuity")
+    settle(qtbot, w)
+    chart = w.workspace.containers[0].view
+    face = p.n_points - len(brim)
+    assert len(chart._rows) == face + 1 and chart._rows[-1] == (BRIM_HEADER, -1)
+    assert "Calibration brim (6)" in chart._row_names[-1]
+    header = chart.row_codes(chart._rows[-1])
+    assert (header[1:] == BRIM).all() and not (header == INTERPOLATED).any()
+    chart.scroll_rows(1000)
+    chart.render()
+    rgba = chart.image.image                    # rows as drawn, bottom row = the brim
+    assert not (rgba[-1][:, :3] == LUT[INTERPOLATED][:3]).all(-1).any()
+    assert (rgba[-1][:, :3] == LUT[BRIM][:3]).all(-1).any()
+    # double-click the header shows the dots, also not "interpolated"
+    chart.click_row(len(chart._rows) - 0.5, Qt.KeyboardModifier.NoModifier, True)
+    assert len(chart._rows) == face + 1 + len(brim)
+    assert all((chart.row_codes((int(c), -1))[1:] == BRIM).all() for c in brim)
+    assert "brim model" in chart.describe((int(brim[0]), -1), 30)
+    assert "cameras" in chart.describe((0, -1), 30)
+
+
+def test_continuity_stays_legible_with_300_points(make_window, qtbot):
+    from carapost.synth.demo_project import demo_project
+
+    p = demo_project(30, 300, 4, size=(640, 360), seed=2)
+    w = make_window(p)
+    w.show()
+    w.workspace.containers[0].set_spec("continuity")
+    settle(qtbot, w)
+    chart = w.workspace.containers[0].view
+    y0, y1 = chart.vb.viewRange()[1]
+    shown = y1 - y0
+    assert 5 <= shown < 300 and chart.scroll.isVisible()
+    ticks = chart.plot.getAxis("left")._tickLevels[0]
+    assert len(ticks) >= int(shown)                     # a name on every visible row
+    chart.scroll_rows(50)
+    assert chart.vb.viewRange()[1][0] == y0 + 50 and chart.scroll.value() == 50
+    chart.zoom_rows(2.0, 60)
+    assert chart.vb.viewRange()[1][1] - chart.vb.viewRange()[1][0] > shown
+
+
+def test_ctrl_drag_sets_the_active_range_and_click_sets_the_frame(make_window, demo, qtbot):
+    p, frames = demo
+    w = make_window(p, frames)
+    w.show()
+    ctrl = Qt.KeyboardModifier.ControlModifier
+    w.workspace.containers[0].set_spec("continuity")
+    settle(qtbot, w)
+    chart = w.workspace.containers[0].view
+    chart.vb.mouseDragEvent(_Drag(chart.vb, 10.2, 30.6, ctrl))
+    assert p.active_range == (10, 30)
+    w.workspace.containers[0].set_spec("graph")
+    settle(qtbot, w)
+    graph = w.workspace.containers[0].view
+    p.set_selection(points=[int(p.points.ids[0])])
+    settle(qtbot, w)
+    vb = graph.plots[0].getViewBox()
+    vb.mouseDragEvent(_Drag(vb, 5.0, 40.0, ctrl))
+    assert p.active_range == (5, 40)
+    assert w.context.session.history()[-1].description.startswith("Set Active Range 5-40")
+    graph.frame_clicked.emit(22)
+    assert p.current_frame == 22

@@ -244,6 +244,8 @@ def label_from_template(
     target: NDArray,
     params: LabellingParameters | None = None,
     progress: Callable[[int, int], bool] | None = None,
+    *,
+    template_frames: NDArray | None = None,
 ) -> LabelAssignment:
     """Assign the labels of a template take's points to a tracked take's points.
 
@@ -258,6 +260,12 @@ def label_from_template(
     progress : callable, optional
         ``progress(done, total)``; returning False cancels (`label_from_template` then
         returns no labels).
+    template_frames : ndarray, shape (K, M, 3), optional
+        Single frames of the template (a ROM's expressions) to try besides its reference
+        cloud: the one the take's cloud fits best after the rigid registration is used
+        (a take of mostly open-mouth speech fits a ROM frame better than the ROM's
+        median). When ``template`` is (Ft, M, 3), up to 24 of its well-tracked frames are
+        tried.
 
     Returns
     -------
@@ -279,6 +287,9 @@ def label_from_template(
     True
     """
     p = params or LabellingParameters()
+    if template.ndim == 3 and template_frames is None:
+        present = np.isfinite(template[..., 0])
+        template_frames = template[well_tracked_frames(present, 24)]
     A = template if template.ndim == 2 else reference_cloud(template, p.reference_frames)
     B = target if target.ndim == 2 else reference_cloud(target, p.reference_frames)
     A = np.asarray(A, dtype=np.float64)
@@ -301,6 +312,16 @@ def label_from_template(
     starts = [(np.eye(3), np.zeros(3)), (np.eye(3), Bb.mean(0) - Aa.mean(0))]
     fits = [_icp(Aa, Bb, R0, t0, spacing) for R0, t0 in starts]
     best = max(fits, key=lambda f: (f[3], -f[2]))
+    if template_frames is not None and len(template_frames):
+        # the template expression closest to the take's: each frame (its missing points
+        # from the reference cloud) refitted from the best pose, lowest residual wins
+        cands = np.asarray(template_frames, dtype=np.float64)[:, a_ok]
+        cands = np.where(np.isfinite(cands), cands, Aa[None])
+        for cand in cands:
+            fit = _icp(cand, Bb, best[0], best[1], spacing, iterations=8)
+            if fit[2] < best[2] and fit[3] >= best[3]:
+                Aa, best = cand, fit
+        fits = [best]
     if best[2] > 0.2 * spacing or best[3] < 0.8 * min(len(Aa), len(Bb)):
         # no start explains most points closely: ask the triplet search for more starts
         # (on a spread subset of the template: the search is quadratic in its points)

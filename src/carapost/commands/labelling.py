@@ -23,6 +23,7 @@ from carapost.algorithms.labelling import (
     LabellingParameters,
     label_from_template,
     reference_cloud,
+    well_tracked_frames,
 )
 from carapost.algorithms.params import from_mapping
 from carapost.commands.recipe import Job, Progress, Result
@@ -108,6 +109,7 @@ class LabelJob(Job):
     """Snapshot of :func:`prepare_label_from_template`: two reference clouds."""
 
     template_cloud: NDArray[np.float64]   # (M, 3) mm
+    template_frames: NDArray[np.float32]  # (K, M, 3) mm: single expressions to try
     template_labels: list[str]
     target_cloud: NDArray[np.float64]     # (P, 3) mm
     target_ids: NDArray[np.int64]
@@ -125,7 +127,7 @@ class LabelJob(Job):
             return True
 
         out = label_from_template(self.template_cloud, self.target_cloud, self.params,
-                                  tick)
+                                  tick, template_frames=self.template_frames)
         cancelled = stopped[0]
         mapping = {int(self.target_ids[j]): self.template_labels[int(i)]
                    for j, i in enumerate(out.template_index) if i >= 0}
@@ -211,9 +213,10 @@ def prepare_label_from_template(project: Project, template: Project | str | Path
         raise CommandError(f"{what}: every label of {name} is already used in this take")
     tpos = template.points.positions[:, tcols]
     tcloud = reference_cloud(tpos, params.reference_frames)
+    tframes = tpos[well_tracked_frames(np.isfinite(tpos[..., 0]), 24)].copy()
     cloud = reference_cloud(pts.positions[:, cols], params.reference_frames)
     all_labels = [lab for lab in template.labels if lab] or [
         template.points.labels[c] for c in tcols]
-    return LabelJob(tcloud, [template.points.labels[c] for c in tcols], cloud,
+    return LabelJob(tcloud, tframes, [template.points.labels[c] for c in tcols], cloud,
                     pts.ids[cols].copy(), params, all_labels,
                     f"{what} {name}")
