@@ -185,3 +185,38 @@ def test_ctrl_drag_sets_the_active_range_and_click_sets_the_frame(make_window, d
     assert w.context.session.history()[-1].description.startswith("Set Active Range 5-40")
     graph.frame_clicked.emit(22)
     assert p.current_frame == 22
+
+
+def test_detach_re_solves_the_point_in_the_same_undo_step(make_window, demo, qtbot):
+    from carapost.algorithms.triangulation import triangulate
+    from carapost.model.project import RECON_TRIANGULATED
+    from tests.commands.test_edit_commands import snapshot
+
+    p, frames = demo
+    w = make_window(p, frames)
+    f = 12
+    full = ~np.isnan(p.points.obs[f, :, :, 0]).any(-1) & (p.points.recon[f] == RECON_TRIANGULATED)
+    col = int(np.flatnonzero(full)[0])
+    pid = int(p.points.ids[col])
+    # a jittery camera: camera 0's observation is 3 px off, and the 3D tracked with it
+    p.points.obs[f, col, 0] += 3.0
+    cal = p.calibration
+    jittered = triangulate(p.points.obs[f:f + 1, col:col + 1].astype(np.float64),
+                           cal.R[f:f + 1], cal.t[f:f + 1], cal.intrinsics).points[0, 0]
+    p.points.positions[f, col] = jittered
+    w.set_frame(f)
+    p.set_selection(points=[pid], cameras={0})
+    settle(qtbot, w)
+    before = snapshot(p)
+    entries = len(w.context.session.history())
+    w.action("edit.detach_current").trigger()          # Ctrl+H
+    assert len(w.context.session.history()) == entries + 1
+    assert np.isnan(p.points.obs[f, col, 0]).all()
+    rest = p.points.obs[f:f + 1, col:col + 1].astype(np.float64)
+    expected = triangulate(rest, p.calibration.R[f:f + 1], p.calibration.t[f:f + 1],
+                           p.calibration.intrinsics).points[0, 0]
+    assert np.allclose(p.points.positions[f, col], expected, atol=1e-3)   # the 3D moved
+    assert np.linalg.norm(p.points.positions[f, col] - jittered) > 0.05
+    assert p.points.recon[f, col] == RECON_TRIANGULATED
+    w.action("edit.undo").trigger()
+    assert snapshot(p) == before                                        # bit-identical
