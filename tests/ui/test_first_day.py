@@ -220,3 +220,30 @@ def test_detach_re_solves_the_point_in_the_same_undo_step(make_window, demo, qtb
     assert p.points.recon[f, col] == RECON_TRIANGULATED
     w.action("edit.undo").trigger()
     assert snapshot(p) == before                                        # bit-identical
+
+
+def test_empty_states_say_what_to_do(make_window, demo, qtbot):
+    w = make_window()
+    w.show()
+    settle(qtbot, w)
+    assert w.empty_hint.isVisible() and "File &gt; Open" in w.empty_hint.text()
+    pane = w.pane("Selected Point").chart
+    assert pane.hint.isVisible() and "Select one point" in pane.hint.text()
+    p, frames = demo
+    w.set_project(p, frames)
+    settle(qtbot, w)
+    assert not w.empty_hint.isVisible()
+    p.set_selection(points=[int(i) for i in p.points.ids[:3]])
+    settle(qtbot, w)
+    assert "3 points are selected" in pane.hint.text()
+    p.set_selection(points=[int(p.points.ids[0])])
+    settle(qtbot, w)
+    assert not pane.hint.isVisible()
+    # the Log pane shows the whole of a multi-line message
+    import logging
+
+    logging.getLogger("carapost.ui").warning("first line\nsecond line\nthird line")
+    settle(qtbot, w)
+    log = w.pane("Log")
+    log.table.selectRow(log.model.rowCount() - 1)
+    assert log.detail.toPlainText() == "first line\nsecond line\nthird line"

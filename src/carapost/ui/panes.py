@@ -25,6 +25,7 @@ from PySide6.QtWidgets import (
     QListView,
     QListWidget,
     QListWidgetItem,
+    QPlainTextEdit,
     QPushButton,
     QSpinBox,
     QTableView,
@@ -114,7 +115,19 @@ class LogPane(QWidget):
         self.table.setColumnWidth(2, 80)
         self.table.setStyleSheet("QTableView { background: #202020; }")
         layout.addWidget(self.table)
+        # the whole message of the selected record (rows show its first line)
+        self.detail = QPlainTextEdit()
+        self.detail.setReadOnly(True)
+        self.detail.setPlaceholderText("Select a message to read it in full")
+        self.detail.setMaximumHeight(5 * self.table.fontMetrics().height() + 12)
+        layout.addWidget(self.detail)
+        self.table.selectionModel().currentRowChanged.connect(self._show_detail)
         self.model.rowsInserted.connect(lambda *_: self.table.scrollToBottom())
+
+    def _show_detail(self, current: QModelIndex, _previous: QModelIndex) -> None:
+        entries = self.model.entries
+        row = current.row()
+        self.detail.setPlainText(entries[row].text if 0 <= row < len(entries) else "")
 
     @property
     def entries(self) -> list[LogEntry]:
@@ -171,6 +184,13 @@ class PropertiesPane(QWidget):
         if preferences is None and sections is None:
             preferences = ("show_version_check_dialog",)
         self.preference_editors = self._add_preferences(preferences or (), preferences_title)
+        # the names column fits the longest name (long ones are never cut off)
+        fm = self.tree.fontMetrics()
+        names = [self.tree.topLevelItem(i).child(j).text(0)
+                 for i in range(self.tree.topLevelItemCount())
+                 for j in range(self.tree.topLevelItem(i).childCount())]
+        widest = max((fm.horizontalAdvance(n) for n in names), default=0)
+        self.tree.setColumnWidth(0, max(190, widest + 2 * self.tree.indentation() + 12))
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 

@@ -14,7 +14,7 @@ import pyqtgraph as pg
 from numpy.typing import NDArray
 from PySide6.QtCore import QRectF, Qt
 from PySide6.QtGui import QColor
-from PySide6.QtWidgets import QHBoxLayout, QMenu, QScrollBar, QToolTip
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QMenu, QScrollBar, QToolTip
 
 from carapost.model.events import Change
 from carapost.model.project import (
@@ -216,6 +216,12 @@ class ContinuityView(BaseView):
         layout.addWidget(self.plot, 1)
         layout.addWidget(self.scroll)
         self.plot.scene().sigMouseMoved.connect(self._hover)
+        # the Selected Point pane with no (or several) points: say so, no fake axis
+        self.hint = QLabel(self)
+        self.hint.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.hint.setWordWrap(True)
+        self.hint.setStyleSheet("color: #b4b4b4; background: #1e1e1e;")
+        self.hint.hide()
         self.vb.sigXRangeChanged.connect(lambda *_: self.render())
         self.vb.sigResized.connect(self._resized)
         self.vb.sigYRangeChanged.connect(lambda *_: self._update_ticks())
@@ -302,6 +308,23 @@ class ContinuityView(BaseView):
         (y0, _) = self.vb.viewRange()[1]
         self._show_rows(y0, self.rows_that_fit())
 
+    def _show_hint(self) -> None:
+        """Selected Point pane: a sentence instead of an empty chart."""
+        n = len(self.ctx.project.selection.points)
+        text = ("" if self._rows else "Select one point to see its continuity in each "
+                "camera" if n == 0 else f"{n} points are selected: select one point to see "
+                "its continuity in each camera")
+        self.hint.setText(text)
+        self.hint.setVisible(bool(text))
+        if text:  # over the chart (hiding it would resize the pane)
+            self.hint.setGeometry(self.rect())
+            self.hint.raise_()
+
+    def resizeEvent(self, ev) -> None:  # keep the hint over the whole pane
+        super().resizeEvent(ev)
+        if self.hint.isVisible():
+            self.hint.setGeometry(self.rect())
+
     def _row_name(self, col: int, cam: int) -> str:
         if col == BRIM_HEADER:
             n = len(getattr(self, "_brim_cols", ()))
@@ -316,7 +339,7 @@ class ContinuityView(BaseView):
         self.render()
 
     #: Smallest row height at which every row's name is drawn (px).
-    ROW_PX = 14
+    ROW_PX = 18
 
     def rows_that_fit(self) -> float:
         """Rows shown at a legible height (at least one; every row in the Selected Point
@@ -397,7 +420,7 @@ class ContinuityView(BaseView):
         names = getattr(self, "_row_names", [])
         (y0, y1) = self.vb.viewRange()[1]
         px_per_row = max(self.vb.height(), 1) / max(y1 - y0, 1e-6)
-        step = max(1, int(np.ceil(14 / max(px_per_row, 1e-6))))
+        step = max(1, int(np.ceil(self.ROW_PX / max(px_per_row, 1e-6) - 1e-6)))
         ticks = [(i + 0.5, n) for i, n in enumerate(names) if i % step == 0]
         axis = self.plot.getAxis("left")
         axis.setTicks([ticks, []])
@@ -423,6 +446,8 @@ class ContinuityView(BaseView):
         """Redraw the visible frames (binned to the widget width)."""
         p = self.ctx.project
         self.redraw_count += 1
+        if self.single:
+            self._show_hint()
         if not self._rows or p.n_frames == 0 or self._codes is None:
             self.image.clear()
             self._draw_selection()

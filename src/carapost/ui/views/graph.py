@@ -70,7 +70,9 @@ class GraphView(BaseView):
         self.camera = camera
         self.track_data = True
         self.recon_data = True
-        self.about_mean = False
+        # None: automatic, each curve about its mean when several points are drawn (their
+        # offsets would otherwise stretch each axis over the whole face)
+        self.about_mean: bool | None = None
         self.layout_widget = pg.GraphicsLayoutWidget()
         self.layout_widget.setBackground((30, 30, 30))
         self.plots: list[pg.PlotItem] = []
@@ -153,13 +155,14 @@ class GraphView(BaseView):
         x = np.arange(F, dtype=np.float64)
         self.legend.clear()
         single = len(cols) == 1
+        about = self.about_mean if self.about_mean is not None else len(cols) > 1
         for row, (name, unit, dim, k) in enumerate(ROWS):
             shown = self.recon_data if dim == 3 else self.track_data
             self.plots[row].setVisible(shown)
             curves = self._curves(row, len(cols) if shown else 0)
             if not shown:
                 continue
-            axis = f"{name} - mean" if self.about_mean else name
+            axis = f"{name} - mean" if about else name
             self.plots[row].setLabel("left", axis, units=unit)
             for i, col in enumerate(cols):
                 if dim == 3:
@@ -168,7 +171,7 @@ class GraphView(BaseView):
                     y = p.points.obs[:, col, self.camera, k].astype(np.float64)
                 else:
                     y = np.full(F, np.nan)
-                if self.about_mean and np.isfinite(y).any():
+                if about and np.isfinite(y).any():
                     y = y - np.nanmean(y)
                 colour = AXIS_COLOURS[k if dim == 3 else k] if single else POINT_COLOURS[
                     i % len(POINT_COLOURS)]
@@ -204,5 +207,7 @@ class GraphView(BaseView):
                             ("about_mean", "Plot About Mean")):
             act = menu.addAction(title)
             act.setCheckable(True)
-            act.setChecked(getattr(self, name))
+            on = getattr(self, name)
+            act.setChecked(bool(on) if on is not None else
+                           len(self.ctx.project.selected_columns()) > 1)
             act.toggled.connect(lambda on, n=name: self._toggle(n, on))
