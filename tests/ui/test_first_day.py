@@ -247,3 +247,33 @@ def test_empty_states_say_what_to_do(make_window, demo, qtbot):
     log = w.pane("Log")
     log.table.selectRow(log.model.rowCount() - 1)
     assert log.detail.toPlainText() == "first line\nsecond line\nthird line"
+
+
+def test_camera_view_draws_the_rom_and_declutters_labels(make_window, demo, qtbot):
+    from carapost.model.project import RomReference
+    from carapost.synth.demo_project import demo_project
+
+    p, frames = demo
+    rom = demo_project(10, 24, 4, size=(640, 360), seed=1)
+    p.rom = RomReference(path="rom.cara", project=rom)
+    w = make_window(p, frames)
+    w.show()
+    w.workspace.set_layout(1)
+    w.workspace.containers[0].set_spec("sensor:0")
+    settle(qtbot, w)
+    view = w.workspace.containers[0].view
+    assert view.rom.isVisible()
+    xy = view.rom.getData()
+    assert len(xy[0]) >= 0.8 * rom.n_points     # light-blue ROM markers, projected
+    # every point labelled and Point Labels: All: labels never pile up
+    p.points.labels = [f"Marker_Long_Name_{i:02d}" for i in range(p.n_points)]
+    p.labels = list(p.points.labels)
+    w.context.session.set_property("Display", "point_labels_all", True)
+    w.set_frame(5)
+    settle(qtbot, w)
+    shown = [item for item in view._labels if item.isVisible()]
+    assert 0 < len(shown) < p.n_points
+    rects = [item.mapRectToScene(item.boundingRect()) for item in shown]
+    overlaps = sum(1 for i, a in enumerate(rects) for b in rects[i + 1:]
+                   if a.intersected(b).width() > 3 and a.intersected(b).height() > 3)
+    assert overlaps <= len(shown) // 10
