@@ -277,3 +277,25 @@ def test_camera_view_draws_the_rom_and_declutters_labels(make_window, demo, qtbo
     overlaps = sum(1 for i, a in enumerate(rects) for b in rects[i + 1:]
                    if a.intersected(b).width() > 3 and a.intersected(b).height() > 3)
     assert overlaps <= len(shown) // 10
+
+
+def test_show_calibration_brim_svg(make_window, demo, qtbot, tmp_path):
+    p, frames = demo
+    w = make_window(p, frames)
+    w.action("view.brim_svg").trigger()
+    assert "did not come from an SVG" in w.dialogs.infos[-1][1]
+    svg = tmp_path / "brim.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="50mm" '
+                   'viewBox="0 0 100 50">' + "".join(
+                       f'<circle cx="{10 + 15 * i}" cy="{10 + 20 * (i % 2)}" r="3"/>'
+                       for i in range(6)) + "</svg>")
+    w.dialogs.open_paths.append(str(svg))
+    w.action("file.import_brim").trigger()
+    assert p.take.metadata["brim_svg"] == str(svg.absolute())
+    w.action("view.brim_svg").trigger()
+    window = w.context.brim_window
+    assert window.isVisible() and window.renderer().isValid()
+    assert svg.name in window.windowTitle()
+    window.close()
+    w.action("edit.undo").trigger()
+    assert "brim_svg" not in p.take.metadata

@@ -26,6 +26,7 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import brim_view as brim_menu
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
@@ -183,7 +184,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.panels", "View/Panels", ""),
     _A("view.floating", "View", "New Floating Workspace", "",
        view_menu.new_floating_workspace),
-    _A("view.brim_svg", "View", "Show Calibration Brim SVG", ""),
+    _A("view.brim_svg", "View", "Show Calibration Brim SVG", "", brim_menu.show_brim_svg),
     _A("view.full_screen", "View", "Full Screen", "F", view_menu.toggle_full_screen,
        checkable=True, separator=True),
     _A("view.toggle_docks", "View", "Toggle Dock Widget Visibility", "Ctrl+F",
