@@ -184,13 +184,15 @@ class PropertiesPane(QWidget):
         if preferences is None and sections is None:
             preferences = ("show_version_check_dialog",)
         self.preference_editors = self._add_preferences(preferences or (), preferences_title)
-        # the names column fits the longest name (long ones are never cut off)
-        fm = self.tree.fontMetrics()
-        names = [self.tree.topLevelItem(i).child(j).text(0)
-                 for i in range(self.tree.topLevelItemCount())
-                 for j in range(self.tree.topLevelItem(i).childCount())]
-        widest = max((fm.horizontalAdvance(n) for n in names), default=0)
-        self.tree.setColumnWidth(0, max(190, widest + 2 * self.tree.indentation() + 12))
+        # the names take the room the values and units leave: a wider pane shows them
+        # whole, a narrow one elides them (the tooltip has the whole name and its help)
+        header = self.tree.header()
+        header.setStretchLastSection(False)
+        header.setSectionResizeMode(0, QHeaderView.ResizeMode.Stretch)
+        header.setSectionResizeMode(1, QHeaderView.ResizeMode.Fixed)
+        header.setSectionResizeMode(2, QHeaderView.ResizeMode.ResizeToContents)
+        self.tree.setColumnWidth(1, 110)
+        self.tree.setTextElideMode(Qt.TextElideMode.ElideMiddle)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 

@@ -13,7 +13,7 @@ import numpy as np
 import pyqtgraph as pg
 from numpy.typing import NDArray
 from PySide6.QtCore import QRectF, Qt
-from PySide6.QtGui import QColor
+from PySide6.QtGui import QColor, QFontMetrics
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QMenu, QScrollBar, QToolTip
 
 from carapost.model.events import Change
@@ -340,6 +340,8 @@ class ContinuityView(BaseView):
 
     #: Smallest row height at which every row's name is drawn (px).
     ROW_PX = 18
+    #: Widest names column (px); longer names are elided.
+    MAX_NAME_PX = 190
 
     def rows_that_fit(self) -> float:
         """Rows shown at a legible height (at least one; every row in the Selected Point
@@ -421,10 +423,19 @@ class ContinuityView(BaseView):
         (y0, y1) = self.vb.viewRange()[1]
         px_per_row = max(self.vb.height(), 1) / max(y1 - y0, 1e-6)
         step = max(1, int(np.ceil(self.ROW_PX / max(px_per_row, 1e-6) - 1e-6)))
-        ticks = [(i + 0.5, n) for i, n in enumerate(names) if i % step == 0]
         axis = self.plot.getAxis("left")
+        # the names column fits the longest name up to a limit; longer ones are elided in
+        # the middle (pyqtgraph would drop a name wider than the axis); the tooltip has
+        # the whole name
+        fm = QFontMetrics(axis.style.get("tickFont") or self.plot.font())
+        widest = max((fm.horizontalAdvance(n) for n in names), default=40)
+        width = int(min(max(widest + 16, 70), self.MAX_NAME_PX))
+        ticks = [(i + 0.5, fm.elidedText(n, Qt.TextElideMode.ElideMiddle, width - 16))
+                 for i, n in enumerate(names) if i % step == 0]
+        # every row's name (pyqtgraph otherwise drops names once 80 % of the axis is text)
+        axis.setStyle(textFillLimits=[(0, 1.0)])
         axis.setTicks([ticks, []])
-        axis.setWidth(90)
+        axis.setWidth(width)
 
     def row_codes(self, row: tuple[int, int]) -> NDArray[np.uint8]:
         """Codes of one row over every frame."""
