@@ -224,7 +224,7 @@ class ContinuityView(BaseView):
         self.hint.hide()
         self.vb.sigXRangeChanged.connect(lambda *_: self.render())
         self.vb.sigResized.connect(self._resized)
-        self.vb.sigYRangeChanged.connect(lambda *_: self._update_ticks())
+        self.vb.sigYRangeChanged.connect(self._y_changed)
         self.redraw_count = 0
         self.partial_updates = 0  # code updates limited to the changed point-frames
         self.refresh(None)
@@ -324,6 +324,10 @@ class ContinuityView(BaseView):
         super().resizeEvent(ev)
         if self.hint.isVisible():
             self.hint.setGeometry(self.rect())
+
+    def _y_changed(self, *_: object) -> None:
+        self._update_ticks()
+        self.render()
 
     def _row_name(self, col: int, cam: int) -> str:
         if col == BRIM_HEADER:
@@ -463,22 +467,29 @@ class ContinuityView(BaseView):
             self.image.clear()
             self._draw_selection()
             return
-        (x0, x1), _ = self.vb.viewRange()
+        (x0, x1), (y0, y1) = self.vb.viewRange()
         start = int(max(0, np.floor(x0)))
         stop = int(min(p.n_frames, np.ceil(x1) + 1))
+        # only the rows in view: 300 points scroll at the cost of the ~40 shown
+        r0 = int(np.clip(np.floor(y0), 0, len(self._rows) - 1))
+        r1 = int(np.clip(np.ceil(y1), r0 + 1, len(self._rows)))
         if stop <= start:
             self.image.clear()
             return
         width = max(int(self.vb.width()), 50)
-        if all(cam < 0 and col >= 0 for col, cam in self._rows) and not self.single:
-            cols = np.array([col for col, _ in self._rows], np.intp)
-            data = self._codes if len(cols) == self._codes.shape[0] else self._codes[cols]
+        rows = self._rows[r0:r1]
+        if all(cam < 0 and col >= 0 for col, cam in rows) and not self.single:
+            cols = np.array([col for col, _ in rows], np.intp)
+            if r0 == 0 and len(cols) == self._codes.shape[0]:
+                data = self._codes[:, start:stop]
+            else:
+                data = self._codes[cols, start:stop]
         else:
-            data = np.stack([self.row_codes(r) for r in self._rows])
-        binned = bin_min(data, start, stop, width)
+            data = np.stack([self.row_codes(r)[start:stop] for r in rows])
+        binned = bin_min(data, 0, stop - start, width)
         rgba = LUT[binned]
         self.image.setImage(rgba, autoLevels=False)
-        self.image.setRect(QRectF(start, 0, stop - start, len(self._rows)))
+        self.image.setRect(QRectF(start, r0, stop - start, r1 - r0))
         self._draw_selection()
 
     def _draw_selection(self) -> None:
