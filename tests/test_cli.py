@@ -199,3 +199,30 @@ def test_demo_generates_and_processes_the_take(tmp_path, monkeypatch, capsys):
     # second run reuses the cache
     assert demo.run_demo(headless=True, frames=6, out=str(tmp_path / "r")) == 0
     assert "Using the demo take cached" in capsys.readouterr().err
+
+
+def test_console_progress_plain_lines_and_bars():
+    import io
+
+    from carapost.progress import ConsoleProgress
+
+    out = io.StringIO()
+    with ConsoleProgress(out, bars=False) as bars:
+        tick = bars.stage("Detect blobs")
+        for i in range(1, 1001):
+            assert tick(i, 1000)
+        bars.stage("Track")(5, 10)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("Detect blobs: ") and "%" in lines[0]
+    assert len([x for x in lines if x.startswith("Detect blobs:")]) <= 11   # not 1000
+    assert any(x.startswith("Detect blobs: done in") for x in lines)
+    assert lines[-1].startswith("Track: done in")
+    quiet = io.StringIO()
+    with ConsoleProgress(quiet, quiet=True) as bars:
+        bars.stage("Detect blobs")(1, 2)
+    assert quiet.getvalue() == ""
+    drawn = io.StringIO()
+    with ConsoleProgress(drawn, bars=True) as bars:
+        bars.stage("Detect blobs")(50, 100)
+    assert "Detect blobs" in drawn.getvalue()
+
