@@ -299,3 +299,26 @@ def test_show_calibration_brim_svg(make_window, demo, qtbot, tmp_path):
     window.close()
     w.action("edit.undo").trigger()
     assert "brim_svg" not in p.take.metadata
+
+
+def test_process_label_from_template_menu_item(make_window, qtbot, tmp_path):
+    from carapost.io.cara import save_project
+    from carapost.synth.demo_project import demo_project
+
+    template = demo_project(30, 24, 4, size=(640, 360), seed=1, decorate=False)
+    template.points.labels = [f"M{i + 1:02d}" for i in range(template.n_points)]
+    template.labels = list(template.points.labels)
+    save_project(template, tmp_path / "rom.cara")
+    take = demo_project(30, 24, 4, size=(640, 360), seed=1)
+    take.points.labels = [""] * take.n_points
+    take.labels = []
+    w = make_window(take)
+    w.dialogs.open_paths.append(str(tmp_path / "rom.cara"))
+    w.action("process.label_template").trigger()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=20000)
+    settle(qtbot, w)
+    assert take.points.labels == template.points.labels
+    assert w.context.session.history()[-1].description.startswith(
+        "Label From Template rom.cara")
+    assert "M01" in [w.pane("Labelling").list.item(i).text()
+                     for i in range(w.pane("Labelling").list.count())]
