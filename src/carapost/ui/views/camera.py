@@ -18,11 +18,10 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QPainterPath, QPen, QTransform
 from PySide6.QtWidgets import QGraphicsPathItem, QGraphicsRectItem, QLabel, QMenu, QVBoxLayout
 
-from carapost.algorithms.camera import project as project_points
 from carapost.model.events import Change
-from carapost.model.project import Project
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.overlays import declutter, rom_overlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
 
@@ -89,30 +88,6 @@ def points_in_polygon(xy: NDArray, poly: NDArray) -> NDArray[np.bool_]:
     with np.errstate(divide="ignore", invalid="ignore"):
         crosses = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / (y1 - y0) + x0)
     return (crosses.sum(axis=1) % 2 == 1) & ~np.isnan(xy[:, 0])
-
-
-def rom_overlay(project: Project, frame: int, camera: int) -> NDArray | None:
-    """Raw-pixel positions of the loaded ROM's points (at its ROM Frame Index) in one
-    camera at one frame, or None without a ROM or cameras."""
-    rom = project.rom.project if project.rom is not None else None
-    intr = project.calibration.intrinsics
-    if rom is None or intr is None or not rom.n_frames or camera >= project.n_cameras:
-        return None
-    try:
-        rf = int(project.properties["rom_frame_index"])
-    except (KeyError, TypeError, ValueError):
-        rf = 0
-    if not 0 <= rf < rom.n_frames:
-        return None
-    X = rom.points.positions[rf].astype(np.float64)
-    X = X[np.isfinite(X).all(-1)]
-    R, t = project.calibration.R[frame], project.calibration.t[frame]
-    if not len(X) or not np.isfinite(R[camera]).all():
-        return None
-    uv, depth = project_points(X, R, t, intr)
-    uv, depth = uv[:, camera], depth[:, camera]
-    ok = np.isfinite(uv).all(-1) & (depth > 0)
-    return uv[ok]
 
 
 def rotation_transform(rotation: int, width: int, height: int) -> QTransform:
@@ -516,29 +491,18 @@ class CameraView(BaseView):
             item.hide()
 
     def _declutter(self, places: list[tuple[int, NDArray]], size: int) -> set[int]:
-        """Labels to draw: inside the visible region and not over an earlier one (the
-        selected points' labels first), so Point Labels: All stays readable."""
+        """Labels to draw (see `carapost.ui.views.overlays.declutter`)."""
         p = self.ctx.project
-        selected = set(int(c) for c in p.selected_columns())
-        order = sorted(places, key=lambda cp: cp[0] not in selected)
-        vw, vh = self.gv.viewport().width(), self.gv.viewport().height()
-        char_w, line_h = 0.62 * size * 1.35, 1.6 * size * 1.35  # pt -> px, roughly
-        boxes: list[tuple[float, float, float, float]] = []
-        keep: set[int] = set()
-        for col, xy in order:
+
+        def to_view(xy: NDArray) -> tuple[float, float]:
             at = self.gv.mapFromScene(self.group.mapToScene(QPointF(float(xy[0]),
                                                                       float(xy[1]))))
-            x, y = float(at.x()), float(at.y())
-            if not (0 <= x < vw and 0 <= y < vh):
-                continue  # outside the zoomed region
-            w = char_w * len(p.point_label(col)) + 6
-            box = (x, y - line_h, x + w, y)
-            if any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3]
-                   for b in boxes):
-                continue
-            boxes.append(box)
-            keep.add(col)
-        return keep
+            return float(at.x()), float(at.y())
+
+        vp = self.gv.viewport()
+        return declutter(places, to_view, p.point_label,
+                         {int(c) for c in p.selected_columns()}, size,
+                         (vp.width(), vp.height()))
 
     # -- selection ---------------------------------------------------------------------------
     def _pickables(self) -> tuple[NDArray, NDArray]:
