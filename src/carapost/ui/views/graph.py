@@ -1,5 +1,7 @@
 """Graph view: the selected points' 3D x, y, z (mm) and 2D u, v (px, in the chosen
-sensor) against frame, one stacked plot per coordinate so each has its own axis."""
+sensor) against frame, one stacked plot per coordinate so each has its own axis. With
+Uncertainty Band on, each 3D curve carries a translucent band of +-1 sigma (the sample's
+estimated error, where known)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMenu, QVBoxLayout
 
 from carapost.model.events import Change
+from carapost.model.stabilization import display_positions
 from carapost.ui.context import ViewContext
 from carapost.ui.views import BaseView
 
@@ -73,6 +76,7 @@ class GraphView(BaseView):
         # None: automatic, each curve about its mean when several points are drawn (their
         # offsets would otherwise stretch each axis over the whole face)
         self.about_mean: bool | None = None
+        self.sigma_band = True
         self.layout_widget = pg.GraphicsLayoutWidget()
         self.layout_widget.setBackground((30, 30, 30))
         self.plots: list[pg.PlotItem] = []
@@ -104,6 +108,7 @@ class GraphView(BaseView):
                                 color=(200, 200, 200), anchor=(0.5, 0.5))
         self.plots[2].addItem(self.hint, ignoreBounds=True)
         self.curves: list[list[pg.PlotDataItem]] = [[] for _ in ROWS]
+        self.bands: list[pg.ErrorBarItem] = []  # point i, coordinate k: bands[3 * i + k]
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.layout_widget)
@@ -144,6 +149,19 @@ class GraphView(BaseView):
             item.setData([], [])
         return store[:n]
 
+    def _bands(self, n: int) -> list[pg.ErrorBarItem]:
+        """n +-sigma bands (vertical bars at every frame, translucent, no caps)."""
+        while len(self.bands) < n:
+            k = len(self.bands) % 3
+            r, g, b = AXIS_COLOURS[k]
+            item = pg.ErrorBarItem(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0), beam=0,
+                                   pen=pg.mkPen((r, g, b, 70), width=3))
+            self.plots[k].addItem(item, ignoreBounds=True)
+            self.bands.append(item)
+        for item in self.bands[n:]:
+            item.setData(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0))
+        return self.bands[:n]
+
     def refresh(self, change: Change | None) -> None:
         p = self.ctx.project
         for cur in self.cursors:
@@ -156,6 +174,7 @@ class GraphView(BaseView):
         self.legend.clear()
         single = len(cols) == 1
         about = self.about_mean if self.about_mean is not None else len(cols) > 1
+        bands = self._bands(3 * len(cols) if self.recon_data and self.sigma_band else 0)
         for row, (name, unit, dim, k) in enumerate(ROWS):
             shown = self.recon_data if dim == 3 else self.track_data
             self.plots[row].setVisible(shown)
@@ -165,14 +184,18 @@ class GraphView(BaseView):
             axis = f"{name} - mean" if about else name
             self.plots[row].setLabel("left", axis, units=unit)
             for i, col in enumerate(cols):
-                if dim == 3:
-                    y = p.points.positions[:, col, k].astype(np.float64)
+                if dim == 3:  # raw or stabilised, as the views show
+                    y = display_positions(p, slice(None), [col])[:, 0, k].astype(np.float64)
                 elif self.camera < p.n_cameras:
                     y = p.points.obs[:, col, self.camera, k].astype(np.float64)
                 else:
                     y = np.full(F, np.nan)
                 if about and np.isfinite(y).any():
                     y = y - np.nanmean(y)
+                if dim == 3 and bands:
+                    sig = p.points.arrays["sigma"][:, col].astype(np.float64)
+                    ok = np.isfinite(sig) & np.isfinite(y)
+                    bands[3 * i + k].setData(x=x[ok], y=y[ok], height=2 * sig[ok])
                 colour = AXIS_COLOURS[k if dim == 3 else k] if single else POINT_COLOURS[
                     i % len(POINT_COLOURS)]
                 curves[i].setData(x, y, connect="finite", pen=pg.mkPen(colour, width=1))
@@ -204,7 +227,8 @@ class GraphView(BaseView):
     def add_menu_items(self, menu: QMenu) -> None:
         menu.addAction("Fit to data", self.fit)
         for name, title in (("track_data", "Track Data"), ("recon_data", "Recon Data"),
-                            ("about_mean", "Plot About Mean")):
+                            ("about_mean", "Plot About Mean"),
+                            ("sigma_band", "Uncertainty Band")):
             act = menu.addAction(title)
             act.setCheckable(True)
             on = getattr(self, name)
