@@ -135,6 +135,19 @@ def _writer_seeds(work: Path) -> list[Seed]:
     for reader in ("cara_open", "cara_labels"):
         seeds.append(Seed(reader, "project.cara", stored, "writer"))
         seeds.append(Seed(reader, "project.cara", deflated.read_bytes(), "writer-deflated"))
+    # a stabilised and aligned project (format 2 members), when this version has them
+    try:
+        from carapost.model.stabilization import Alignment, Stabilization
+    except ImportError:
+        pass
+    else:
+        T = np.broadcast_to(np.eye(4), (project.n_frames, 4, 4)).copy()
+        T[:, 0, 3] = 5.0
+        project.stabilization = Stabilization(T, 0, np.array([1, 2, 3]), "manual")
+        project.alignment = Alignment(np.eye(4), (1, 2, 3), 0)
+        stab = save_project(project, work / "stabilised.cara").read_bytes()
+        seeds.append(Seed("cara_open", "project.cara", stab, "writer-stabilised"))
+        project.stabilization = project.alignment = None
 
     write_label_file(work / "labels.txt", ["Nose_Tip", "Chin", "Brow_L", "Brow_R", "Chin"])
     labels = (work / "labels.txt").read_bytes()

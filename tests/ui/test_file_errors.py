@@ -83,3 +83,21 @@ def test_a_never_saved_project_is_autosaved_and_offered_after_a_crash(
     assert file_menu.maybe_save(w2.context)
     assert not copies[0].exists()
     assert not file_menu.offer_untitled_recovery(make_window().context)
+
+
+def test_import_xcp_brim_and_labels_show_the_message(make_window, damaged, caplog) -> None:
+    w = make_window(_small_project())
+    before = (w.project.labels[:], w.project.calibration.intrinsics, len(w.stack))
+    cases = [("file.import_xcp", n) for n in damaged if damaged[n][0] == "xcp"]
+    cases += [("file.import_labels_cara", n) for n in damaged if damaged[n][0] == "cara_labels"]
+    cases += [("file.import_brim", n) for n in damaged if damaged[n][0] == "brim_svg"]
+    assert len(cases) >= 5
+    for action, name in cases:
+        path = damaged[name][1]
+        w.dialogs.errors.clear()
+        w.dialogs.open_paths.append(str(path))
+        with caplog.at_level(logging.ERROR):
+            w.action(action).trigger()
+        assert len(w.dialogs.errors) == 1, (action, name)
+        assert w.dialogs.errors[0][1].startswith(f"{path}: "), w.dialogs.errors[0]
+        assert (w.project.labels, w.project.calibration.intrinsics, len(w.stack)) == before

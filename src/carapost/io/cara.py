@@ -25,7 +25,6 @@ leaves a half-written project and a failed save never touches the original.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import logging
 import math
@@ -47,7 +46,15 @@ from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.io.atomic import atomic_output, check_input_file, checked_path, clean_stale_parts
 from carapost.io.errors import CaraFileError
-from carapost.io.ziplimits import MANIFEST_LIMIT, check_member, load_json, open_zip, read_member
+from carapost.io.ziplimits import (
+    MANIFEST_LIMIT,
+    check_member,
+    load_json,
+    npy_spec,
+    open_zip,
+    parse_npy_header,
+    read_member,
+)
 from carapost.model.project import (
     OPTIONAL_POINT_ARRAYS,
     POINT_ARRAYS,
@@ -394,33 +401,6 @@ _DEFERRED_READ = 8 << 20
 _CHUNK = 1 << 24
 
 
-def _npy_spec(path: Path, name: str, spec: Any) -> tuple[tuple[int, ...], np.dtype[Any]]:
-    """Shape and dtype the manifest gives a member, checked to be plain and sane."""
-    try:
-        shape = tuple(int(n) for n in spec["shape"])
-        dtype = np.dtype(str(spec["dtype"]))
-    except Exception:
-        raise CaraFileError(path, f"the manifest's entry for {name} is malformed") from None
-    if any(n < 0 for n in shape) or dtype.hasobject or dtype.itemsize == 0 or len(shape) > 8:
-        raise CaraFileError(path, f"the manifest's entry for {name} is malformed")
-    return shape, dtype
-
-
-def _parse_npy_header(raw: bytes | io.BufferedIOBase) -> tuple[tuple[int, ...], np.dtype[Any], int]:
-    """Shape, dtype and header length of an ``.npy`` stream (no pickles, no Fortran)."""
-    buf = io.BytesIO(raw) if isinstance(raw, bytes) else raw
-    version = np.lib.format.read_magic(buf)
-    if version == (1, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
-    elif version == (2, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
-    else:
-        raise ValueError(f"unsupported .npy version {version}")
-    if dtype.hasobject or fortran:
-        raise ValueError("object or Fortran-ordered arrays are not allowed")
-    return tuple(shape), dtype, buf.tell()
-
-
 class _Members:
     """Arrays of a project file, read into private memory or mapped copy-on-write.
 
@@ -489,7 +469,7 @@ class _Members:
     def read(self, name: str, spec: dict[str, Any]) -> np.ndarray:
         """The array of member ``name``, checked against the manifest's ``spec``."""
         path = self.path
-        shape, dtype = _npy_spec(path, name, spec)
+        shape, dtype = npy_spec(path, name, spec)
         nbytes = math.prod(shape) * dtype.itemsize
         try:
             info = self.zf.getinfo(name)
@@ -527,7 +507,7 @@ class _Members:
         if end > self.size:
             raise CaraFileError(self.path, f"the array {name} is truncated")
         head = self._pread(start, min(_NPY_HEADER_MAX, end - start))
-        got_shape, got_dtype, hlen = _parse_npy_header(head)
+        got_shape, got_dtype, hlen = parse_npy_header(head)
         self._check_header(name, (got_shape, got_dtype), shape, dtype)
         if start + hlen + nbytes != end:
             raise CaraFileError(self.path, f"the array {name} is damaged (its size does not "
@@ -565,7 +545,7 @@ class _Members:
                        dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
         with self.zf.open(info) as fh:
             # the header is read (a few hundred bytes inflated) and checked first
-            got_shape, got_dtype, hlen = _parse_npy_header(fh)
+            got_shape, got_dtype, hlen = parse_npy_header(fh)
             self._check_header(name, (got_shape, got_dtype), shape, dtype)
             if info.file_size != hlen + nbytes:
                 raise CaraFileError(self.path, f"the array {name} is damaged (its size does "

@@ -10,6 +10,7 @@ the header says. JSON nesting is bounded (`MAX_JSON_DEPTH`). Every failure is a
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import zipfile
@@ -17,9 +18,12 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from carapost.io.errors import CaraFileError
 
 __all__ = ["MANIFEST_LIMIT", "MAX_JSON_DEPTH", "MAX_RATIO", "check_member", "load_json",
+           "npy_spec", "parse_npy_header",
            "open_zip", "read_member"]
 
 #: Largest ``manifest.json`` accepted (bytes, inflated).
@@ -149,3 +153,33 @@ def load_json(path: Path, raw: bytes | str, what: str, *, max_depth: int = MAX_J
         raise CaraFileError(path, f"{lead}is nested too deeply") from None
     except ValueError as exc:
         raise CaraFileError(path, f"{lead}is not valid JSON ({exc})") from None
+
+
+def npy_spec(path: Path, name: str, spec: Any) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """Shape and dtype the manifest gives a member, checked to be plain and sane."""
+    try:
+        shape = tuple(int(n) for n in spec["shape"])
+        dtype = np.dtype(str(spec["dtype"]))
+    except Exception:
+        raise CaraFileError(path, f"the manifest's entry for {name} is malformed") from None
+    if any(n < 0 for n in shape) or dtype.hasobject or dtype.itemsize == 0 or len(shape) > 8:
+        raise CaraFileError(path, f"the manifest's entry for {name} is malformed")
+    return shape, dtype
+
+
+def parse_npy_header(raw: bytes | io.BufferedIOBase) -> tuple[tuple[int, ...], np.dtype[Any], int]:
+    """Shape, dtype and header length of an ``.npy`` stream (no pickles, no Fortran)."""
+    buf = io.BytesIO(raw) if isinstance(raw, bytes) else raw
+    try:
+        version = np.lib.format.read_magic(buf)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(buf)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(buf)
+        else:
+            raise ValueError(f"unsupported .npy version {version}")
+    except Exception as exc:  # numpy's parser raises tokenize and syntax errors too
+        raise ValueError(f"its .npy header is malformed: {exc}") from None
+    if dtype.hasobject or fortran:
+        raise ValueError("object or Fortran-ordered arrays are not allowed")
+    return tuple(shape), dtype, buf.tell()

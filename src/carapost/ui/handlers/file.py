@@ -9,7 +9,9 @@ Every item that changes the project calls the open project's
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from carapost.model.project import new_project
 from carapost.ui.context import ActionContext
@@ -177,7 +179,25 @@ def import_brim(ctx: ActionContext) -> None:
     path = ctx.dialogs.open_file("Import Calibration Brim [svg]",
                                  "Brim models (*.svg *.csv);;All files (*)")
     if path:
-        ctx.act("Import Calibration Brim [svg]", ctx.session.import_brim, path)
+        ctx.act("Import Calibration Brim [svg]", file_errors_shown(ctx.session.import_brim),
+                path)
+
+
+def file_errors_shown(action: Callable[..., Any]) -> Callable[..., Any]:
+    """``action`` with a refusal caused by a damaged file re-raised as that file's
+    `CaraFileError`, which `ActionContext.act` shows in a box (refusals only go to the
+    log and the status bar)."""
+    from carapost.commands.stack import CommandError
+    from carapost.io.errors import CaraFileError
+
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return action(*args, **kwargs)
+        except CommandError as exc:
+            if isinstance(exc.__cause__, CaraFileError):
+                raise exc.__cause__ from None
+            raise
+    return run
 
 
 def import_xcp(ctx: ActionContext) -> None:
