@@ -2,7 +2,10 @@
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
+# the demo needs the package alone; tests and lint need the test extra too (the extra is
+# most of the venv's size: pytest, hypothesis, the independent C3D/FBX readers, ruff)
 STAMP := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
 
 .PHONY: demo test lint bench screenshots clean
 
@@ -11,22 +14,26 @@ $(VPY):
 	$(VPY) -m pip install --upgrade pip
 
 $(STAMP): $(VPY) pyproject.toml
-	$(VPY) -m pip install -e '.[test]'
+	$(VPY) -m pip install -e .
 	touch $(STAMP)
+
+$(TEST_STAMP): $(STAMP)
+	$(VPY) -m pip install -e '.[test]'
+	touch $(TEST_STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/carapost demo
 
 # lint-imports checks the [tool.importlinter] contracts of pyproject.toml; pytest also
 # runs the doctests of algorithms, io and model (testpaths).
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(VENV)/bin/lint-imports
 	QT_QPA_PLATFORM=offscreen $(VPY) -m pytest -q
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
 
-screenshots: $(STAMP)
+screenshots: $(TEST_STAMP)
 	xvfb-run -a -s "-screen 0 1920x1080x24" $(VPY) -m carapost.ui.screenshots docs/screenshots
 
 clean:

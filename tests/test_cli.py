@@ -113,20 +113,46 @@ def test_process_command_bad_input_exits_2(tmp_path, capsys):
     assert not (tmp_path / "r.cara").exists()
 
 
-def test_demo_headless_with_a_cached_take(tmp_path, capsys, monkeypatch, synth_take):
-    """The headless demo on a short take standing in for the generated one."""
+def test_demo_headless_ends_labelled(tmp_path, capsys, monkeypatch, synth_take):
+    """The headless demo on a short take standing in for the generated ones: the ROM is
+    labelled from its truth, the take processed with it; every face point of the C3D
+    (read with ezc3d) and the FBX (read with ufbx) carries its truth label, the summary
+    says how many, and a second run reuses the results."""
+    import ezc3d
+
+    from carapost.synth.evaluation import load_truth
+    from tests.io.test_fbx import Loaded
+
     truth = synth_take.parent / "truth.npz"
     monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, truth))
+    monkeypatch.setattr(demo, "ensure_rom_take", lambda: (synth_take, truth))
     out = tmp_path / "results"
     assert main(["demo", "--headless", "--frames", "4", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert f"Project:     {out / 'demo.cara'}" in text and "C3D:" in text
     assert (out / "demo.cara").is_file() and (out / "demo.c3d").is_file()
     assert "Evaluation:" in text and (out / "evaluation.json").is_file()
+    names = set(load_truth(truth)["labels"])
+    c3d = ezc3d.c3d(str(out / "demo.c3d"))
+    c3d_labels = list(c3d["parameters"]["POINT"]["LABELS"]["value"])
+    assert len(c3d_labels) >= 0.75 * len(names)   # an 8-frame take: a few stay unseen
+    assert set(c3d_labels) <= names                   # no "Point 24": every one labelled
+    n = len(c3d_labels)
+    assert f"Labelled:    {n} of {n} face points" in text and f"{n} agree with the truth" in text
+    fbx = Loaded(out / "demo.fbx")
+    try:
+        assert set(c3d_labels) <= {node.name for node in fbx.nodes}
+        assert not any(node.name.startswith("Point ") for node in fbx.nodes)
+    finally:
+        fbx.close()
+    assert main(["demo", "--headless", "--frames", "4", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "Using the demo results" in captured.err and f"Labelled:    {n} of {n}" in captured.out
 
 
 def test_demo_without_display_says_so(tmp_path, capsys, monkeypatch, synth_take):
     monkeypatch.setattr(demo, "ensure_demo_take", lambda frames: (synth_take, None))
+    monkeypatch.setattr(demo, "ensure_rom_take", lambda: (synth_take, None))
     for key in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"):
         monkeypatch.delenv(key, raising=False)
     assert demo.run_demo(frames=3, out=str(tmp_path / "r")) == 0
@@ -143,6 +169,23 @@ def test_demo_without_generator_exits_1(tmp_path, capsys, monkeypatch):
     assert main(["demo", "--frames", "1"]) == 2
 
 
+def test_every_subcommand_help_shows_defaults_and_positional_help(capsys):
+    for name in SUBCOMMANDS:
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        out = capsys.readouterr().out
+        assert "positional arguments:" not in out or all(
+            line.strip() == "" or len(line.split()) > 1 or line.strip().endswith(":")
+            for line in out.split("positional arguments:")[1].split("options:")[0]
+            .splitlines()), f"{name}: a positional argument without help"
+    with pytest.raises(SystemExit):
+        main(["synth", "--help"])
+    assert "(default: speech)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["demo", "--help"])
+    assert "(default: 120)" in capsys.readouterr().out
+
+
 def test_demo_cache_folder_follows_xdg(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert demo.demo_cache_dir(50) == tmp_path / "carapost" / f"demo-{__version__}-50"
@@ -156,3 +199,30 @@ def test_demo_generates_and_processes_the_take(tmp_path, monkeypatch, capsys):
     # second run reuses the cache
     assert demo.run_demo(headless=True, frames=6, out=str(tmp_path / "r")) == 0
     assert "Using the demo take cached" in capsys.readouterr().err
+
+
+def test_console_progress_plain_lines_and_bars():
+    import io
+
+    from carapost.progress import ConsoleProgress
+
+    out = io.StringIO()
+    with ConsoleProgress(out, bars=False) as bars:
+        tick = bars.stage("Detect blobs")
+        for i in range(1, 1001):
+            assert tick(i, 1000)
+        bars.stage("Track")(5, 10)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("Detect blobs: ") and "%" in lines[0]
+    assert len([x for x in lines if x.startswith("Detect blobs:")]) <= 11   # not 1000
+    assert any(x.startswith("Detect blobs: done in") for x in lines)
+    assert lines[-1].startswith("Track: done in")
+    quiet = io.StringIO()
+    with ConsoleProgress(quiet, quiet=True) as bars:
+        bars.stage("Detect blobs")(1, 2)
+    assert quiet.getvalue() == ""
+    drawn = io.StringIO()
+    with ConsoleProgress(drawn, bars=True) as bars:
+        bars.stage("Detect blobs")(50, 100)
+    assert "Detect blobs" in drawn.getvalue()
+

@@ -17,6 +17,15 @@ from carapost import __version__
 log = logging.getLogger("carapost")
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Show each option's default, except where there is none (None, an off flag)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default in (None, False, argparse.SUPPRESS) or action.required:
+            return action.help
+        return super()._get_help_string(action)
+
+
 class CliError(Exception):
     """A problem the user can fix; printed without a traceback, exit status 2."""
 
@@ -30,7 +39,8 @@ def _cmd_gui(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from carapost.demo import run_demo
 
-    return run_demo(headless=args.headless, frames=args.frames, out=args.output)
+    return run_demo(headless=args.headless, frames=args.frames, out=args.output,
+                    rebuild=args.rebuild)
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
@@ -101,17 +111,21 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 def _cmd_process(args: argparse.Namespace) -> int:
     from carapost.pipeline import process_take
+    from carapost.progress import ConsoleProgress
 
-    result = process_take(
-        args.take,
-        output=args.output,
-        rom=args.rom,
-        brim=args.brim,
-        c3d=args.c3d,
-        fbx=args.fbx,
-        patch_tracking=args.patch_tracking,
-        stabilize=args.stabilize,
-    )
+    with ConsoleProgress(quiet=args.quiet) as bars:
+        result = process_take(
+            args.take,
+            output=args.output,
+            rom=args.rom,
+            brim=args.brim,
+            c3d=args.c3d,
+            fbx=args.fbx,
+            patch_tracking=args.patch_tracking,
+            stabilize=args.stabilize,
+            label_template=args.label_template,
+            stages=bars.stage,
+        )
     for key, value in result.items():
         print(f"{key}: {value}")
     return 0
@@ -153,13 +167,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="carapost",
         description="Post-processing of head-mounted facial motion capture.",
+        formatter_class=_HelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"carapost {__version__}")
-    p.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help="log progress messages (-v) or debug messages too (-vv); without "
+                        "it only warnings and errors are logged")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
     def add(name: str, func: Callable[[argparse.Namespace], int], help: str):
-        sp = sub.add_parser(name, help=help, description=help)
+        sp = sub.add_parser(name, help=help, description=help,
+                            formatter_class=_HelpFormatter)
         sp.set_defaults(func=func)
         return sp
 
@@ -169,7 +187,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("demo", _cmd_demo, "generate a demo take, process it and open it (or run headless)")
     sp.add_argument("--headless", action="store_true", help="never open a window")
     sp.add_argument("--frames", type=int, default=120, help="length of the demo take")
-    sp.add_argument("-o", "--output", help="folder for the demo results")
+    sp.add_argument("-o", "--output",
+                    help="folder for the demo results (default: beside the cached take)")
+    sp.add_argument("--rebuild", action="store_true",
+                    help="process the takes again even when the results are up to date")
 
     sp = add("synth", _cmd_synth, "generate a synthetic take with ground truth")
     sp.add_argument("rest", nargs=argparse.REMAINDER, help="OUTDIR and generator options")
@@ -186,6 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("-o", "--output", required=True, help="project file to write")
     sp.add_argument("--c3d", help="also export C3D here")
     sp.add_argument("--fbx", help="also export FBX here")
+    sp.add_argument("--label-template", metavar="T.cara",
+                    help="labelled take of the same marker set (a ROM or another take): "
+                         "label the tracked points from it (Label From Template)")
+    sp.add_argument("-q", "--quiet", action="store_true", help="no progress bars or lines")
     sp.add_argument("--patch-tracking", action="store_true",
                     help="patch track point-cameras without a blob (a little more "
                          "coverage, about 2.5x slower: every image is decoded again "
@@ -196,8 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "and base frame 0); the exports are then stabilised")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
-    sp.add_argument("project")
-    sp.add_argument("truth")
+    sp.add_argument("project", help=".cara project to evaluate")
+    sp.add_argument("truth", help="truth.npz of the synthetic take")
     sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
 
     for name, func, what in (
@@ -205,10 +230,11 @@ def build_parser() -> argparse.ArgumentParser:
         ("export-fbx", _cmd_export_fbx, "FBX"),
     ):
         sp = add(name, func, f"export a project's points as {what}")
-        sp.add_argument("project")
+        sp.add_argument("project", help=".cara project to export")
         sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
-        sp.add_argument("output")
-        sp.add_argument("--range", choices=("active", "all"), default="all")
+        sp.add_argument("output", help=f"{what} file to write")
+        sp.add_argument("--range", choices=("active", "all"), default="all",
+                        help="frames to export: the active range or the whole take")
         sp.add_argument("--brim", action="store_true", help="include brim points")
         sp.add_argument("--stabilized", action="store_true",
                         help="export stabilised (and aligned) coordinates; the project must "
@@ -230,10 +256,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write each gap's method, estimated error (mm) and status")
 
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
-    sp.add_argument("project")
+    sp.add_argument("project", help=".cara project to export")
     sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
-    sp.add_argument("output")
-    sp.add_argument("--frame", type=int, default=None, help="frame (default: current frame)")
+    sp.add_argument("output", help="XCP file to write")
+    sp.add_argument("--frame", type=int, default=None,
+                    help="frame (default: the project's current frame)")
     return p
 
 
@@ -248,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
+        level=(logging.WARNING, logging.INFO, logging.DEBUG)[min(int(args.verbose), 2)],
         format="%(levelname)s %(name)s: %(message)s",
     )
     if args.command is None:

@@ -43,7 +43,9 @@ __all__ = [
     "calibrate",
     "check_take_inputs",
     "detect_all",
+    "drop_empty_points",
     "initialise",
+    "label_from_template",
     "process_take",
     "remove_spurious",
     "stabilise_take",
@@ -273,6 +275,45 @@ def track_all(session: Session, *, patch_tracking: bool = False,
             raise RuntimeError("cancelled during tracking; nothing was written")
 
 
+def label_from_template(session: Session, template: str | Path,
+                        progress: Callable[[int, int], bool] | None = None) -> list[str]:
+    """Stage: Label From Template on the tracked take; returns the template labels left
+    unassigned (logged as a warning)."""
+    pts = session.project.points
+    face = np.flatnonzero(pts.kind == KIND_FACE)
+    todo = [c for c in face if not pts.labels[c] and np.isfinite(pts.positions[:, c, 0]).any()]
+    if not todo:  # a ROM labelled every point already
+        log.info("Label From Template: every face point of the take is labelled")
+        return []
+    cmd = _stage("Label From Template",
+                 lambda: session.label_from_template(template, progress=progress))
+    result = getattr(cmd, "result", None)
+    if result is None:
+        return []
+    if result.unassigned:
+        log.warning("%s", result.message)
+    else:
+        log.info("%s", result.message)
+    return list(result.unassigned)
+
+
+def drop_empty_points(session: Session) -> int:
+    """Stage: delete the unlabelled face points that have no 3D in any frame (ROM points
+    this take never showed); returns how many. Labelled ones stay, so the marker set in
+    the exports is complete."""
+    pts = session.project.points
+    face = np.flatnonzero(pts.kind == KIND_FACE)
+    if face.size == 0:
+        return 0
+    empty = ~np.isfinite(pts.positions[:, face, 0]).any(0)
+    drop = [int(pts.ids[c]) for c, e in zip(face, empty, strict=True)
+            if e and not pts.labels[c]]
+    if drop:
+        session.delete_selected(drop)
+        log.info("Removed %d face points that were never found in this take", len(drop))
+    return len(drop)
+
+
 def remove_spurious(session: Session) -> list[dict[str, str]]:
     """Stage: Remove Spurious Points (tracked face points that are not markers) before
     anything is written; returns ``{"label", "reason"}`` of each removed point (logged)."""
@@ -360,6 +401,8 @@ def process_take(
     progress: Callable[[int, int], bool] | None = None,
     patch_tracking: bool = False,
     stabilize: str | None = None,
+    label_template: str | Path | None = None,
+    stages: Callable[[str], Callable[[int, int], bool]] | None = None,
 ) -> dict[str, Any]:
     """Process a take headlessly: import, detect, solve, initialise, track, (stabilise,)
     save, export.
@@ -384,6 +427,13 @@ def process_take(
     progress : callable, optional
         ``progress(done, total)`` over the detection and tracking frames; False cancels
         (raises ``RuntimeError``, nothing written).
+    label_template : str or Path, optional
+        A labelled ``.cara`` take of the same marker set: after tracking, Label From
+        Template gives the unlabelled face points its labels (`label_from_template`).
+    stages : callable, optional
+        ``stages(name)`` is called as each stage starts and returns that stage's
+        ``progress(done, total)`` (one console bar per stage, `carapost.progress`);
+        used instead of ``progress`` when given.
     patch_tracking : bool
         Give the tracker the images, so a point-camera without a blob is patch tracked
         (Patch Match Size / Threshold). Off by default: every image is decoded again
@@ -402,7 +452,8 @@ def process_take(
         ``points`` (face points), ``brim_points``, ``initialised`` (face points at the
         first frame), ``tracked_fraction`` (face point-frames with 3D / point-frames),
         ``brim_source``, ``removed_points`` (``{"label", "reason"}`` of each point Remove
-        Spurious Points deleted), ``seconds`` per stage.
+        Spurious Points deleted), ``seconds`` per stage, ``labelled`` (face points with
+        3D and a label) and ``unassigned`` (template labels Label From Template left out).
 
     Raises
     ------
@@ -419,6 +470,15 @@ def process_take(
         raise ValueError(f"stabilize must be 'auto' or 'assisted', got {stabilize!r}")
     inputs = check_take_inputs(take_path, output=output, rom=rom, brim=brim, c3d=c3d,
                                fbx=fbx)
+    template = Path(label_template) if label_template else None
+    if template is not None and not template.is_file():
+        raise CaraFileError(template, "label template not found")
+    if template is not None and template.suffix.lower() != ".cara":
+        raise CaraFileError(template, "a label template must be a .cara project")
+
+    def stage(name: str, fallback: Callable[[int, int], bool] | None
+              ) -> Callable[[int, int], bool] | None:
+        return stages(name) if stages is not None else fallback
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     # the brim model is chosen below (--brim, the take's, or triangulated), not at import
@@ -445,7 +505,8 @@ def process_take(
 
     with session:  # closes the videos before anything is written
         t0 = time.perf_counter()
-        detect_all(session, None if progress is None else detect_progress)
+        detect_all(session, stage("Detect blobs",
+                                  None if progress is None else detect_progress))
         seconds["detect"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         brim_source = calibrate(session, inputs)
@@ -455,14 +516,22 @@ def process_take(
         seconds["initialise"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         track_all(session, patch_tracking=patch_tracking,
-                  progress=None if progress is None else track_progress)
+                  progress=stage("Track", None if progress is None else track_progress))
         seconds["track"] = time.perf_counter() - t0
         removed = remove_spurious(session)
+    unassigned: list[str] = []
+    if template is not None:
+        t0 = time.perf_counter()
+        unassigned = label_from_template(session, template, stage("Label", None))
+        seconds["label"] = time.perf_counter() - t0
+    drop_empty_points(session)
     stab_message = None
     if stabilize is not None:
         t0 = time.perf_counter()
         stab_message = stabilise_take(session, stabilize)
         seconds["stabilize"] = time.perf_counter() - t0
+    if stages is not None:
+        stages("Save and export")
 
     result: dict[str, Any] = dict(write_outputs(session, inputs,
                                                 stabilized=stabilize is not None))
@@ -475,6 +544,9 @@ def process_take(
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
         "brim_source": brim_source if inputs.rom is None else "ROM",
         "removed_points": removed,
+        "labelled": int(sum(1 for j, c in enumerate(np.flatnonzero(face))
+                            if project.points.labels[c] and has[:, j].any())),
+        "unassigned": unassigned,
         "seconds": {k: round(v, 2) for k, v in seconds.items()},
         "stabilization": stab_message,
     })

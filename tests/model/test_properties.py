@@ -50,6 +50,7 @@ def test_every_section_present_and_in_display_order():
         "Initialize From ROM Parameters",
         "Tracking Parameters",
         "Triangulation Parameters",
+        "Label From Template Parameters",
         "Gap-Filling Parameters",
         "Clean-up Parameters",
         "Stabilization Parameters",

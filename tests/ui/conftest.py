@@ -48,6 +48,10 @@ class FakeDialogs:
     def get_text(self, title, label, value=""):
         return self.texts.pop(0) if self.texts else None
 
+    def get_completed_text(self, title, label, value, completions):
+        self.completions = list(completions)
+        return self.texts.pop(0) if self.texts else None
+
     def get_colour(self, title):
         return (255, 0, 0)
 

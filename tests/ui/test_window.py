@@ -445,9 +445,9 @@ def test_views_3d_graph_render_offscreen(make_window, demo, qtbot):
     assert p.selection.points == {int(p.points.ids[4])}
     settle(qtbot, w)
     graph = w.workspace.containers[2].view
-    x, y = graph.curves3[1].getData()
+    x, y = graph.curves[1][0].getData()      # the y plot, first point
     assert np.allclose(y, p.points.positions[:, 4, 1], equal_nan=True)
-    x2, y2 = graph.curves2[0].getData()
+    x2, y2 = graph.curves[3][0].getData()     # the u plot
     assert np.allclose(y2, p.points.obs[:, 4, 1, 0], equal_nan=True)
     # a click on the graph's time axis goes to that frame, Ctrl+drag sets the active range
     graph.frame_clicked.emit(23)
@@ -483,7 +483,7 @@ def test_navigation_tools(make_window, demo, qtbot):
     qtbot.keyClick(w, Qt.Key.Key_G, Qt.KeyboardModifier.ControlModifier)
     assert p.current_frame == 17
     pid = int(p.points.ids[5])
-    w.dialogs.ints.append(pid)
+    w.dialogs.texts.append(str(pid))
     w.action("view.select_point").trigger()
     assert p.selection.points == {pid}
     w.action("view.point_info").trigger()

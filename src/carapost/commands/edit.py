@@ -395,9 +395,13 @@ class DetachDetections(Command):
                    description="Detach Detections [Active Range]", **kw)
 
     def apply(self, project: Project, journal: Journal) -> None:
+        from carapost.commands.resolve import resolve_points
+
         cols = _columns(project, self.point_ids)
-        _detach(journal, project, _frames(project, self.frames), cols,
-                np.asarray(self.cameras, dtype=np.intp))
+        frames = _frames(project, self.frames)
+        _detach(journal, project, frames, cols, np.asarray(self.cameras, dtype=np.intp))
+        # the 3D follows from what remains (same undo step): the jitter fixes rely on it
+        resolve_points(journal, project, frames, cols)
 
 
 class RemoveUnusedDetections(Command):

@@ -301,8 +301,14 @@ class ImportBrimSvg(SetBrimModel):
         except CaraFileError as exc:
             raise refuse(f"Import Calibration Brim [SVG]: {exc}") from exc  # shown in a box
         super().__init__(labels, xyz, f"Import Calibration Brim [SVG] {Path(path).name}")
-        self.path = str(path)
+        self.path = str(Path(path).absolute())
         log.info("%s: %d brim dots", self.description, len(xyz))
+
+    def apply(self, project: Project, journal: Journal) -> None:
+        super().apply(project, journal)
+        # View > Show Calibration Brim SVG shows the file the brim came from
+        meta = {**project.take.metadata, "brim_svg": self.path}
+        journal.setattr(project.take, "metadata", meta, "cameras")
 
 
 # ------------------------------------------------------------------------------------------

@@ -47,6 +47,7 @@ from carapost.algorithms.blobs import BlobParameters
 from carapost.algorithms.cleanup import CleanupParameters
 from carapost.algorithms.gapfill import CLEAN_UP, GAP_FILLING, GapFillParameters
 from carapost.algorithms.init3d import Init3DParameters
+from carapost.algorithms.labelling import LABEL_FROM_TEMPLATE, LabellingParameters
 from carapost.algorithms.params import (
     BLOB,
     INITIALIZE_3D,
@@ -271,6 +272,7 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     RomParameters,
     TrackingParameters,
     TriangulationParameters,
+    LabellingParameters,
     StabilizationParameters,
     TargetTrackerParameters,
     GapFillParameters,
@@ -378,6 +380,7 @@ SECTIONS: tuple[str, ...] = (
     INITIALIZE_FROM_ROM,
     TRACKING,
     TRIANGULATION,
+    LABEL_FROM_TEMPLATE,
     GAP_FILLING,
     CLEAN_UP,
     STABILIZATION,

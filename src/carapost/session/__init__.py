@@ -51,6 +51,7 @@ from carapost.commands.stack import Command, CommandError, CommandStack, History
 from carapost.export import ExportOptions
 from carapost.model.project import Project, new_project
 from carapost.session.gapfill import GapFillActions
+from carapost.session.labelling import LabellingActions
 from carapost.session.process import (
     PROCESS_ACTIONS,
     ImageFn,
@@ -100,7 +101,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
 
 
 class Session(ProcessActions, QualityActions, StabiliseActions, TargetActions,
-              GapFillActions):
+              GapFillActions, LabellingActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from

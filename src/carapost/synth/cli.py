@@ -21,18 +21,28 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+class _Defaults(argparse.ArgumentDefaultsHelpFormatter):
+    """Show each option's default, except where there is none (None, an off flag)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default in (None, False, argparse.SUPPRESS) or action.required:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``carapost synth``."""
     p = argparse.ArgumentParser(
         prog="carapost synth",
-        description="Render a synthetic head-rig take with exact ground truth (truth.npz).")
+        description="Render a synthetic head-rig take with exact ground truth (truth.npz).",
+        formatter_class=_Defaults)
     p.add_argument("outdir", help="take folder to write")
     p.add_argument("--preset", choices=PRESETS, default="speech", help="motion preset")
     p.add_argument("--markers", choices=sorted(MARKER_SETS), default="standard",
                    help="marker set")
     p.add_argument("--frames", type=int, default=300, help="number of frames")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--size", type=_size, default=(1280, 720), help="image size WxH")
+    p.add_argument("--size", type=_size, default="1280x720", help="image size WxH")
     p.add_argument("--fps", type=float, default=60.0, help="frame rate (Hz)")
     p.add_argument("--cameras", type=int, default=4, help="number of cameras")
     p.add_argument("--codec", choices=("ffv1", "mp4v"), default="ffv1",

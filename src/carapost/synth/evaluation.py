@@ -21,7 +21,7 @@ from carapost.synth.scoring import MATCH_GATE_MM, score_tracks
 
 log = logging.getLogger("carapost.evaluate")
 
-__all__ = ["evaluate", "load_truth"]
+__all__ = ["evaluate", "load_truth", "truth_labels"]
 
 
 def load_truth(path: Path) -> dict[str, Any]:
@@ -159,3 +159,29 @@ def evaluate(project_or_path: Project | str | Path, truth_path: str | Path) -> d
         "swapped_points": swapped,
         "match_gate_mm": MATCH_GATE_MM,
     }
+
+
+def truth_labels(project: Project, truth_path: str | Path) -> dict[int, str]:
+    """The truth label of each face point of a project, as an artist would name them.
+
+    Points are matched to the truth markers as `evaluate` matches them (geometry only:
+    the points' own labels are ignored); unmatched points are left out.
+
+    Returns
+    -------
+    dict
+        ``{point id: truth label}``.
+    """
+    truth = load_truth(Path(truth_path))
+    X = truth["points3d"]
+    F = min(project.n_frames, X.shape[0])
+    face = np.flatnonzero(project.points.kind == KIND_FACE)
+    Y = project.points.positions[:F][:, face].astype(np.float64)
+    has = ~np.all(np.isnan(Y[..., 0]), axis=0)
+    face, Y = face[has], Y[:, has]
+    vis = truth.get("visible")
+    vis = None if vis is None else np.asarray(vis).astype(bool)[:F]
+    match = score_tracks(Y, X[:F], vis).match
+    labels: list[str] = truth["labels"]
+    return {int(project.points.ids[c]): labels[m]
+            for c, m in zip(face, match, strict=True) if m >= 0}

@@ -26,11 +26,13 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import brim_view as brim_menu
 from carapost.ui.handlers import cleanup, navigation
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
+from carapost.ui.handlers import labelling as labelling_menu
 from carapost.ui.handlers import process as process_menu
 from carapost.ui.handlers import target as target_menu
 from carapost.ui.handlers import view as view_menu
@@ -186,7 +188,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.panels", "View/Panels", ""),
     _A("view.floating", "View", "New Floating Workspace", "",
        view_menu.new_floating_workspace),
-    _A("view.brim_svg", "View", "Show Calibration Brim SVG", ""),
+    _A("view.brim_svg", "View", "Show Calibration Brim SVG", "", brim_menu.show_brim_svg),
     _A("view.full_screen", "View", "Full Screen", "F", view_menu.toggle_full_screen,
        checkable=True, separator=True),
     _A("view.toggle_docks", "View", "Toggle Dock Widget Visibility", "Ctrl+F",
@@ -273,6 +275,9 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
     _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
        tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
+    _A("process.label_template", "Process", "Label From Template...", "",
+       labelling_menu.label_from_template, separator=True,
+       tip="Label the unlabelled points from a labelled take of the same marker set"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),

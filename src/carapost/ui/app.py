@@ -44,7 +44,25 @@ def application(argv: list[str] | None = None) -> QApplication:
         app.setApplicationName("carapost")
         app.setStyle("Fusion")
         app.setPalette(dark_palette())
+        app.setStyleSheet(check_box_style())
     return app  # type: ignore[return-value]
+
+
+def check_box_style() -> str:
+    """Check boxes with a visible frame: Fusion draws an unchecked box in the dark
+    palette's own colours, nearly invisible."""
+    from pathlib import Path
+
+    tick = (Path(__file__).resolve().parents[1] / "resources" / "icons" / "check.svg")
+    tick_url = tick.as_posix()
+    return (
+        "QCheckBox::indicator, QAbstractItemView::indicator { width: 13px; height: 13px; "
+        "border: 1px solid #9a9a9a; border-radius: 2px; background: #26262a; }"
+        "QCheckBox::indicator:hover, QAbstractItemView::indicator:hover "
+        "{ border-color: #d0d0d0; }"
+        "QCheckBox::indicator:checked, QAbstractItemView::indicator:checked "
+        f"{{ background: #3c6eaa; border-color: #6a9ad0; image: url({tick_url}); }}"
+        "QCheckBox::indicator:disabled { border-color: #5a5a5a; background: #303032; }")
 
 
 def open_path(window, path: str) -> bool:

@@ -3,7 +3,14 @@
 from __future__ import annotations
 
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QColorDialog, QFileDialog, QInputDialog, QMessageBox, QWidget
+from PySide6.QtWidgets import (
+    QColorDialog,
+    QFileDialog,
+    QInputDialog,
+    QLineEdit,
+    QMessageBox,
+    QWidget,
+)
 
 
 class Dialogs:
@@ -47,6 +54,24 @@ class Dialogs:
         """A line of text, or None."""
         v, ok = QInputDialog.getText(self.parent, title, label, text=value)
         return v if ok else None
+
+    def get_completed_text(self, title: str, label: str, value: str,
+                           completions: list[str]) -> str | None:
+        """A line of text with completion from ``completions`` (case-insensitive, any
+        part of the name), or None."""
+        from PySide6.QtWidgets import QCompleter
+
+        dialog = QInputDialog(self.parent)
+        dialog.setWindowTitle(title)
+        dialog.setLabelText(label)
+        dialog.setTextValue(value)
+        edit = dialog.findChild(QLineEdit)
+        if edit is not None:
+            completer = QCompleter(completions, dialog)
+            completer.setCaseSensitivity(Qt.CaseSensitivity.CaseInsensitive)
+            completer.setFilterMode(Qt.MatchFlag.MatchContains)
+            edit.setCompleter(completer)
+        return dialog.textValue() if dialog.exec() else None
 
     def get_colour(self, title: str) -> tuple[int, int, int] | None:
         """An RGB colour, or None."""

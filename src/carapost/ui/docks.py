@@ -14,9 +14,9 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QDockWidget, QMainWindow, QWidget
 
 from carapost.ui.context import ActionContext
+from carapost.ui.labelling_pane import LabellingPane
 from carapost.ui.panes import (
     HistoryPane,
-    LabellingPane,
     LogPane,
     PropertiesPane,
     SelectedPointPane,

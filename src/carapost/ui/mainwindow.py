@@ -26,6 +26,7 @@ from carapost.ui.bridge import JobRunner, LogBridge
 from carapost.ui.context import ActionContext, ViewContext
 from carapost.ui.dialogs import Dialogs
 from carapost.ui.docks import build_docks, pane_names
+from carapost.ui.empty_state import EmptyHint
 from carapost.ui.frames import FrameSource
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import navigation
@@ -73,6 +74,7 @@ class MainWindow(QMainWindow):
         lay.addWidget(self.workspace, 1)
         lay.addWidget(self.timebar)
         self.setCentralWidget(central)
+        self.empty_hint = EmptyHint(self.workspace, ctx)  # how to start, without a take
         # the timebar and the views (continuity chart, graphs) ask for frames and ranges
         self.timebar.frame_requested.connect(ctx.set_frame)
         ctx.view.frame_requested.connect(ctx.set_frame)

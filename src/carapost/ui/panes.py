@@ -1,9 +1,9 @@
-"""Docked panes: Labelling, History, Selected Point, Log, Properties, Selection, Tracker.
+"""Docked panes: History, Selected Point, Log, Properties, Selection, Tracker.
 
 Each pane gets the window's :class:`~carapost.ui.context.ActionContext`, listens to its
 change signals itself and changes the project only through the handlers of
 :mod:`carapost.ui.handlers` and the context (``ctx.set_properties``), which call the
-open project's Session.
+open project's Session. The Labelling pane is in `carapost.ui.labelling_pane`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QModelIndex, Qt
-from PySide6.QtGui import QBrush, QColor
+from PySide6.QtGui import QColor
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QCheckBox,
@@ -26,6 +26,7 @@ from PySide6.QtWidgets import (
     QListView,
     QListWidget,
     QListWidgetItem,
+    QPlainTextEdit,
     QPushButton,
     QSpinBox,
     QTableView,
@@ -42,7 +43,7 @@ from carapost.ui.actions import NOT_AVAILABLE, requirement_met
 from carapost.ui.bridge import LogEntry
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
-from carapost.ui.models import GREY, RED, YELLOW, HistoryModel, LogModel
+from carapost.ui.models import HistoryModel, LogModel
 from carapost.ui.settings import PREFERENCES, preference, set_preference
 from carapost.ui.views.continuity import ContinuityView
 
@@ -55,70 +56,6 @@ def _vbox(widget: QWidget) -> QVBoxLayout:
 
 def _touches(change: Change, parts: set[str]) -> bool:
     return bool(change.parts & (parts | {"file"}))
-
-
-class LabellingPane(QWidget):
-    """Label list: red = unassigned, grey = assigned, yellow = assigned but absent now.
-
-    Clicking a label with one point selected assigns it; double-click renames it.
-    """
-
-    PARTS = {"labels", "current_frame", "points", "point_list"}
-
-    def __init__(self, ctx: ActionContext) -> None:
-        super().__init__()
-        self.ctx = ctx
-        layout = _vbox(self)
-        row = QHBoxLayout()
-        self.clear_button = QPushButton("Clear All Labels")
-        self.delete_button = QPushButton("Delete Selected Labels")
-        row.addWidget(self.clear_button)
-        row.addWidget(self.delete_button)
-        layout.addLayout(row)
-        self.list = QListWidget()
-        self.list.setSelectionMode(QAbstractItemView.SelectionMode.ExtendedSelection)
-        layout.addWidget(self.list)
-        self.clear_button.clicked.connect(
-            lambda: edit_menu.session_action(Session.clear_all_labels, ctx))
-        self.delete_button.clicked.connect(lambda: edit_menu.delete_selected_labels(ctx))
-        self.list.itemClicked.connect(lambda item: edit_menu.assign_label(ctx, item.text()))
-        self.list.itemDoubleClicked.connect(
-            lambda item: edit_menu.rename_label(ctx, item.text()))
-        self.list.itemSelectionChanged.connect(self._selection_changed)
-        ctx.view.changed.connect(self._changed)
-
-    def selected_labels(self) -> list[str]:
-        """Names selected in the list."""
-        return [i.text() for i in self.list.selectedItems()]
-
-    def _selection_changed(self) -> None:
-        self.ctx.label_selection = self.selected_labels()
-
-    def label_state(self, name: str) -> str:
-        """``unassigned``, ``assigned`` or ``absent`` (assigned, no 3D this frame)."""
-        p = self.ctx.project
-        try:
-            col = p.points.labels.index(name)
-        except ValueError:
-            return "unassigned"
-        if p.n_frames and np.isnan(p.points.positions[p.current_frame, col, 0]):
-            return "absent"
-        return "assigned"
-
-    def _changed(self, change: Change) -> None:
-        if _touches(change, self.PARTS):
-            self.refresh()
-
-    def refresh(self) -> None:
-        """Rebuild the list when the labels changed; colours follow the frame."""
-        names = list(self.ctx.project.labels)
-        if [self.list.item(i).text() for i in range(self.list.count())] != names:
-            self.list.clear()
-            self.list.addItems(names)
-        colours = {"unassigned": RED, "assigned": GREY, "absent": YELLOW}
-        for i in range(self.list.count()):
-            item = self.list.item(i)
-            item.setForeground(QBrush(colours[self.label_state(item.text())]))
 
 
 class HistoryPane(QWidget):
@@ -179,7 +116,19 @@ class LogPane(QWidget):
         self.table.setColumnWidth(2, 80)
         self.table.setStyleSheet("QTableView { background: #202020; }")
         layout.addWidget(self.table)
+        # the whole message of the selected record (rows show its first line)
+        self.detail = QPlainTextEdit()
+        self.detail.setReadOnly(True)
+        self.detail.setPlaceholderText("Select a message to read it in full")
+        self.detail.setMaximumHeight(5 * self.table.fontMetrics().height() + 12)
+        layout.addWidget(self.detail)
+        self.table.selectionModel().currentRowChanged.connect(self._show_detail)
         self.model.rowsInserted.connect(lambda *_: self.table.scrollToBottom())
+
+    def _show_detail(self, current: QModelIndex, _previous: QModelIndex) -> None:
+        entries = self.model.entries
+        row = current.row()
+        self.detail.setPlainText(entries[row].text if 0 <= row < len(entries) else "")
 
     @property
     def entries(self) -> list[LogEntry]:
@@ -241,6 +190,15 @@ class PropertiesPane(QWidget):
             from carapost.ui.frame_settings import add_frame_settings
 
             self.frame_editors = add_frame_settings(self.tree, ctx)
+        # the names take the room the values and units leave: a wider pane shows them
+        # whole, a narrow one elides them (the tooltip has the whole name and its help)
+        header = self.tree.header()
+        header.setStretchLastSection(False)
+        header.setSectionResizeMode(0, QHeaderView.ResizeMode.Stretch)
+        header.setSectionResizeMode(1, QHeaderView.ResizeMode.Fixed)
+        header.setSectionResizeMode(2, QHeaderView.ResizeMode.ResizeToContents)
+        self.tree.setColumnWidth(1, 110)
+        self.tree.setTextElideMode(Qt.TextElideMode.ElideMiddle)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 

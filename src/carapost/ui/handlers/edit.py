@@ -92,7 +92,11 @@ def rename_point(ctx: ActionContext) -> None:
         return
     pid = next(iter(sel))
     col = int(p.points.index_of([pid])[0])
-    text = ctx.dialogs.get_text("Rename Point", f"Label of point {pid}:", p.points.labels[col])
+    # completion from the label list: the names the marker set uses, unassigned first
+    taken = set(p.points.labels)
+    names = [n for n in p.labels if n not in taken] + [n for n in p.labels if n in taken]
+    text = ctx.dialogs.get_completed_text("Rename Point", f"Label of {p.point_label(col)}:",
+                                          p.points.labels[col], names)
     if text is not None:
         ctx.act("Rename Point", ctx.session.rename_point, pid, text)
 

@@ -16,7 +16,7 @@ THIRD_PARTY = (
     ("scipy", "BSD-3-Clause"), ("numba", "BSD-2-Clause"),
     ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"), ("pyqtgraph", "MIT"),
     ("lxml", "BSD-3-Clause"), ("av (PyAV)", "BSD-3-Clause; its bundled FFmpeg LGPL-2.1+"),
-    ("threadpoolctl", "BSD-3-Clause"),
+    ("threadpoolctl", "BSD-3-Clause"), ("rich", "MIT"),
 )
 
 

@@ -79,18 +79,36 @@ def set_active_range(ctx: ActionContext, a: int, b: int) -> None:
 
 
 def select_point(ctx: ActionContext) -> None:
-    """Select Point (Ctrl+P): by id."""
+    """Select Point (Ctrl+P): by label (completed from the take's labels) or id."""
     p = ctx.project
     if p.n_points == 0:
         return
-    pid = ctx.dialogs.get_int("Select Point", "Point id:", int(p.points.ids[0]),
-                              int(p.points.ids.min()), int(p.points.ids.max()))
-    if pid is None:
+    labels = [lab for lab in p.points.labels if lab]
+    text = ctx.dialogs.get_completed_text("Select Point", "Point label or id:", "", labels)
+    if text is None or not text.strip():
         return
-    if pid not in set(p.points.ids.tolist()):
-        ctx.report_error("Select Point", f"Select Point: there is no point {pid}", show=False)
+    pid = point_by_name(p, text)
+    if pid is None:
+        ctx.report_error("Select Point", f"Select Point: there is no point {text.strip()!r}",
+                         show=False)
         return
     p.set_selection(points=[pid])
+
+
+def point_by_name(project, text: str) -> int | None:
+    """The id of the point labelled ``text`` (case-insensitive when unique), or of the
+    point with that id (``17`` or ``Point 17``); None if there is none."""
+    name = text.strip()
+    pts = project.points
+    if name in pts.labels:
+        return int(pts.ids[pts.labels.index(name)])
+    folded = [i for i, lab in enumerate(pts.labels) if lab and lab.lower() == name.lower()]
+    if len(folded) == 1:
+        return int(pts.ids[folded[0]])
+    number = name[6:] if name.lower().startswith("point ") else name
+    if number.isdigit() and int(number) in set(pts.ids.tolist()):
+        return int(number)
+    return None
 
 
 def select_fewest_gaps(ctx: ActionContext) -> None:

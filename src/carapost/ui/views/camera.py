@@ -22,6 +22,7 @@ from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.overlays import declutter, rom_overlay
 from carapost.ui.views.target_overlay import TargetOverlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
@@ -514,8 +515,14 @@ class CameraView(BaseView):
             if fill.any():
                 self.interp.setData(pos=proj[fill])
                 self.interp.show()
-        # ROM points: projections of the ROM frame, when a ROM is loaded
-        self.rom.hide()
+        # ROM points: the loaded ROM's frame projected through this frame's camera (the
+        # Initialize from ROM troubleshooting compares them with the detections)
+        rom_xy = rom_overlay(p, frame, c)
+        if rom_xy is not None and len(rom_xy):
+            self.rom.setData(pos=rom_xy)
+            self.rom.show()
+        else:
+            self.rom.hide()
         self.targets.draw(p, frame, c)
         # labels
         self._draw_labels(obs, valid, proj)
@@ -525,12 +532,15 @@ class CameraView(BaseView):
         p = self.ctx.project
         size = self.ctx.label_mode()[3]
         used = 0
+        places: list[tuple[int, NDArray]] = []
         for col in cols:
             if valid[col]:
-                xy = obs[col]
+                places.append((int(col), obs[col]))
             elif proj is not None and not np.isnan(proj[col, 0]):
-                xy = proj[col]
-            else:
+                places.append((int(col), proj[col]))
+        keep = self._declutter(places, size)
+        for col, xy in places:
+            if col not in keep:
                 continue
             if used >= len(self._labels):
                 item = pg.TextItem(color=(255, 255, 255), anchor=(-0.15, 1.0))
@@ -548,6 +558,20 @@ class CameraView(BaseView):
             used += 1
         for item in self._labels[used:]:
             item.hide()
+
+    def _declutter(self, places: list[tuple[int, NDArray]], size: int) -> set[int]:
+        """Labels to draw (see `carapost.ui.views.overlays.declutter`)."""
+        p = self.ctx.project
+
+        def to_view(xy: NDArray) -> tuple[float, float]:
+            at = self.gv.mapFromScene(self.group.mapToScene(QPointF(float(xy[0]),
+                                                                      float(xy[1]))))
+            return float(at.x()), float(at.y())
+
+        vp = self.gv.viewport()
+        return declutter(places, to_view, p.point_label,
+                         {int(c) for c in p.selected_columns()}, size,
+                         (vp.width(), vp.height()))
 
     # -- selection ---------------------------------------------------------------------------
     def _pickables(self) -> tuple[NDArray, NDArray]:

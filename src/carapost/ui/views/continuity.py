@@ -13,11 +13,12 @@ import numpy as np
 import pyqtgraph as pg
 from numpy.typing import NDArray
 from PySide6.QtCore import QRectF, Qt
-from PySide6.QtGui import QColor
-from PySide6.QtWidgets import QMenu, QVBoxLayout
+from PySide6.QtGui import QColor, QFontMetrics
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QMenu, QScrollBar, QToolTip
 
 from carapost.model.events import Change
 from carapost.model.project import (
+    KIND_BRIM,
     RECON_INTERPOLATED,
     RECON_NONE,
     SOURCE_BLOB,
@@ -33,6 +34,10 @@ from carapost.ui.views import BaseView
 
 # Codes, ordered worst first so a binned minimum keeps the worst state of a bin.
 GAP, INTERPOLATED, CAM1, CAM2, CAM3, CAM4 = 0, 1, 2, 3, 4, 5
+#: A brim dot with a 3D position: solved from the brim model at every frame, not tracked.
+BRIM = 6
+#: Row of the collapsed calibration brim (in place of a column).
+BRIM_HEADER = -1
 NONE2D, TARGET0, N_QUALITY = 0, 16, 16
 BLOB, PATCH, MANUAL, KEYFRAME = 40, 41, 42, 43
 
@@ -44,6 +49,7 @@ LUT[CAM1] = (255, 140, 0, 255)  # orange
 LUT[CAM2] = (240, 220, 0, 255)  # yellow
 LUT[CAM3] = (120, 220, 90, 255)  # light green
 LUT[CAM4] = (0, 130, 40, 255)  # dark green
+LUT[BRIM] = (70, 130, 190, 255)  # steel blue: the brim model, not tracking
 LUT[BLOB] = (20, 40, 170, 255)  # dark blue
 LUT[PATCH] = (110, 170, 255, 255)  # light blue
 LUT[MANUAL] = (170, 90, 220, 255)
@@ -53,7 +59,7 @@ LUT[TARGET0:TARGET0 + N_QUALITY] = np.stack(
     [255 * (1 - _q), 60 + 180 * _q, 30 + 0 * _q, 255 + 0 * _q], -1).astype(np.uint8)
 
 COLOUR_NAMES = {CAM4: "dark green", CAM3: "light green", CAM2: "yellow", CAM1: "orange",
-                INTERPOLATED: "red", GAP: "empty"}
+                INTERPOLATED: "red", GAP: "empty", BRIM: "steel blue (brim model)"}
 
 
 def point_codes(project: Project, frames: tuple[int, int] | None = None,
@@ -62,7 +68,9 @@ def point_codes(project: Project, frames: tuple[int, int] | None = None,
     and point columns (default all).
 
     4+ contributing cameras -> CAM4 ... 1 -> CAM1; a 3D position with no contributing
-    camera (interpolated, filtered) -> INTERPOLATED; no 3D position -> GAP.
+    camera (interpolated, filtered) -> INTERPOLATED; no 3D position -> GAP. Brim dots
+    with a 3D position are BRIM: their 3D comes from the brim model in every frame (a
+    brim with 2D at one frame only is not "interpolated" at the others).
     """
     pts = project.points
     f0, f1 = (0, project.n_frames - 1) if frames is None else frames
@@ -80,6 +88,9 @@ def point_codes(project: Project, frames: tuple[int, int] | None = None,
     present = ~np.isnan(pts.positions[sl, :, 0][:, cols])
     codes = np.where(count > 0, CAM1 - 1 + np.minimum(count, 4), INTERPOLATED)
     codes = np.where(present, codes, GAP).astype(np.uint8)
+    brim = pts.kind[cols] == KIND_BRIM
+    if brim.any():
+        codes[:, brim] = np.where(present[:, brim], BRIM, GAP)
     return np.ascontiguousarray(codes.T)
 
 
@@ -153,7 +164,16 @@ class _ViewBox(pg.ViewBox):
         super().mouseDragEvent(ev, axis)
 
     def wheelEvent(self, ev, axis=None) -> None:
-        super().wheelEvent(ev, axis=0)
+        mods = ev.modifiers()
+        steps = ev.delta() / 120.0
+        if mods & Qt.KeyboardModifier.ControlModifier:  # zoom the rows
+            ev.accept()
+            self.chart.zoom_rows(0.8 ** steps, self.mapSceneToView(ev.scenePos()).y())
+        elif mods & Qt.KeyboardModifier.ShiftModifier:  # scroll the rows
+            ev.accept()
+            self.chart.scroll_rows(-3 * steps)
+        else:  # zoom the frames
+            super().wheelEvent(ev, axis=0)
 
 
 class ContinuityView(BaseView):
@@ -165,6 +185,7 @@ class ContinuityView(BaseView):
         super().__init__(ctx, parent)
         self.single = single
         self.expanded: set[int] = set()
+        self.brim_expanded = False  # the brim dots collapse under one header row
         self._codes: NDArray[np.uint8] | None = None  # [P, F]
         self._cam_codes: dict[int, NDArray[np.uint8]] = {}
         self._rows: list[tuple[int, int]] = []  # (column, camera or -1)
@@ -187,12 +208,25 @@ class ContinuityView(BaseView):
         self.drag_region = pg.LinearRegionItem(movable=False, brush=pg.mkBrush(80, 160, 255, 60))
         self.drag_region.hide()
         self.vb.addItem(self.drag_region, ignoreBounds=True)
-        layout = QVBoxLayout(self)
+        # rows that do not fit at a legible height scroll (Shift+wheel or the scroll bar;
+        # Ctrl+wheel zooms the rows)
+        self.scroll = QScrollBar(Qt.Orientation.Vertical)
+        self.scroll.valueChanged.connect(self._scrolled)
+        layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        layout.addWidget(self.plot)
+        layout.setSpacing(0)
+        layout.addWidget(self.plot, 1)
+        layout.addWidget(self.scroll)
+        self.plot.scene().sigMouseMoved.connect(self._hover)
+        # the Selected Point pane with no (or several) points: say so, no fake axis
+        self.hint = QLabel(self)
+        self.hint.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.hint.setWordWrap(True)
+        self.hint.setStyleSheet("color: #b4b4b4; background: #1e1e1e;")
+        self.hint.hide()
         self.vb.sigXRangeChanged.connect(lambda *_: self.render())
         self.vb.sigResized.connect(self._resized)
-        self.vb.sigYRangeChanged.connect(lambda *_: self._update_ticks())
+        self.vb.sigYRangeChanged.connect(self._y_changed)
         self.redraw_count = 0
         self.partial_updates = 0  # code updates limited to the changed point-frames
         self.refresh(None)
@@ -259,35 +293,165 @@ class ContinuityView(BaseView):
                 rows = [(col, -1)] + [(col, c) for c in range(C)]
         else:
             ids = p.points.ids
-            for col in range(p.n_points):
+            brim = np.flatnonzero(p.points.kind == KIND_BRIM)
+            self._brim_cols = brim
+            shown = [c for c in range(p.n_points) if p.points.kind[c] != KIND_BRIM]
+            if brim.size:
+                shown.append(BRIM_HEADER)
+                if self.brim_expanded:
+                    shown.extend(int(c) for c in brim)
+            for col in shown:
                 rows.append((col, -1))
-                if int(ids[col]) in self.expanded:
+                if col >= 0 and int(ids[col]) in self.expanded:
                     rows.extend((col, c) for c in range(C))
         self._rows = rows
-        self._row_names = [p.point_label(col) if cam < 0 else f"sensor {cam}"
-                           for col, cam in rows]
-        self._update_ticks()
-        self.vb.setYRange(0, max(len(rows), 1), padding=0)
+        self._row_names = [self._row_name(col, cam) for col, cam in rows]
         self.vb.setLimits(yMin=0, yMax=max(len(rows), 1))
+        (y0, _) = self.vb.viewRange()[1]
+        self._show_rows(y0, self.rows_that_fit())
 
-    def _resized(self, *_: object) -> None:
+    def _show_hint(self) -> None:
+        """Selected Point pane: a sentence instead of an empty chart."""
+        n = len(self.ctx.project.selection.points)
+        text = ("" if self._rows else "Select one point to see its continuity in each "
+                "camera" if n == 0 else f"{n} points are selected: select one point to see "
+                "its continuity in each camera")
+        self.hint.setText(text)
+        self.hint.setVisible(bool(text))
+        if text:  # over the chart (hiding it would resize the pane)
+            self.hint.setGeometry(self.rect())
+            self.hint.raise_()
+
+    def resizeEvent(self, ev) -> None:  # keep the hint over the whole pane
+        super().resizeEvent(ev)
+        if self.hint.isVisible():
+            self.hint.setGeometry(self.rect())
+
+    def _y_changed(self, *_: object) -> None:
         self._update_ticks()
         self.render()
+
+    def _row_name(self, col: int, cam: int) -> str:
+        if col == BRIM_HEADER:
+            n = len(getattr(self, "_brim_cols", ()))
+            return f"{'▾' if self.brim_expanded else '▸'} Calibration brim ({n})"
+        if cam >= 0:
+            return f"   sensor {cam}"
+        return self.ctx.project.point_label(col)
+
+    def _resized(self, *_: object) -> None:
+        (y0, _) = self.vb.viewRange()[1]
+        self._show_rows(y0, self.rows_that_fit())
+        self.render()
+
+    #: Smallest row height at which every row's name is drawn (px).
+    ROW_PX = 18
+    #: Widest names column (px); longer names are elided.
+    MAX_NAME_PX = 190
+
+    def rows_that_fit(self) -> float:
+        """Rows shown at a legible height (at least one; every row in the Selected Point
+        pane)."""
+        if self.single:
+            return float(max(len(self._rows), 1))
+        return max(1.0, float(max(self.vb.height(), 1) // self.ROW_PX))
+
+    def _show_rows(self, top: float, count: float) -> None:
+        """Show ``count`` rows from row ``top`` (clamped), and update the scroll bar."""
+        n = max(len(self._rows), 1)
+        count = float(np.clip(count, 1.0, n))
+        top = float(np.clip(top, 0.0, n - count))
+        self.vb.setYRange(top, top + count, padding=0)
+        self.scroll.blockSignals(True)
+        self.scroll.setRange(0, int(np.ceil(n - count)))
+        self.scroll.setPageStep(max(int(count), 1))
+        self.scroll.setValue(int(round(top)))
+        self.scroll.blockSignals(False)
+        self.scroll.setVisible(n - count > 0.5)
+        self._update_ticks()
+
+    def _scrolled(self, value: int) -> None:
+        (y0, y1) = self.vb.viewRange()[1]
+        self._show_rows(float(value), y1 - y0)
+
+    def scroll_rows(self, rows: float) -> None:
+        """Scroll by ``rows`` (positive: down)."""
+        (y0, y1) = self.vb.viewRange()[1]
+        self._show_rows(y0 + rows, y1 - y0)
+
+    def zoom_rows(self, factor: float, about: float) -> None:
+        """Show ``factor`` times as many rows, keeping row ``about`` in place."""
+        (y0, y1) = self.vb.viewRange()[1]
+        count = (y1 - y0) * factor
+        self._show_rows(about - (about - y0) * factor, count)
+
+    def _hover(self, scene_pos) -> None:
+        """Tooltip: point, frame and the cameras contributing there."""
+        if not self.vb.sceneBoundingRect().contains(scene_pos):
+            return
+        pos = self.vb.mapSceneToView(scene_pos)
+        row = self.row_at(pos.y())
+        p = self.ctx.project
+        f = int(np.floor(pos.x()))
+        if row is None or not 0 <= f < p.n_frames:
+            QToolTip.hideText()
+            return
+        QToolTip.showText(self.plot.mapToGlobal(self.plot.mapFromScene(scene_pos)),
+                          self.describe(row, f), self.plot)
+
+    def describe(self, row: tuple[int, int], frame: int) -> str:
+        """What the chart shows at a row and frame, in words (the tooltip)."""
+        p = self.ctx.project
+        col, cam = row
+        if col == BRIM_HEADER:
+            return (f"Calibration brim: {len(getattr(self, '_brim_cols', ()))} dots, solved "
+                    f"from the brim model at every frame (frame {frame}); double-click to "
+                    "show them")
+        name = p.point_label(col)
+        pts = p.points
+        if p.points.kind[col] == KIND_BRIM:
+            return f"{name} (brim), frame {frame}: from the brim model"
+        seen = [c for c in range(p.n_cameras) if not np.isnan(pts.obs[frame, col, c, 0])
+                and pts.source[frame, col, c] != SOURCE_NONE]
+        if cam >= 0:
+            return f"{name}, sensor {cam}, frame {frame}: " + (
+                "observed" if cam in seen else "no observation")
+        if np.isnan(pts.positions[frame, col, 0]):
+            return f"{name}, frame {frame}: no 3D (gap)"
+        code = int(self.row_codes(row)[frame])
+        what = COLOUR_NAMES.get(code, "")
+        cams = ", ".join(str(c) for c in seen) or "none"
+        return f"{name}, frame {frame}: {what}; cameras {cams}"
 
     def _update_ticks(self) -> None:
         """Row names on the left axis, thinned so they never overlap."""
         names = getattr(self, "_row_names", [])
         (y0, y1) = self.vb.viewRange()[1]
         px_per_row = max(self.vb.height(), 1) / max(y1 - y0, 1e-6)
-        step = max(1, int(np.ceil(14 / max(px_per_row, 1e-6))))
-        ticks = [(i + 0.5, n) for i, n in enumerate(names) if i % step == 0]
+        step = max(1, int(np.ceil(self.ROW_PX / max(px_per_row, 1e-6) - 1e-6)))
         axis = self.plot.getAxis("left")
+        # the names column fits the longest name up to a limit; longer ones are elided in
+        # the middle (pyqtgraph would drop a name wider than the axis); the tooltip has
+        # the whole name
+        fm = QFontMetrics(axis.style.get("tickFont") or self.plot.font())
+        widest = max((fm.horizontalAdvance(n) for n in names), default=40)
+        width = int(min(max(widest + 16, 70), self.MAX_NAME_PX))
+        ticks = [(i + 0.5, fm.elidedText(n, Qt.TextElideMode.ElideMiddle, width - 16))
+                 for i, n in enumerate(names) if i % step == 0]
+        # every row's name (pyqtgraph otherwise drops names once 80 % of the axis is text)
+        axis.setStyle(textFillLimits=[(0, 1.0)])
         axis.setTicks([ticks, []])
-        axis.setWidth(90)
+        axis.setWidth(width)
 
     def row_codes(self, row: tuple[int, int]) -> NDArray[np.uint8]:
         """Codes of one row over every frame."""
         col, cam = row
+        if col == BRIM_HEADER:
+            assert self._codes is not None
+            brim = getattr(self, "_brim_cols", np.zeros(0, np.intp))
+            if brim.size == 0 or self._codes.shape[1] == 0:
+                return np.zeros(self._codes.shape[1], np.uint8)
+            return self._codes[brim].min(axis=0)  # worst state of any brim dot
         if cam < 0:
             assert self._codes is not None
             return self._codes[col]
@@ -299,26 +463,35 @@ class ContinuityView(BaseView):
         """Redraw the visible frames (binned to the widget width)."""
         p = self.ctx.project
         self.redraw_count += 1
+        if self.single:
+            self._show_hint()
         if not self._rows or p.n_frames == 0 or self._codes is None:
             self.image.clear()
             self._draw_selection()
             return
-        (x0, x1), _ = self.vb.viewRange()
+        (x0, x1), (y0, y1) = self.vb.viewRange()
         start = int(max(0, np.floor(x0)))
         stop = int(min(p.n_frames, np.ceil(x1) + 1))
+        # only the rows in view: 300 points scroll at the cost of the ~40 shown
+        r0 = int(np.clip(np.floor(y0), 0, len(self._rows) - 1))
+        r1 = int(np.clip(np.ceil(y1), r0 + 1, len(self._rows)))
         if stop <= start:
             self.image.clear()
             return
         width = max(int(self.vb.width()), 50)
-        if all(cam < 0 for _, cam in self._rows) and not self.single:
-            cols = np.array([col for col, _ in self._rows], np.intp)
-            data = self._codes if len(cols) == self._codes.shape[0] else self._codes[cols]
+        rows = self._rows[r0:r1]
+        if all(cam < 0 and col >= 0 for col, cam in rows) and not self.single:
+            cols = np.array([col for col, _ in rows], np.intp)
+            if r0 == 0 and len(cols) == self._codes.shape[0]:
+                data = self._codes[:, start:stop]
+            else:
+                data = self._codes[cols, start:stop]
         else:
-            data = np.stack([self.row_codes(r) for r in self._rows])
-        binned = bin_min(data, start, stop, width)
+            data = np.stack([self.row_codes(r)[start:stop] for r in rows])
+        binned = bin_min(data, 0, stop - start, width)
         rgba = LUT[binned]
         self.image.setImage(rgba, autoLevels=False)
-        self.image.setRect(QRectF(start, 0, stop - start, len(self._rows)))
+        self.image.setRect(QRectF(start, r0, stop - start, r1 - r0))
         self._draw_selection()
 
     def _draw_selection(self) -> None:
@@ -326,7 +499,7 @@ class ContinuityView(BaseView):
         sel = p.selection.points
         ids = p.points.ids
         rows = [i for i, (col, cam) in enumerate(self._rows) if cam < 0
-                and col < len(ids) and int(ids[col]) in sel]
+                and 0 <= col < len(ids) and int(ids[col]) in sel]
         for item in self.sel_items:
             self.vb.removeItem(item)
         self.sel_items = []
@@ -334,8 +507,11 @@ class ContinuityView(BaseView):
             return
         for r in rows[:200]:
             item = pg.QtWidgets.QGraphicsRectItem(QRectF(0, r, max(p.n_frames, 1), 1))
-            item.setPen(pg.mkPen(None))
-            item.setBrush(pg.mkBrush(QColor(255, 255, 255, 45)))
+            # a clear band with an outline: the selected row stands out among 300
+            pen = pg.mkPen(QColor(255, 255, 255, 200), width=1)
+            pen.setCosmetic(True)
+            item.setPen(pen)
+            item.setBrush(pg.mkBrush(QColor(255, 255, 255, 70)))
             self.vb.addItem(item, ignoreBounds=True)
             self.sel_items.append(item)
 
@@ -352,6 +528,15 @@ class ContinuityView(BaseView):
         if row is None:
             if not double and not self.single:
                 p.set_selection(points=[])
+            return
+        if row[0] == BRIM_HEADER:
+            if double:
+                self.brim_expanded = not self.brim_expanded
+                self._build_rows()
+                self.render()
+            else:
+                brim = [int(p.points.ids[c]) for c in getattr(self, "_brim_cols", ())]
+                p.set_selection(points=brim)
             return
         pid = int(p.points.ids[row[0]])
         if double and not self.single:
@@ -377,12 +562,14 @@ class ContinuityView(BaseView):
     def collapse_all(self) -> None:
         """Collapse all."""
         self.expanded.clear()
+        self.brim_expanded = False
         self._build_rows()
         self.render()
 
     def expand_all(self) -> None:
         """Expand all."""
         self.expanded = {int(i) for i in self.ctx.project.points.ids}
+        self.brim_expanded = True
         self._build_rows()
         self.render()
 
@@ -392,7 +579,7 @@ class ContinuityView(BaseView):
         a, b = p.view_range if p.n_frames else (0, 1)
         self.vb.setXRange(a, b + 1, padding=0)
         self.vb.setLimits(xMin=0, xMax=max(p.n_frames, 1))
-        self.vb.setYRange(0, max(len(self._rows), 1), padding=0)
+        self._show_rows(0, self.rows_that_fit())
 
     def fit_to_selection(self) -> None:
         """Fit to data: the selected points' rows (all rows when nothing is selected)."""
@@ -402,9 +589,10 @@ class ContinuityView(BaseView):
             self.fit()
             return
         ids = p.points.ids
-        rows = [i for i, (col, cam) in enumerate(self._rows) if int(ids[col]) in sel]
+        rows = [i for i, (col, cam) in enumerate(self._rows)
+                if col >= 0 and int(ids[col]) in sel]
         if rows:
-            self.vb.setYRange(min(rows), max(rows) + 1, padding=0)
+            self._show_rows(min(rows), max(max(rows) + 1 - min(rows), 1))
 
     def center_selection(self, frame: bool = False) -> None:
         self.fit_to_selection()
