@@ -51,6 +51,7 @@ def test_every_section_present_and_in_display_order():
         "Tracking Parameters",
         "Triangulation Parameters",
         "Gap-Filling Parameters",
+        "Clean-up Parameters",
         "Stabilization Parameters",
         "Export",
         "Target Tracker",

@@ -436,6 +436,10 @@ class Project:
         self.rom: RomReference | None = None
         self.path: str | None = None
         self.imported_blob_parameters: dict[str, Any] | None = None
+        # Stabilize Data / Align Data (carapost.model.stabilization): never raw positions
+        self.stabilization: Any = None
+        self.alignment: Any = None
+        self.show_stabilized = False
         self.modified = False
 
     # -- sizes ---------------------------------------------------------------------------

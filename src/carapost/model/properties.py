@@ -10,9 +10,9 @@ project file all read this one table.
 The algorithm sections are not written here: they are generated from the fields of the
 algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
 ``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``,
-``TargetTrackerParameters``), which declare label, unit, range and help once with
-:func:`carapost.algorithms.params.param`. Display, Selection, Gap-Filling, Stabilization
-and Export have no parameter class yet and are declared below by hand.
+``StabilizationParameters``, ``TargetTrackerParameters``), which declare label, unit,
+range and help once with :func:`carapost.algorithms.params.param`. Display, Selection,
+Gap-Filling and Export have no parameter class yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
 no range (or no default), the value is our choice and the help text says so. The guide's
@@ -44,6 +44,8 @@ from typing import Any
 
 from carapost.algorithms import params as _params
 from carapost.algorithms.blobs import BlobParameters
+from carapost.algorithms.cleanup import CleanupParameters
+from carapost.algorithms.gapfill import CLEAN_UP, GAP_FILLING, GapFillParameters
 from carapost.algorithms.init3d import Init3DParameters
 from carapost.algorithms.params import (
     BLOB,
@@ -56,6 +58,7 @@ from carapost.algorithms.params import (
     format_value,
 )
 from carapost.algorithms.rom import RomParameters
+from carapost.algorithms.stabilise import StabilizationParameters
 from carapost.algorithms.target_track import TargetTrackerParameters
 from carapost.algorithms.tracking import TrackingParameters
 from carapost.algorithms.triangulation import TriangulationParameters
@@ -80,7 +83,6 @@ __all__ = [
 # carapost.algorithms.params, beside the fields that fill them.
 DISPLAY = "Display"
 SELECTION = "Selection"
-GAP_FILLING = "Gap-Filling Parameters"
 STABILIZATION = "Stabilization Parameters"
 EXPORT = "Export"
 
@@ -269,7 +271,10 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     RomParameters,
     TrackingParameters,
     TriangulationParameters,
+    StabilizationParameters,
     TargetTrackerParameters,
+    GapFillParameters,
+    CleanupParameters,
 )
 
 _KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
@@ -309,8 +314,11 @@ def specs_from_parameters(cls: type) -> tuple[PropertySpec, ...]:
 
 
 _ALGORITHM_SPECS: tuple[PropertySpec, ...] = tuple(
-    s for cls in PARAMETER_CLASSES for s in specs_from_parameters(cls)
+    s for cls in PARAMETER_CLASSES if cls is not StabilizationParameters
+    for s in specs_from_parameters(cls)
     if s.section != TARGET_TRACKER)  # the Tracker pane's settings come last
+# the Stabilization section comes after Gap-Filling, as in the guide
+_STABILIZATION_SPECS = specs_from_parameters(StabilizationParameters)
 
 _OURS_RANGE = " Range is our choice."
 _OURS_DEFAULT = " Default is our choice (the guide gives none)."
@@ -338,37 +346,8 @@ SPECS: tuple[PropertySpec, ...] = (
        help="Sticks can be picked in the 2D and 3D views."),
     # --- Blob, Initialize 3D, Initialize From ROM, Tracking, Triangulation ----------
     *_ALGORITHM_SPECS,
-    # --- Gap-Filling Parameters -------------------------------------------------------
-    _p(GAP_FILLING, "overwrite_existing_filled_gaps", "Overwrite Existing Filled Gaps", bool,
-       False,
-       help="Recompute frames filled earlier (points with at most one attached detection)."),
-    _p(GAP_FILLING, "use_forwards_prediction", "Use Forwards Prediction", bool, True,
-       help="Use the point before the gap when filling it."),
-    _p(GAP_FILLING, "use_backwards_prediction", "Use Backwards Prediction", bool, True,
-       help="Use the point after the gap when filling it."),
-    _p(GAP_FILLING, "allow_single_sensor_gap_filling",
-       "Allow Single Sensor Tracking Gap-Filling", bool, True,
-       help="Where one camera still sees the marker, keep the filled point on that camera's "
-            "ray."),
-    # --- Stabilization Parameters -----------------------------------------------------
-    _p(STABILIZATION, "stabilization_use_brim_points", "Use Brim Points", bool, False,
-       help="Include brim markers in the stabilising set (only if the brim sits still on "
-            "the head)."),
-    _p(STABILIZATION, "base_frame_weighting", "Base Frame Weighting", float, 1.0, 0.0, 1000.0,
-       help="Weight of drift relative to the base frame in the stabilisation cost."
-            + " Upper bound is our choice."),
-    _p(STABILIZATION, "inter_frame_weighting", "Inter Frame Weighting", float, 1.0, 0.0,
-       1000.0,
-       help="Weight of frame-to-frame jitter in the stabilisation cost."
-            + " Upper bound is our choice."),
-    _p(STABILIZATION, "stable_points_percent", "Stable Points Percent", float, 0.25, 0.0, 1.0,
-       unit="0-1",
-       help="Expected fraction of points that stay still in each frame; lower it for very "
-            "expressive takes."),
-    _p(STABILIZATION, "max_processing_iterations", "Max Processing Iterations", int, 50, 1,
-       10_000,
-       help="Iteration cap of the stabilisation optimiser; more is slower but may fit "
-            "better." + _OURS_RANGE),
+    # --- Stabilization Parameters (StabilizationParameters, algorithms/stabilise.py) --
+    *_STABILIZATION_SPECS,
     # --- Export (contents are ours: the guide names the section only) -----------------
     _p(EXPORT, "export_range", "Export Range", CHOICE, "active", choices=("active", "all"),
        help="Export the active range only or the whole take." + _OURS_DEFAULT),
@@ -400,6 +379,7 @@ SECTIONS: tuple[str, ...] = (
     TRACKING,
     TRIANGULATION,
     GAP_FILLING,
+    CLEAN_UP,
     STABILIZATION,
     EXPORT,
     TARGET_TRACKER,

@@ -26,11 +26,11 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import cleanup, navigation
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
-from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
 from carapost.ui.handlers import target as target_menu
 from carapost.ui.handlers import view as view_menu
@@ -121,6 +121,8 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("file.import_brim", "File", "Import Calibration Brim [svg]...", "",
        file_menu.import_brim),
     _A("file.import_xcp", "File", "Import XCP...", "", file_menu.import_xcp),
+    _A("file.import_c3d", "File", "Import C3D...", "", cleanup.import_c3d,
+       tip="A new project from the 3D points and labels of any C3D file"),
     _A("file.import_labels_cara", "File", "Import Labels From Cara File...", "",
        partial(file_menu.import_labels, kind="cara"), separator=True),
     _A("file.import_labels_text", "File", "Import Labels From Text File...", "",
@@ -192,7 +194,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.blob_preview", "View", "Toggle Blob Preview", "Ctrl+B",
        view_menu.toggle_blob_preview, checkable=True),
     _A("view.show_stabilized", "View", "Toggle Show Stabilized", "Ctrl+Shift+S",
-       checkable=True),  # waits for Stabilize Data
+       view_menu.toggle_show_stabilized, checkable=True),
     _A("view.go_to_frame", "View", "Go To Frame...", "Ctrl+G", navigation.go_to_frame,
        separator=True),
     _A("view.start", "View", "Go to Start Frame", "Home", navigation.go_start),
@@ -200,6 +202,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.play", "View", "Play", "Space", navigation.toggle_play, checkable=True),
     _A("view.next", "View", "Next Frame", "Right", partial(navigation.step, delta=1)),
     _A("view.prev", "View", "Prev Frame", "Left", partial(navigation.step, delta=-1)),
+    _A("view.build_proxies", "View", "Build Playback Proxies", "", navigation.build_proxies),
     _A("view.lock", "View", "Lock To Point", "", navigation.toggle_lock, checkable=True),
     _A("view.next_key", "View", "Next Key Frame", "Shift+Right",
        partial(navigation.step_key, delta=1)),
@@ -259,11 +262,17 @@ ACTIONS: tuple[ActionSpec, ...] = (
           shortcut="Ctrl+W", images=True, direction="forwards", single_frame=True),
     _proc("process.track_bwd_one", "Track Backwards [Single Frame]", "track", images=True,
           direction="backwards", single_frame=True),
-    # Stabilize, Align and Interpolate wait for their algorithms
-    _proc("process.stab_manual", "Stabilize Data [Manual]", None, separator=True),
-    _proc("process.stab_assisted", "Stabilize Data [Assisted]", None),
-    _proc("process.align", "Align Data", None),
-    _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
+    _proc("process.stab_manual", "Stabilize Data [Manual]", "stabilize", separator=True,
+          mode="manual"),
+    _proc("process.stab_assisted", "Stabilize Data [Assisted]", "stabilize", mode="assisted"),
+    _proc("process.stab_auto", "Stabilize Data [Automatic]", "stabilize", mode="auto"),
+    _A("process.align", "Process", "Align Data", "", process_menu.align_data),
+    _A("process.remove_stab", "Process", "Remove Stabilization", "",
+       process_menu.remove_stabilization),
+    _proc("process.interpolate", "Interpolate Gaps", "interpolate_gaps", separator=True),
+    _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
+    _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
+       tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),

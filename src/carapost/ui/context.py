@@ -33,6 +33,8 @@ from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
+from carapost.ui.proxies import ProxyBuilder
+from carapost.ui.settings import build_proxies, frame_cache_mb
 
 log = logging.getLogger("carapost.ui")
 
@@ -323,6 +325,7 @@ class ActionContext(QObject):
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
+        self.proxies = ProxyBuilder(self)
 
     def _point_clicked(self, camera: int, x: float, y: float) -> None:
         from carapost.ui.handlers.target import clicked
@@ -381,9 +384,11 @@ class ActionContext(QObject):
         session.stack.on_change = self.history_changed.emit
         project = session.project
         if frames is None:
-            frames = frame_source_for(project, on_ready=self.on_frame_ready)
+            frames = self.video_frames(project)
+        self.proxies.stop()
         self.view.set_project(project, frames)
         self._bind_images()
+        self._start_proxies()
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
@@ -394,17 +399,36 @@ class ActionContext(QObject):
         frames = self.view.frames
         self.session.set_image_source(frames.require if frames.has_images else None)
 
+    def _start_proxies(self) -> None:
+        # Proxies already written are used at once; missing ones are written in the
+        # background when the user wants that (View > Build Playback Proxies otherwise).
+        frames = self.view.frames
+        if not hasattr(frames, "attach_proxies"):
+            return
+        if build_proxies(self.settings):
+            self.proxies.start(frames)
+        else:
+            frames.attach_proxies()
+
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
+        self.proxies.stop()
         self.view.frames.close()
         self.view.frames = frames
         self._bind_images()
+        self._start_proxies()
         for view in self.shell.all_views() if self.shell is not None else ():
             view.refresh(None)
 
     def reload_frames(self) -> None:
         """Open the project's videos again (after their paths changed)."""
-        self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
+        self.set_frames(self.video_frames(self.project))
+
+    def video_frames(self, project: Project) -> FrameSource:
+        """The frame service of ``project``'s videos, its cache sized by the user's
+        setting (none when the take has no videos)."""
+        return frame_source_for(project, on_ready=self.on_frame_ready,
+                                cache_mb=frame_cache_mb(self.settings))
 
     def refuse_busy(self, what: str) -> bool:
         """True (and the refusal shown in the status bar) while a job is running."""
@@ -470,10 +494,12 @@ class ActionContext(QObject):
         p = self.project
         if p.n_frames == 0:
             return
-        p.set_current_frame(int(frame))
-        if self.playback.playing:
-            self.frames.prefetch(range(p.current_frame + 1, p.current_frame + 16),
-                                 list(range(p.n_cameras)))
+        frame = min(max(int(frame), 0), p.n_frames - 1)
+        step = frame - p.current_frame
+        # The decoders start before the views redraw; a step sets the read-ahead's
+        # direction, a jump keeps it.
+        self.frames.request(frame, None, direction=step if abs(step) == 1 else 0)
+        p.set_current_frame(frame)
 
     def on_frame_ready(self, frame: int, camera: int) -> None:
         """Decoder-thread callback: hop to the GUI thread through a queued signal."""
@@ -496,6 +522,7 @@ class ActionContext(QObject):
     def shutdown(self) -> None:
         """Stop playback and the worker, stop listening, close the images."""
         self.playback.stop()
+        self.proxies.stop()
         if self.runner.busy:
             self.runner.cancel()
             self.runner.wait(30)
