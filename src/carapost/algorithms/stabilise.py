@@ -51,6 +51,7 @@ True
 
 from __future__ import annotations
 
+import logging
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -77,9 +78,13 @@ __all__ = [
     "stabilise_manual",
 ]
 
+log = logging.getLogger("carapost.algorithms")
+
 #: Points of the automatic stable set kept in every frame (the rest of each frame's
 #: stable points are chosen per frame, as in assisted stabilisation).
 AUTO_SEEDS = 6
+#: Points of the first automatic stable set (the smallest spread of distances).
+AUTO_FIRST_SEEDS = 12
 
 #: The Properties pane section of :class:`StabilizationParameters`.
 STABILIZATION = "Stabilization Parameters"
@@ -206,7 +211,8 @@ def apply_transforms(transforms: ArrayLike, positions: ArrayLike) -> NDArray[np.
     X = np.asarray(positions, np.float64)
     if T.ndim == 2:
         return X @ T[:3, :3].T + T[:3, 3]
-    return np.einsum("fij,fpj->fpi", T[:, :3, :3], X) + T[:, None, :3, 3]
+    # batched matmul: much faster than einsum over (F, P, 3)
+    return np.matmul(X, np.swapaxes(T[:, :3, :3], 1, 2)) + T[:, None, :3, 3]
 
 
 def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
@@ -222,8 +228,8 @@ def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
     sw = w.sum(1)
     ok = ((w > 0).sum(1) >= 3) & (sw > 0)
     s = w / np.where(sw > 0, sw, 1.0)[:, None]
-    ca = np.einsum("fn,fni->fi", s, A)
-    cb = np.einsum("fn,fni->fi", s, B)
+    ca = _wsum(s, A)
+    cb = _wsum(s, B)
     H = np.swapaxes((A - ca[:, None]) * s[..., None], 1, 2) @ (B - cb[:, None])
     U, S, Vt = np.linalg.svd(H)
     # collinear or coincident points leave the rotation undetermined
@@ -233,8 +239,13 @@ def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
     Vt = Vt.copy()
     Vt[:, 2] *= d[:, None]
     R = np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)
-    t = cb - np.einsum("fij,fj->fi", R, ca)
+    t = cb - (R @ ca[..., None])[..., 0]
     return R, t, ok
+
+
+def _wsum(w: NDArray, a: NDArray) -> NDArray:
+    """sum_n w[f, n] a[f, n, :] -> (F, 3), as a batched matmul."""
+    return (w[:, None, :] @ a)[:, 0]
 
 
 # ----------------------------------------------------------------------------------------
@@ -368,10 +379,11 @@ def _jtj(w: NDArray, a: NDArray, b: NDArray) -> NDArray:
     """sum_i w_i J(a_i)^T J(b_i) per frame, J(s) = [-[s]x | I] (3 x 6): (F, 6, 6)."""
     F = len(w)
     sw = w.sum(1)
-    sa = np.einsum("fn,fni->fi", w, a)
-    sb = np.einsum("fn,fni->fi", w, b)
-    ab = np.einsum("fn,fni,fni->f", w, a, b)
-    ba = np.einsum("fn,fni,fnj->fij", w, b, a)
+    sa = _wsum(w, a)
+    sb = _wsum(w, b)
+    wb_ = b * w[..., None]
+    ab = (wb_ * a).sum((1, 2))
+    ba = np.swapaxes(wb_, 1, 2) @ a
     out = np.zeros((F, 6, 6))
     out[:, :3, :3] = ab[:, None, None] * np.eye(3) - ba
     out[:, :3, 3:] = _cross_matrix(sa)
@@ -382,8 +394,12 @@ def _jtj(w: NDArray, a: NDArray, b: NDArray) -> NDArray:
 
 def _jtr(w: NDArray, s: NDArray, r: NDArray) -> NDArray:
     """sum_i w_i J(s_i)^T r_i per frame: (F, 6) (rotation part s x r, then r)."""
-    return np.concatenate([np.einsum("fn,fni->fi", w, np.cross(s, r)),
-                           np.einsum("fn,fni->fi", w, r)], 1)
+    wr = r * w[..., None]
+    # sum_n s x (w r) = the antisymmetric part of sum_n (w r) s^T
+    M = np.swapaxes(wr, 1, 2) @ s  # (F, 3, 3): M[i, j] = sum w r_i s_j
+    rot = np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0],
+                    M[:, 1, 0] - M[:, 0, 1]], 1)
+    return np.concatenate([rot, wr.sum(1)], 1)
 
 
 def _gauss_newton_step(S: NDArray, ref: NDArray, stable: NDArray, wb: float, wi: float,
@@ -399,13 +415,13 @@ def _gauss_newton_step(S: NDArray, ref: NDArray, stable: NDArray, wb: float, wi:
     F = len(S)
     fin = np.isfinite(S).all(-1)
     Sz = np.where(fin[..., None], S, 0.0)
-    wB = wb * (stable & fin)
+    wB = wb * np.where(fin, stable, 0.0)
     r = np.where(wB[..., None] > 0, Sz - np.nan_to_num(ref), 0.0)
     diag = _jtj(wB, Sz, Sz)
     g = _jtr(wB, Sz, r)
     off = np.zeros((max(F - 1, 0), 6, 6))  # block (f, f-1), f = 1..F-1
     if wi > 0 and F > 1:
-        wI = wi * (stable[1:] & fin[1:] & fin[:-1])
+        wI = wi * np.where(fin[1:] & fin[:-1], stable[1:], 0.0)
         a, b = Sz[1:], Sz[:-1]
         rI = np.where(wI[..., None] > 0, a - b, 0.0)
         diag[1:] += _jtj(wI, a, a)
@@ -441,6 +457,7 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
                        base_frame: int, params: StabilizationParameters | None = None,
                        candidates: NDArray[np.bool_] | None = None,
                        reference: NDArray | None = None,
+                       point_weights: NDArray | None = None,
                        progress: Progress = None) -> StabilisationResult:
     """Stabilize Data [Assisted]: from a selection, add stable points and minimise the
     weighted stabilisation error.
@@ -460,6 +477,9 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     reference : ndarray, shape (P, 3), optional
         The shape every frame is fitted to, in base-frame coordinates (default: the base
         frame's positions; automatic stabilisation passes a de-noised median shape).
+    point_weights : ndarray, shape (P,), optional
+        Weight of each point in the fits (default 1; automatic stabilisation weights
+        each point by the inverse of its motion in a first pass).
     progress : callable, optional
         ``progress(iteration, max_iterations)``; False stops (result ``cancelled``).
 
@@ -492,6 +512,8 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     it = 0
     cancelled = False
     valid = np.isfinite(T).all((1, 2))
+    pw = (np.ones(P) if point_weights is None
+          else np.nan_to_num(np.asarray(point_weights, np.float64)))[None, :]
     last = np.inf
     S = apply_transforms(T, Xc)
     for it in range(1, int(p.max_processing_iterations) + 1):
@@ -503,7 +525,8 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
         if not np.isfinite(err) or last - err <= p.tolerance * max(err, 1e-3):
             break
         last = err
-        step = _gauss_newton_step(S, ref, stable & valid[:, None], wb, wi, int(base_frame))
+        step = _gauss_newton_step(S, ref, (stable & valid[:, None]) * pw, wb, wi,
+                                  int(base_frame))
         dT = _to4(rodrigues_to_matrix(step[:, :3]), step[:, 3:])
         T = np.where(valid[:, None, None], dT @ T, T)
         T[base_frame] = np.eye(4)  # held by the solve; exact here
@@ -646,7 +669,9 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
     """
     p = params or StabilizationParameters()
     X = np.asarray(positions, np.float64)
-    seed = choose_stable_points(X, fraction=p.stable_points_percent, candidates=candidates)
+    # the seed set's size is fixed: the Stable Points Percent is each frame's choice
+    seed = choose_stable_points(X, fraction=0.0, candidates=candidates,
+                                min_points=AUTO_FIRST_SEEDS)
     base = choose_base_frame(X, seed)
     seed = seed[:AUTO_SEEDS]
     # the seed set must exist at the base frame; keep the ones that do
@@ -666,6 +691,7 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
     spread = np.where(ok & np.isfinite(spread), spread, np.inf)
     refined = np.argsort(spread, kind="stable")[:AUTO_SEEDS]
     refined = refined[np.isfinite(spread[refined])]
+    log.debug("automatic stabilisation: base frame %d, seeds %s", base, refined.tolist())
     if len(refined) < 3:
         refined = seed
     # the median stabilised shape is a reference without the base frame's noise
@@ -673,8 +699,13 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
         warnings.simplefilter("ignore", RuntimeWarning)
         shape = np.nanmedian(S, axis=0)
     shape = np.where(np.isfinite(X[base]), shape, np.nan)
+    # inverse-variance weights: a point's motion once stabilised, over the noise floor
+    # (the spread of the most stable points)
+    floor = float(np.median(spread[refined]))
+    weights = np.where(np.isfinite(spread), 1.0 / (floor ** 2 + spread ** 2), 0.0)
+    weights /= weights.max()
     return stabilise_assisted(X, refined, base_frame=base, params=p, candidates=candidates,
-                              reference=shape, progress=progress)
+                              reference=shape, point_weights=weights, progress=progress)
 
 
 # ----------------------------------------------------------------------------------------
