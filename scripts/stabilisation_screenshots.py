@@ -3,9 +3,10 @@
     xvfb-run -a -s "-screen 0 1920x1080x24" python scripts/stabilisation_screenshots.py \
         docs/screenshots
 
-A synthetic speech take (truth positions plus 0.1 mm noise; its head slips in the helmet,
-exaggerated six times so that it shows at the Graph's scale) is stabilised automatically; the window shows the 3D view and the Graph
-of two skull-fixed points, first raw (the slip shows as slow drift), then stabilised.
+A synthetic speech take (truth positions plus 0.1 mm noise) is stabilised automatically;
+its head slip in the helmet is exaggerated six times so that it shows at the Graph's
+scale. The window shows the 3D view and the Graph of a skull-fixed point, first raw (the
+slip shows as slow drift), then stabilised.
 """
 
 from __future__ import annotations
