@@ -412,23 +412,13 @@ def _gauss_newton_step(S: NDArray, ref: NDArray, stable: NDArray, wb: float, wi:
     tridiagonal (6 x 6 blocks) and solved as one banded system. ``fixed`` (the base
     frame) does not move. Returns the updates (F, 6): omega (rad), tau (mm).
     """
+    from carapost.algorithms._stabilise_jit import normal_equations
+
     F = len(S)
-    fin = np.isfinite(S).all(-1)
-    Sz = np.where(fin[..., None], S, 0.0)
-    wB = wb * np.where(fin, stable, 0.0)
-    r = np.where(wB[..., None] > 0, Sz - np.nan_to_num(ref), 0.0)
-    diag = _jtj(wB, Sz, Sz)
-    g = _jtr(wB, Sz, r)
-    off = np.zeros((max(F - 1, 0), 6, 6))  # block (f, f-1), f = 1..F-1
-    if wi > 0 and F > 1:
-        wI = wi * np.where(fin[1:] & fin[:-1], stable[1:], 0.0)
-        a, b = Sz[1:], Sz[:-1]
-        rI = np.where(wI[..., None] > 0, a - b, 0.0)
-        diag[1:] += _jtj(wI, a, a)
-        diag[:-1] += _jtj(wI, b, b)
-        off = -_jtj(wI, a, b)
-        g[1:] += _jtr(wI, a, rI)
-        g[:-1] -= _jtr(wI, b, rI)
+    diag, off, g = normal_equations(np.ascontiguousarray(S, np.float64),
+                                    np.ascontiguousarray(ref, np.float64),
+                                    np.ascontiguousarray(stable, np.float64),
+                                    float(wb), float(wi))
     scale = max(float(np.abs(diag).max(initial=0.0)), 1.0)
     diag += 1e-9 * scale * np.eye(6)
     diag[fixed] += 1e6 * scale * np.eye(6)
