@@ -357,14 +357,19 @@ def stabilise_manual(positions: ArrayLike, points: Sequence[int] | NDArray, *,
 # ----------------------------------------------------------------------------------------
 def _stable_mask(d2: NDArray, fraction: float, keep: NDArray) -> NDArray[np.bool_]:
     """Per frame, the ``fraction`` of finite points with the smallest d2 (at least 3),
-    plus ``keep`` (the seed points, when present)."""
+    plus ``keep`` (the seed points, when present) unless a seed is clearly off: more than
+    3 times the frame's median stable distance (a selected point that moves with
+    expression after all)."""
     fin = np.isfinite(d2)
     n_fin = fin.sum(1)
     k = np.minimum(np.clip(np.ceil(fraction * n_fin).astype(np.intp), 3, None), n_fin)
     srt = np.sort(np.where(fin, d2, np.inf), axis=1)
-    thresh = srt[np.arange(len(d2)), np.maximum(k - 1, 0)]
+    rows = np.arange(len(d2))
+    thresh = srt[rows, np.maximum(k - 1, 0)]
+    median = srt[rows, np.maximum(k - 1, 0) // 2]
     with np.errstate(invalid="ignore"):
-        return (fin & (d2 <= thresh[:, None]) & (k[:, None] > 0)) | (keep & fin)
+        seeds = keep & fin & (d2 <= 9.0 * median[:, None])
+        return (fin & (d2 <= thresh[:, None]) & (k[:, None] > 0)) | seeds
 
 
 def _cross_matrix(v: NDArray) -> NDArray:
