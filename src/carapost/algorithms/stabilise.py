@@ -347,8 +347,9 @@ def stabilise_manual(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     T[~ok] = np.nan
     stable = np.zeros((F, P), dtype=bool)
     stable[:, cols] = True
-    S = apply_transforms(T, X)
-    base, inter, err = stabilisation_errors(S, int(base_frame), stable)
+    # the errors are measured on the chosen points only: map just those
+    S = apply_transforms(T, A)
+    base, inter, err = stabilisation_errors(S, int(base_frame), np.ones(A.shape[:2], bool))
     return StabilisationResult(T, int(base_frame), cols, stable, base, inter, err)
 
 
