@@ -95,3 +95,44 @@ def normal_equations(S, ref, weight, wb, wi):  # pragma: no cover - jit
                 _add_jtr(g[f], w, a0, a1, a2, r0, r1, r2)
                 _add_jtr(g[f - 1], -w, b0, b1, b2, r0, r1, r2)
     return diag, off, g
+
+
+@numba.njit(cache=True, nogil=True)
+def transform_points(T, X):  # pragma: no cover - jit
+    """X (F, P, 3) mapped by per-frame transforms T (F, 4, 4): (F, P, 3), NaN kept."""
+    F, P = X.shape[0], X.shape[1]
+    out = np.empty((F, P, 3))
+    for f in range(F):
+        for n in range(P):
+            x0, x1, x2 = X[f, n, 0], X[f, n, 1], X[f, n, 2]
+            for i in range(3):
+                out[f, n, i] = T[f, i, 0] * x0 + T[f, i, 1] * x1 + T[f, i, 2] * x2 + T[f, i, 3]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def error_sums(S, base, stable):  # pragma: no cover - jit
+    """Sums of squared distances of the stable points to the base frame (other frames)
+    and to the previous frame, and their counts: (sum_b, n_b, sum_i, n_i)."""
+    F, P = S.shape[0], S.shape[1]
+    sb, si = 0.0, 0.0
+    nb, ni = 0, 0
+    for f in range(F):
+        for n in range(P):
+            if not stable[f, n]:
+                continue
+            if f != base:
+                d = 0.0
+                for i in range(3):
+                    d += (S[f, n, i] - S[base, n, i]) ** 2
+                if np.isfinite(d):
+                    sb += d
+                    nb += 1
+            if f > 0:
+                d = 0.0
+                for i in range(3):
+                    d += (S[f, n, i] - S[f - 1, n, i]) ** 2
+                if np.isfinite(d):
+                    si += d
+                    ni += 1
+    return sb, nb, si, ni

@@ -211,7 +211,10 @@ def apply_transforms(transforms: ArrayLike, positions: ArrayLike) -> NDArray[np.
     X = np.asarray(positions, np.float64)
     if T.ndim == 2:
         return X @ T[:3, :3].T + T[:3, 3]
-    # batched matmul: much faster than einsum over (F, P, 3)
+    if X.shape[0] * X.shape[1] >= 10_000:  # compiled: numpy's batched 3 x 3 matmul is slow
+        from carapost.algorithms._stabilise_jit import transform_points
+
+        return transform_points(np.ascontiguousarray(T), np.ascontiguousarray(X))
     return np.matmul(X, np.swapaxes(T[:, :3, :3], 1, 2)) + T[:, None, :3, 3]
 
 
@@ -251,11 +254,6 @@ def _wsum(w: NDArray, a: NDArray) -> NDArray:
 # ----------------------------------------------------------------------------------------
 # errors
 # ----------------------------------------------------------------------------------------
-def _rms(d2: NDArray, mask: NDArray) -> float:
-    n = int(mask.sum())
-    return float(np.sqrt(d2[mask].sum() / n)) if n else float("nan")
-
-
 def stabilisation_errors(stabilised: NDArray, base_frame: int, stable: NDArray,
                          base_weight: float = 1.0, inter_weight: float = 1.0
                          ) -> tuple[float, float, float]:
@@ -277,16 +275,12 @@ def stabilisation_errors(stabilised: NDArray, base_frame: int, stable: NDArray,
         RMS distances (mm) to the base frame and to the previous frame over the stable
         points, and ``base_weight * base + inter_weight * inter``.
     """
-    d_base = ((stabilised - stabilised[base_frame]) ** 2).sum(-1)
-    m_base = stable & np.isfinite(d_base)
-    m_base[base_frame] = False
-    base = _rms(np.nan_to_num(d_base), m_base) if m_base.any() else 0.0
-    if len(stabilised) > 1:
-        d_int = ((stabilised[1:] - stabilised[:-1]) ** 2).sum(-1)
-        m_int = stable[1:] & np.isfinite(d_int)
-        inter = _rms(np.nan_to_num(d_int), m_int) if m_int.any() else 0.0
-    else:
-        inter = 0.0
+    from carapost.algorithms._stabilise_jit import error_sums
+
+    sb, nb, si, ni = error_sums(np.ascontiguousarray(stabilised, np.float64), int(base_frame),
+                                np.ascontiguousarray(stable, np.bool_))
+    base = float(np.sqrt(sb / nb)) if nb else 0.0
+    inter = float(np.sqrt(si / ni)) if ni else 0.0
     return base, inter, base_weight * base + inter_weight * inter
 
 
