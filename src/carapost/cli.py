@@ -10,6 +10,7 @@ import argparse
 import logging
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from carapost import __version__
 
@@ -43,14 +44,30 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     from carapost.api import evaluate
 
-    print(json.dumps(evaluate(args.project, args.truth), indent=1))
+    with _open_session(args) as session:
+        print(json.dumps(evaluate(session.project, args.truth), indent=1))
     return 0
 
 
-def _cmd_export_c3d(args: argparse.Namespace) -> int:
-    from carapost.session import Session
+def _open_session(args: argparse.Namespace) -> Any:
+    """Session.open of ``args.project``; a newer autosave copy is reported on stderr."""
+    import warnings
 
-    with Session.open(args.project) as session:
+    from carapost.session import Session
+    from carapost.session.recovery import NewerAutosaveWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NewerAutosaveWarning)
+        session = Session.open(args.project, recover=True if args.recover else None)
+    if session.newer_autosave is not None:
+        print(f"carapost {args.command}: warning: {args.project} has a newer autosave copy "
+              f"({session.newer_autosave}); the file was used. Pass --recover to use the "
+              "copy.", file=sys.stderr)
+    return session
+
+
+def _cmd_export_c3d(args: argparse.Namespace) -> int:
+    with _open_session(args) as session:
         session.export_c3d(args.output, frame_range=args.range, include_brim=args.brim,
                            stabilized=args.stabilized)
     print(f"wrote {args.output}")
@@ -58,9 +75,7 @@ def _cmd_export_c3d(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_fbx(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_fbx(args.output, frame_range=args.range, include_brim=args.brim,
                            up_axis=args.up, include_cameras=args.cameras,
                            include_sticks=args.sticks, stabilized=args.stabilized)
@@ -69,9 +84,7 @@ def _cmd_export_fbx(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_xcp(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_xcp(args.output, frame=args.frame)
     print(f"wrote {args.output}")
     return 0
@@ -101,6 +114,37 @@ def _cmd_process(args: argparse.Namespace) -> int:
     )
     for key, value in result.items():
         print(f"{key}: {value}")
+    return 0
+
+
+RECOVER_HELP = ("when an autosave copy newer than the project exists (the program stopped "
+                "before saving), use the copy")
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _quiet_stdout() -> int:
+    """The reader of our output went away (``carapost evaluate ... | head``): not an
+    error of ours; point stdout at devnull so the interpreter's flush stays quiet."""
+    import os
+
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 0
+
+
+def _cmd_fill_gaps(args: argparse.Namespace) -> int:
+    from carapost.session.gapfill import fill_gaps_file
+
+    rep = fill_gaps_file(args.input, args.output, method=args.method, max_gap=args.max_gap,
+                         report=args.report)
+    gaps = rep["gaps"]
+    done = sum(1 for g in gaps if g["method"])
+    print(f"filled {done} of {len(gaps)} gaps ({rep['filled_samples']} samples); "
+          f"wrote {args.output}")
+    for m in rep["messages"]:
+        print(f"  {m}")
     return 0
 
 
@@ -154,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")
     sp.add_argument("truth")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
 
     for name, func, what in (
         ("export-c3d", _cmd_export_c3d, "C3D"),
@@ -161,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         sp = add(name, func, f"export a project's points as {what}")
         sp.add_argument("project")
+        sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
         sp.add_argument("output")
         sp.add_argument("--range", choices=("active", "all"), default="all")
         sp.add_argument("--brim", action="store_true", help="include brim points")
@@ -172,8 +218,20 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("--cameras", action="store_true", help="include animated cameras")
             sp.add_argument("--sticks", action="store_true", help="include the stick mesh")
 
+    sp = add("fill-gaps", _cmd_fill_gaps,
+             "fill the gaps of a .c3d or .cara file (any vendor's C3D) and write one")
+    sp.add_argument("input", help="a .c3d or .cara file")
+    sp.add_argument("-o", "--output", required=True, help=".c3d or .cara file to write")
+    sp.add_argument("--method", choices=("auto", "guide", "lowrank", "spline"), default=None,
+                    help="fill method (default: the project's Gap-Filling Method, auto)")
+    sp.add_argument("--max-gap", type=int, default=None, metavar="N",
+                    help="leave gaps longer than N frames (default: fill all)")
+    sp.add_argument("--report", metavar="REPORT.json",
+                    help="write each gap's method, estimated error (mm) and status")
+
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
     sp.add_argument("project")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
     sp.add_argument("output")
     sp.add_argument("--frame", type=int, default=None, help="frame (default: current frame)")
     return p
@@ -201,19 +259,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (CliError, CaraFileError, CommandError, FileNotFoundError, ValueError) as exc:
-        print(f"carapost {args.command}: error: {exc}", file=sys.stderr)
+    except BrokenPipeError:
+        return _quiet_stdout()
+    except (CliError, CaraFileError, CommandError, OSError, ValueError) as exc:
+        print(f"carapost {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"carapost {args.command}: error: out of memory", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("carapost: cancelled", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # the reader of our output went away (`carapost evaluate ... | head`): not an
-        # error of ours; point stdout at devnull so the interpreter's flush stays quiet
-        import os
-
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except Exception as exc:
+        if args.verbose:
+            raise
+        print(f"carapost {args.command}: error: unexpected {type(exc).__name__}: "
+              f"{_one_line(exc)} (run with -v for the details)", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -122,9 +122,11 @@ def check_output(path: str | Path, suffixes: str | tuple[str, ...]) -> Path:
     CaraFileError
         ``path`` is a folder or its folder does not exist.
     """
+    from carapost.io.atomic import checked_path
+
     if isinstance(suffixes, str):
         suffixes = (suffixes,)
-    p = Path(path)
+    p = checked_path(path)  # empty names and NUL bytes first
     if p.suffix.lower() not in suffixes:
         allowed = " or ".join(suffixes)
         raise OutputNameError(p, f"the output must be a {allowed} file (the file name must "
@@ -222,6 +224,7 @@ def export_c3d(
     frame_range: FrameRange = "all",
     include_brim: bool = False,
     stabilized: bool = False,
+    residual: str = "sigma",
 ) -> Path:
     """Export points as C3D (File > Export C3D).
 
@@ -237,6 +240,10 @@ def export_c3d(
     stabilized : bool
         Write stabilised (and aligned) coordinates: needs a stabilised or aligned
         project; frames outside the stabilised range are written as gaps.
+    residual : {"sigma", "rays"}
+        What the residual word (the spec's "average residual", mm) holds: ``"sigma"``
+        the sample's estimated 3D error standard deviation where it has one, else its
+        RMS distance to its rays; ``"rays"`` always the distance to the rays.
 
     Returns
     -------
@@ -244,9 +251,9 @@ def export_c3d(
 
     Notes
     -----
-    Residuals are the points' residuals, the camera contribution mask comes from
-    `carapost.model.queries.contribution_mask`, interpolated and filtered samples are
-    written as modified (a stabilised sample is a measurement in other coordinates: a
+    Residuals are as ``residual`` says (docs/file-formats.md), the camera contribution
+    mask comes from `carapost.model.queries.contribution_mask`, interpolated and filtered
+    samples are written as modified (a stabilised sample is a measurement in other coordinates: a
     rigid change of frame does not clear its camera mask), the first frame number is
     the burnt-in number (index + 1) and the start timecode is that of the first exported
     frame.
@@ -255,6 +262,8 @@ def export_c3d(
     from carapost.model.queries import contribution_mask
 
     path = check_output(path, ".c3d")
+    if residual not in ("sigma", "rays"):
+        raise ValueError(f"residual must be 'sigma' or 'rays', got {residual!r}")
     a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim,
                                                      stabilized)
     pts = project.points
@@ -264,12 +273,16 @@ def export_c3d(
     mask = None
     if 1 <= len(cams) <= 16:
         mask = contribution_mask(project, (a, b))[:, cols]
+    res = pts.residual[sl][:, cols].astype(np.float64)
+    if residual == "sigma":
+        sig = pts.arrays["sigma"][sl][:, cols].astype(np.float64)
+        res = np.where(np.isfinite(sig), sig, res)
     write_c3d(
         path,
         positions,
         labels=labels,
         rate=project.take.fps,
-        residuals=pts.residual[sl][:, cols].astype(np.float64),
+        residuals=res,
         camera_mask=mask,
         modified=np.isin(recon, (RECON_INTERPOLATED, RECON_FILTERED)),
         first_frame=a + 1,
@@ -279,6 +292,21 @@ def export_c3d(
     )
     log.info("Exported %d points x %d frames to %s", len(cols), b - a + 1, path)
     return path
+
+
+def export_sigma_csv(project: Project, path: str | Path, *, frame_range: FrameRange = "all",
+                     include_brim: bool = False, stabilized: bool = False) -> Path:
+    """Write the per-sample uncertainty sidecar CSV of an export
+    (`carapost.io.sigma_csv`): the same points, frames and coordinates as `export_c3d`
+    (a rigid change of frame leaves the error's size as it was)."""
+    from carapost.io.sigma_csv import write_sigma_csv
+
+    path = check_output(path, ".csv")
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim,
+                                                     stabilized)
+    sl = slice(a, b + 1)
+    return write_sigma_csv(path, positions, project.points.arrays["sigma"][sl][:, cols],
+                           project.points.recon[sl][:, cols], labels, first_frame=a + 1)
 
 
 def export_fbx(

@@ -16,6 +16,13 @@ shared-memory block with a slot per array in flight (a copy of ~0.1 ms instead o
 (another camera size) is pickled instead. Task functions and their arguments must be
 picklable (module-level functions).
 
+Worker processes never outlive the program: each one asks the kernel for SIGKILL when
+its parent ends (Linux ``PR_SET_PDEATHSIG``) and watches its parent's pid (every
+platform), so even a program killed with SIGKILL leaves no process behind; the
+forkserver ends by itself when the program's end closes its pipe. A pool with no work
+for ``idle_s`` seconds stops its processes, so a window left open does not hold their
+memory (~120 MB each); the next batch starts new ones.
+
 Examples
 --------
 >>> import numpy as np
@@ -28,8 +35,13 @@ Examples
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing as mp
+import os
+import signal
+import sys
 import threading
+import time
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -43,9 +55,68 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["ProcessPool", "map_arrays"]
+__all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays"]
 
 K = TypeVar("K", bound=Hashable)
+
+#: Seconds without work after which a pool stops its worker processes.
+IDLE_SHUTDOWN_S = 120.0
+_PR_SET_PDEATHSIG = 1
+
+
+def lifeline(parent: int | None = None, every_s: float = 0.5, *,
+             pdeathsig: bool = True) -> None:
+    """End this process as soon as its parent process ends.
+
+    Called at the start of every worker process. On Linux the kernel sends SIGKILL
+    when the parent ends (``prctl(PR_SET_PDEATHSIG)``; it is safe here because worker
+    processes are forked by their parent's main thread); a daemon thread also checks
+    every ``every_s`` seconds that the parent is still the one the process started with
+    (any platform, and the case of a parent that died before the call).
+
+    Parameters
+    ----------
+    parent : int, optional
+        Pid of the parent to follow (default: the current parent).
+    every_s : float
+        Polling period of the watchdog thread (seconds).
+    pdeathsig : bool
+        Also ask the kernel (Linux); only valid when the parent's thread that started
+        this process lives as long as the parent does.
+    """
+    parent = os.getppid() if parent is None else int(parent)
+    if pdeathsig and sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+            pass
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(every_s)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="carapost-lifeline", daemon=True).start()
+
+
+# The program sets this to its pid before it starts a forkserver; the forkserver imports
+# this module (preload) and so follows the program with a watchdog. (No parent-death
+# signal there: the forkserver may be started from a worker thread, and the kernel
+# sends that signal when the starting *thread* ends.)
+_PARENT_ENV = "CARAPOST_PARENT_PID"
+if os.environ.get(_PARENT_ENV) == str(os.getppid()):
+    lifeline(os.getppid(), pdeathsig=False)
+
+
+def _init_worker(initializer: Callable[[], None] | None) -> None:
+    """Initialiser of every pool process: the lifeline, then the pool's own."""
+    lifeline()
+    if initializer is not None:
+        initializer()
 
 
 class ProcessPool:
@@ -72,12 +143,57 @@ class ProcessPool:
     """
 
     def __init__(self, initializer: Callable[[], None] | None = None,
-                 preload: Sequence[str] = ()) -> None:
+                 preload: Sequence[str] = (), idle_s: float | None = IDLE_SHUTDOWN_S
+                 ) -> None:
         self._initializer = initializer
         self._preload = list(preload)
         self._lock = threading.Lock()
         self._executor: ProcessPoolExecutor | None = None
         self._workers = 0
+        self.idle_s = idle_s
+        self._users = 0  # batches running on the executor
+        self._idle_timer: threading.Timer | None = None
+
+    @property
+    def running(self) -> bool:
+        """Whether worker processes are up."""
+        return self._executor is not None
+
+    def pids(self) -> list[int]:
+        """Pids of the worker processes (empty when none run)."""
+        with self._lock:
+            procs = getattr(self._executor, "_processes", None) or {}
+            return sorted(int(p) for p in procs)
+
+    def acquire(self, workers: int) -> ProcessPoolExecutor:
+        """`executor` for one batch; call `release` when the batch is done (the idle
+        shutdown counts from the last release)."""
+        with self._lock:
+            self._users += 1
+            if self._idle_timer is not None:
+                self._idle_timer.cancel()
+                self._idle_timer = None
+        return self.executor(workers)
+
+    def release(self) -> None:
+        """A batch is done: stop the processes after ``idle_s`` seconds without work."""
+        with self._lock:
+            self._users = max(self._users - 1, 0)
+            if self._users or self.idle_s is None or self._executor is None:
+                return
+            if self._idle_timer is not None:
+                self._idle_timer.cancel()
+            self._idle_timer = threading.Timer(self.idle_s, self._shutdown_if_idle)
+            self._idle_timer.daemon = True
+            self._idle_timer.start()
+
+    def _shutdown_if_idle(self) -> None:
+        with self._lock:
+            if self._users or self._executor is None:
+                return
+            executor, self._executor = self._executor, None
+            self._idle_timer = None
+        executor.shutdown(wait=True, cancel_futures=True)
 
     def executor(self, workers: int) -> ProcessPoolExecutor:
         """The executor with ``workers`` processes: the running one, or a new one when
@@ -88,20 +204,24 @@ class ProcessPool:
                 self._executor.shutdown(wait=False, cancel_futures=True)
                 self._executor = None
             if self._executor is None:
+                os.environ[_PARENT_ENV] = str(os.getpid())
                 if "forkserver" in mp.get_all_start_methods():
                     ctx = mp.get_context("forkserver")
-                    if self._preload:
-                        ctx.set_forkserver_preload(self._preload)
+                    ctx.set_forkserver_preload(["carapost.parallel", *self._preload])
                 else:
                     ctx = mp.get_context("spawn")
                 self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                                     initializer=self._initializer)
+                                                     initializer=_init_worker,
+                                                     initargs=(self._initializer,))
                 self._workers = workers
             return self._executor
 
     def shutdown(self) -> None:
         """Stop the worker processes (a later batch starts new ones)."""
         with self._lock:
+            if self._idle_timer is not None:
+                self._idle_timer.cancel()
+                self._idle_timer = None
             if self._executor is not None:
                 self._executor.shutdown(wait=True, cancel_futures=True)
                 self._executor = None
@@ -207,7 +327,7 @@ def map_arrays(
     thread_pool = None
     shm = None
     if pool is not None:
-        executor = pool.executor(workers)
+        executor = pool.acquire(workers)
         free_slots: list[int] = list(range(max_in_flight * chunk))
         slot_of: dict[Future, list[int]] = {}
         slot_bytes = 0
@@ -285,4 +405,6 @@ def map_arrays(
         if shm is not None:
             shm.close()
             shm.unlink()
+        if pool is not None:
+            pool.release()
     return results

@@ -45,6 +45,7 @@ __all__ = [
     "detect_all",
     "initialise",
     "process_take",
+    "remove_spurious",
     "stabilise_take",
     "track_all",
     "write_outputs",
@@ -272,6 +273,17 @@ def track_all(session: Session, *, patch_tracking: bool = False,
             raise RuntimeError("cancelled during tracking; nothing was written")
 
 
+def remove_spurious(session: Session) -> list[dict[str, str]]:
+    """Stage: Remove Spurious Points (tracked face points that are not markers) before
+    anything is written; returns ``{"label", "reason"}`` of each removed point (logged)."""
+    cmd = session.remove_spurious_points(quiet=True)
+    removed = [] if cmd is None else [{"label": lab, "reason": why}
+                                      for lab, why in cmd.removed]  # type: ignore[attr-defined]
+    for r in removed:
+        log.warning("Removed point %s: %s", r["label"], r["reason"])
+    return removed
+
+
 def stabilise_take(session: Session, mode: str) -> str:
     """Stage: Stabilize Data over the whole take, without a selection.
 
@@ -319,10 +331,18 @@ def write_outputs(session: Session, inputs: TakeInputs, *, stabilized: bool = Fa
     """Stage: save the project, then the exports (each file atomically; stabilised
     coordinates when ``stabilized``)."""
     written = session.save(inputs.output)
-    result: dict[str, str | None] = {"project": str(written), "c3d": None, "fbx": None}
+    result: dict[str, str | None] = {"project": str(written), "c3d": None, "fbx": None,
+                                     "sigma_csv": None}
     if inputs.c3d is not None:
+        from carapost.export import export_sigma_csv
+        from carapost.io.sigma_csv import sidecar_path
+
         result["c3d"] = str(session.export_c3d(inputs.c3d, **{**PROCESS_EXPORT,
                                                               "stabilized": stabilized}))
+        result["sigma_csv"] = str(export_sigma_csv(
+            session.project, sidecar_path(inputs.c3d),
+            frame_range=PROCESS_EXPORT["frame_range"],
+            include_brim=PROCESS_EXPORT["include_brim"], stabilized=stabilized))
     if inputs.fbx is not None:
         result["fbx"] = str(session.export_fbx(inputs.fbx, **{**PROCESS_FBX_EXPORT,
                                                               "stabilized": stabilized}))
@@ -377,11 +397,12 @@ def process_take(
     Returns
     -------
     dict
-        ``project``, ``c3d``, ``fbx`` (paths written or None), ``frames``, ``cameras``,
+        ``project``, ``c3d``, ``fbx``, ``sigma_csv`` (the C3D's per-sample uncertainty
+        sidecar, `carapost.io.sigma_csv`) (paths written or None), ``frames``, ``cameras``,
         ``points`` (face points), ``brim_points``, ``initialised`` (face points at the
         first frame), ``tracked_fraction`` (face point-frames with 3D / point-frames),
-        ``brim_source``, ``seconds`` per stage, ``stabilization`` (the errors, or
-        None).
+        ``brim_source``, ``removed_points`` (``{"label", "reason"}`` of each point Remove
+        Spurious Points deleted), ``seconds`` per stage.
 
     Raises
     ------
@@ -436,6 +457,7 @@ def process_take(
         track_all(session, patch_tracking=patch_tracking,
                   progress=None if progress is None else track_progress)
         seconds["track"] = time.perf_counter() - t0
+        removed = remove_spurious(session)
     stab_message = None
     if stabilize is not None:
         t0 = time.perf_counter()
@@ -452,6 +474,7 @@ def process_take(
         "initialised": n_init,
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
         "brim_source": brim_source if inputs.rom is None else "ROM",
+        "removed_points": removed,
         "seconds": {k: round(v, 2) for k, v in seconds.items()},
         "stabilization": stab_message,
     })

@@ -28,7 +28,9 @@ NOT_OURS = {
 #: Where a guide table lands in the registry when the name differs.
 SECTION_OF = {"Tracker pane": "Target Tracker"}
 #: Our sections the guide does not have, and why.
-OURS_ONLY = {"Triangulation Parameters": "our own triangulation settings (FreeMoCap-style)"}
+OURS_ONLY = {"Triangulation Parameters": "our own triangulation settings (FreeMoCap-style)",
+             "Clean-up Parameters": "our own gap-filling method, filtering and Find Problems "
+                                    "settings"}
 #: Guide rows that are more than one property, or not a property at all.
 LABELS_OF = {
     ("Tracker pane", "Stop after N Frames, N="): ("Stop after N Frames", "N"),

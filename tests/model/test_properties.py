@@ -51,6 +51,7 @@ def test_every_section_present_and_in_display_order():
         "Tracking Parameters",
         "Triangulation Parameters",
         "Gap-Filling Parameters",
+        "Clean-up Parameters",
         "Stabilization Parameters",
         "Export",
         "Target Tracker",
@@ -262,10 +263,10 @@ def test_section_feeds_algorithm_parameters(cls):
     declared = property_fields(cls)
     section = declared[0][1].section
     values = Properties().section(section)
-    assert list(values) == [f.name for f, _ in declared]
+    assert list(values) == [info.key or f.name for f, info in declared]
     assert from_mapping(cls, values) == cls() == from_mapping(cls, Properties())
     for f, info in declared:
-        s = spec(f.name)
+        s = spec(info.key or f.name)
         assert (s.label, s.default, s.unit, s.help) == (info.label, f.default, info.unit,
                                                          info.help)
         assert (s.minimum, s.maximum, s.min_exclusive, s.max_exclusive) == (

@@ -58,6 +58,7 @@ __all__ = [
     "BLOB",
     "INITIALIZE_3D",
     "INITIALIZE_FROM_ROM",
+    "TARGET_TRACKER",
     "TRACKING",
     "TRIANGULATION",
     "Allowed",
@@ -81,6 +82,7 @@ INITIALIZE_3D = "Initialize 3D Parameters"
 INITIALIZE_FROM_ROM = "Initialize From ROM Parameters"
 TRACKING = "Tracking Parameters"
 TRIANGULATION = "Triangulation Parameters"
+TARGET_TRACKER = "Target Tracker"
 
 #: Key of :class:`ParamInfo` in ``dataclasses.Field.metadata``.
 _META = "carapost.param"

@@ -439,8 +439,9 @@ class RemoveInterpolated3DPoints(Command):
         fr = _frames(project, self.frames)
         interp = pts.recon[fr][:, cols] == RECON_INTERPOLATED
         # a few samples of a long block change: save only those (masked diff)
-        journal.point_mask(fr, cols, interp, _POSITION_ARRAYS)
-        for name, fill in (("positions", np.nan), ("residual", np.nan), ("recon", RECON_NONE)):
+        journal.point_mask(fr, cols, interp, _POSITION_ARRAYS + ("sigma",))
+        for name, fill in (("positions", np.nan), ("residual", np.nan), ("recon", RECON_NONE),
+                           ("sigma", np.nan)):
             sub = pts.arrays[name][fr]
             block = sub[:, cols]
             block[interp] = fill

@@ -590,6 +590,10 @@ class CommandStack:
             for i, c in enumerate(self._commands)
         ]
 
+    def applied(self) -> list[Command]:
+        """The commands currently applied (not undone), oldest first."""
+        return list(self._commands[: self._position])
+
     def memory(self) -> int:
         """Bytes held by the whole history."""
         return sum(c.memory() for c in self._commands)

@@ -43,6 +43,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.io.atomic import check_input_file
+from carapost.io.decode import AVReader, av_available
 from carapost.io.errors import CaraFileError
 
 log = logging.getLogger("carapost.io")
@@ -151,6 +153,7 @@ class VideoSource:
         self._seek_ok: bool | None = {"auto": None, "seek": True, "decode": False}[seek]
         self._files: list[Path] = []
         self._frame0: NDArray[np.uint8] | None = None
+        self._reader: AVReader | None = None
         self.fps = 0.0
         if not self.path.exists():
             raise CaraFileError(self.path, "no such file or folder")
@@ -164,7 +167,18 @@ class VideoSource:
                 )
             first = self._read_image(0)
             self.n_frames = len(self._files)
+        elif seek != "decode" and av_available():
+            # FFmpeg's demuxer with a keyframe index: exact seeks at a keyframe interval's
+            # cost (OpenCV's seek re-reads from far back: ~0.9 s per jump on FFV1).
+            check_input_file(self.path)  # a FIFO or device would block the demuxer
+            self._reader = AVReader(self.path)
+            self.n_frames = self._reader.n_frames
+            self.fps = self._reader.fps
+            self._seek_ok = True
+            first = self._reader.read(0)
+            self._frame0 = first
         else:
+            check_input_file(self.path)  # a FIFO or device would block the demuxer
             self._open()
             self.n_frames = int(round(self._cap.get(cv2.CAP_PROP_FRAME_COUNT)))
             fps = float(self._cap.get(cv2.CAP_PROP_FPS))
@@ -204,6 +218,8 @@ class VideoSource:
         self._next = 0
 
     def _release(self) -> None:
+        if self._reader is not None:
+            self._reader.close()
         if self._cap is not None:
             self._cap.release()
             self._cap = None
@@ -256,14 +272,20 @@ class VideoSource:
 
     def _read_image(self, index: int) -> NDArray[np.uint8]:
         file = self._files[index]
-        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise CaraFileError(file, "cannot be read as an image (damaged or unsupported)")
-        return _to_gray(image)
+        check_input_file(file)  # a FIFO named like an image would block imread
+        try:
+            image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise CaraFileError(file, "cannot be read as an image (damaged or unsupported)")
+            return _to_gray(image)
+        except cv2.error as exc:  # OpenCV refuses some damaged headers with an exception
+            raise CaraFileError(file, f"cannot be read as an image ({exc.err or exc})") from None
 
     def _read_video(self, index: int) -> NDArray[np.uint8]:
         if index == 0 and self._frame0 is not None:
             return self._frame0.copy()
+        if self._reader is not None:
+            return self._reader.read(index)
         if self._cap is None:
             self._open()
         if index != self._next:
@@ -337,6 +359,20 @@ class VideoSource:
         Returns the (possibly corrected) ``n_frames``.
         """
         if self.is_sequence or self.n_frames < 2:
+            return self.n_frames
+        if self._reader is not None:
+            # The keyframe index counted the packets; a file cut mid-packet leaves a
+            # last frame that does not decode.
+            with self._lock:
+                while self.n_frames > 1:
+                    try:
+                        self._reader.read(self.n_frames - 1)
+                        break
+                    except CaraFileError:
+                        self.n_frames -= 1
+                        self._reader.n_frames = self.n_frames
+                        log.warning("%s: the last frame does not decode; using %d frames",
+                                    self.path.name, self.n_frames)
             return self.n_frames
         with self._lock:
             if self._cap is None:

@@ -10,10 +10,9 @@ project file all read this one table.
 The algorithm sections are not written here: they are generated from the fields of the
 algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
 ``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``,
-``StabilizationParameters``), which declare
-label, unit, range and help once with :func:`carapost.algorithms.params.param`. Display,
-Selection, Gap-Filling, Export and Target Tracker have no parameter class
-yet and are declared below by hand.
+``StabilizationParameters``, ``TargetTrackerParameters``), which declare label, unit,
+range and help once with :func:`carapost.algorithms.params.param`. Display, Selection,
+Gap-Filling and Export have no parameter class yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
 no range (or no default), the value is our choice and the help text says so. The guide's
@@ -45,11 +44,14 @@ from typing import Any
 
 from carapost.algorithms import params as _params
 from carapost.algorithms.blobs import BlobParameters
+from carapost.algorithms.cleanup import CleanupParameters
+from carapost.algorithms.gapfill import CLEAN_UP, GAP_FILLING, GapFillParameters
 from carapost.algorithms.init3d import Init3DParameters
 from carapost.algorithms.params import (
     BLOB,
     INITIALIZE_3D,
     INITIALIZE_FROM_ROM,
+    TARGET_TRACKER,
     TRACKING,
     TRIANGULATION,
     check_value,
@@ -57,6 +59,7 @@ from carapost.algorithms.params import (
 )
 from carapost.algorithms.rom import RomParameters
 from carapost.algorithms.stabilise import StabilizationParameters
+from carapost.algorithms.target_track import TargetTrackerParameters
 from carapost.algorithms.tracking import TrackingParameters
 from carapost.algorithms.triangulation import TriangulationParameters
 
@@ -80,10 +83,8 @@ __all__ = [
 # carapost.algorithms.params, beside the fields that fill them.
 DISPLAY = "Display"
 SELECTION = "Selection"
-GAP_FILLING = "Gap-Filling Parameters"
 STABILIZATION = "Stabilization Parameters"
 EXPORT = "Export"
-TARGET_TRACKER = "Target Tracker"
 
 #: Keys that older project files may hold but that are now user settings
 #: (carapost.ui.settings.PREFERENCES): purely GUI preferences do not belong to a take.
@@ -271,6 +272,9 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     TrackingParameters,
     TriangulationParameters,
     StabilizationParameters,
+    TargetTrackerParameters,
+    GapFillParameters,
+    CleanupParameters,
 )
 
 _KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
@@ -311,7 +315,8 @@ def specs_from_parameters(cls: type) -> tuple[PropertySpec, ...]:
 
 _ALGORITHM_SPECS: tuple[PropertySpec, ...] = tuple(
     s for cls in PARAMETER_CLASSES if cls is not StabilizationParameters
-    for s in specs_from_parameters(cls))
+    for s in specs_from_parameters(cls)
+    if s.section != TARGET_TRACKER)  # the Tracker pane's settings come last
 # the Stabilization section comes after Gap-Filling, as in the guide
 _STABILIZATION_SPECS = specs_from_parameters(StabilizationParameters)
 
@@ -341,18 +346,6 @@ SPECS: tuple[PropertySpec, ...] = (
        help="Sticks can be picked in the 2D and 3D views."),
     # --- Blob, Initialize 3D, Initialize From ROM, Tracking, Triangulation ----------
     *_ALGORITHM_SPECS,
-    # --- Gap-Filling Parameters -------------------------------------------------------
-    _p(GAP_FILLING, "overwrite_existing_filled_gaps", "Overwrite Existing Filled Gaps", bool,
-       False,
-       help="Recompute frames filled earlier (points with at most one attached detection)."),
-    _p(GAP_FILLING, "use_forwards_prediction", "Use Forwards Prediction", bool, True,
-       help="Use the point before the gap when filling it."),
-    _p(GAP_FILLING, "use_backwards_prediction", "Use Backwards Prediction", bool, True,
-       help="Use the point after the gap when filling it."),
-    _p(GAP_FILLING, "allow_single_sensor_gap_filling",
-       "Allow Single Sensor Tracking Gap-Filling", bool, True,
-       help="Where one camera still sees the marker, keep the filled point on that camera's "
-            "ray."),
     # --- Stabilization Parameters (StabilizationParameters, algorithms/stabilise.py) --
     *_STABILIZATION_SPECS,
     # --- Export (contents are ours: the guide names the section only) -----------------
@@ -372,29 +365,7 @@ SPECS: tuple[PropertySpec, ...] = (
     _p(EXPORT, "fbx_include_sticks", "FBX Include Sticks", bool, False,
        help="Write sticks between points into the FBX as line geometry." + _OURS_DEFAULT),
     # --- Target Tracker (Tracker pane settings) ---------------------------------------
-    _p(TARGET_TRACKER, "tracker_stop_after_n_frames", "Stop after N Frames", bool, False,
-       help="Limit each track forward/backward run to N frames." + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_n_frames", "N", int, 10, 1, 1_000_000, unit="frames",
-       help="Number of frames a limited run covers." + _OURS_DEFAULT + _OURS_RANGE),
-    _p(TARGET_TRACKER, "tracker_overwrite_existing_tracks", "Overwrite Existing Tracks", bool,
-       False,
-       help="Replace 2D data the selected points already have while tracking."
-            + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_auto_add_keyframes", "Automatically Add Keyframes", bool,
-       True,
-       help="Key the selected points at the current frame before tracking if they have no "
-            "keyframe there." + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_stop_on_next_keyframe", "Stop On Next Keyframe", bool, True,
-       help="Stop when any selected point reaches a keyframe in any camera."
-            + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_allow_single_sensor_tracking", "Allow Single Sensor Tracking",
-       bool, True,
-       help="Reconstruct a target-tracked point from one camera by keeping it on that "
-            "camera's ray." + _OURS_DEFAULT),
-    _p(TARGET_TRACKER, "tracker_break_threshold", "Break Threshold", float, 0.9, 0.0, 1.0,
-       unit="0-1",
-       help="Minimum match between the tracked patch and the keyframe patches; higher "
-            "stops sooner but drifts less."),
+    *specs_from_parameters(TargetTrackerParameters),
 )
 # fmt: on
 
@@ -408,6 +379,7 @@ SECTIONS: tuple[str, ...] = (
     TRACKING,
     TRIANGULATION,
     GAP_FILLING,
+    CLEAN_UP,
     STABILIZATION,
     EXPORT,
     TARGET_TRACKER,

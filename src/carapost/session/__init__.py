@@ -50,6 +50,7 @@ from carapost.commands import file as file_commands
 from carapost.commands.stack import Command, CommandError, CommandStack, HistoryEntry
 from carapost.export import ExportOptions
 from carapost.model.project import Project, new_project
+from carapost.session.gapfill import GapFillActions
 from carapost.session.process import (
     PROCESS_ACTIONS,
     ImageFn,
@@ -57,7 +58,9 @@ from carapost.session.process import (
     ProgressFn,
     one_of,
 )
+from carapost.session.quality import QualityActions
 from carapost.session.stabilise import StabiliseActions
+from carapost.session.target import TargetActions
 
 log = logging.getLogger("carapost.session")
 
@@ -96,7 +99,8 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions, StabiliseActions):
+class Session(ProcessActions, QualityActions, StabiliseActions, TargetActions,
+              GapFillActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
@@ -123,30 +127,31 @@ class Session(ProcessActions, StabiliseActions):
         self.stack = CommandStack(self.project)
         self._get_image = get_image
         self._frames: Any = None
+        #: The autosave copy found newer than the file at `open` (None: none was).
+        self.newer_autosave: Path | None = None
 
     # ====================================================================================
     # construction, images, closing
     # ====================================================================================
     @classmethod
     def open(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
-             get_image: ImageFn | None = None, source: str | Path | None = None) -> Session:
+             get_image: ImageFn | None = None, source: str | Path | None = None,
+             recover: bool | None = None) -> Session:
         """File > Open: a session on a ``.cara`` project (a fresh History).
 
         Videos that moved are looked for beside the project, then ``relocate(camera,
         missing_path)`` is asked (see `relocate_files` to fix them afterwards).
         ``source``: read this file instead (the recovered autosave copy of ``path``); the
         project belongs to ``path`` and stays modified until it is saved.
+        ``recover``: what to do when an autosave copy newer than ``path`` exists (the
+        program stopped before saving): True opens the copy, False opens ``path``
+        silently, None (the default) opens ``path``, warns (`NewerAutosaveWarning`) and
+        sets ``session.newer_autosave`` to the copy's path.
         """
-        from carapost.io.cara import load_project
+        from carapost.session.recovery import open_with_recovery
 
-        recovered = source is not None and Path(source) != Path(path)
-        project = load_project(source if recovered else path, relocate=relocate)
-        project.path = str(Path(path).absolute())
-        project.modified = False
-        session = cls(project, get_image=get_image)
-        if recovered:  # the autosave copy differs from the file until it is saved
-            session.stack.mark_unsaved()
-        return session
+        return open_with_recovery(cls, path, relocate=relocate, get_image=get_image,
+                                  source=source, recover=recover)
 
     @classmethod
     def import_take(cls, path: str | Path, *, relocate: RelocateCallback | None = None,

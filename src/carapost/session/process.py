@@ -39,7 +39,7 @@ ImageFn = Callable[[int, int], NDArray[np.uint8]]
 #: and a synchronous method of the same name).
 PROCESS_ACTIONS = ("detect_blobs", "solve_brim", "initialize_3d", "bundle_current_frame",
                    "bundle_sequence", "track", "track_take", "initialize_from_rom",
-                   "stabilize")
+                   "stabilize", "interpolate_gaps", "filter_trajectories")
 
 
 def one_of(value: str, choices: Sequence[str], what: str) -> str:

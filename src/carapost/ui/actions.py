@@ -26,12 +26,13 @@ from functools import partial
 from typing import Any
 
 from carapost.session import Session
+from carapost.ui.handlers import cleanup, navigation
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.handlers import file as file_menu
 from carapost.ui.handlers import help as help_menu
 from carapost.ui.handlers import inspect as inspect_menu
-from carapost.ui.handlers import navigation
 from carapost.ui.handlers import process as process_menu
+from carapost.ui.handlers import target as target_menu
 from carapost.ui.handlers import view as view_menu
 
 NOT_AVAILABLE = "Not available yet"
@@ -120,6 +121,8 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("file.import_brim", "File", "Import Calibration Brim [svg]...", "",
        file_menu.import_brim),
     _A("file.import_xcp", "File", "Import XCP...", "", file_menu.import_xcp),
+    _A("file.import_c3d", "File", "Import C3D...", "", cleanup.import_c3d,
+       tip="A new project from the 3D points and labels of any C3D file"),
     _A("file.import_labels_cara", "File", "Import Labels From Cara File...", "",
        partial(file_menu.import_labels, kind="cara"), separator=True),
     _A("file.import_labels_text", "File", "Import Labels From Text File...", "",
@@ -152,12 +155,13 @@ ACTIONS: tuple[ActionSpec, ...] = (
        separator=True),
     _A("edit.increment_offset", "Edit", "Increment Image Sequence Offset", "",
        _do(S.increment_image_sequence_offset)),
-    # the Target Tracker's items wait for carapost.commands.target_track
-    _A("edit.add_target_track", "Edit", "Add Target Track", "Shift+A", separator=True),
-    _A("edit.edit_target_track", "Edit", "Edit Target Track", "Shift+E"),
+    _A("edit.add_target_track", "Edit", "Add Target Track", "Shift+A",
+       partial(target_menu.set_mode, mode="add"), separator=True),
+    _A("edit.edit_target_track", "Edit", "Edit Target Track", "Shift+E",
+       partial(target_menu.set_mode, mode="edit")),
     _A("edit.stop_point_edit", "Edit", "Stop Point Edit mode", "Shift+S",
-       partial(edit_menu.point_edit_mode, mode="")),
-    _A("edit.gaps_to_keys", "Edit", "Gaps To Keys", ""),
+       partial(target_menu.set_mode, mode="")),
+    _A("edit.gaps_to_keys", "Edit", "Gaps To Keys", "", target_menu.gaps_to_keys),
     _A("edit.remove_unused", "Edit", "Remove Unused Detections", "",
        _do(S.remove_unused_detections), separator=True),
     _A("edit.remove_interpolated", "Edit", "Remove Interpolated 3D Points", "",
@@ -198,6 +202,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.play", "View", "Play", "Space", navigation.toggle_play, checkable=True),
     _A("view.next", "View", "Next Frame", "Right", partial(navigation.step, delta=1)),
     _A("view.prev", "View", "Prev Frame", "Left", partial(navigation.step, delta=-1)),
+    _A("view.build_proxies", "View", "Build Playback Proxies", "", navigation.build_proxies),
     _A("view.lock", "View", "Lock To Point", "", navigation.toggle_lock, checkable=True),
     _A("view.next_key", "View", "Next Key Frame", "Shift+Right",
        partial(navigation.step_key, delta=1)),
@@ -264,8 +269,10 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("process.align", "Process", "Align Data", "", process_menu.align_data),
     _A("process.remove_stab", "Process", "Remove Stabilization", "",
        process_menu.remove_stabilization),
-    # Interpolate waits for its algorithm
-    _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
+    _proc("process.interpolate", "Interpolate Gaps", "interpolate_gaps", separator=True),
+    _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
+    _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
+       tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,
        tip="Open the project's documentation"),

@@ -33,6 +33,8 @@ from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
+from carapost.ui.proxies import ProxyBuilder
+from carapost.ui.settings import build_proxies, frame_cache_mb
 
 log = logging.getLogger("carapost.ui")
 
@@ -105,6 +107,10 @@ class ViewContext(QObject):
         A view asks to go to a frame.
     range_requested(int, int)
         A view asks for this active range (Ctrl+drag on the continuity chart or graph).
+    point_clicked(int, float, float)
+        A click at image (x, y) of a camera in Add / Edit Target Track mode.
+    keyframe_moved(int, int, float, float)
+        A selected keyframe (camera, point id) was dragged to image (x, y).
     """
 
     changed = Signal(object)
@@ -113,10 +119,14 @@ class ViewContext(QObject):
     frame_ready = Signal(int, int)
     frame_requested = Signal(int)
     range_requested = Signal(int, int)
+    point_clicked = Signal(int, float, float)
+    keyframe_moved = Signal(int, int, float, float)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self.project: Project = new_project(0, 0)
+        #: Target Track point edit mode shown in the camera views ("add", "edit", "")
+        self.point_mode = ""
         self.frames: FrameSource = FrameSource()
         self.options = DisplayOptions()
         self.preselected: int | None = None  # point id under the mouse
@@ -146,9 +156,12 @@ class ViewContext(QObject):
 
     def projections(self, frame: int) -> NDArray[np.float64] | None:
         """Every point projected into every camera at ``frame``: [P, C, 2] px, NaN if none."""
-        if frame in self._proj_cache:
-            return self._proj_cache[frame]
         p = self.project
+        cached = self._proj_cache.get(frame)
+        # an entry made before a point was added (the change event is still queued) has
+        # the old point count: recompute it
+        if frame in self._proj_cache and (cached is None or len(cached) == p.n_points):
+            return cached
         cal = p.calibration
         out = None
         if (cal.intrinsics is not None and p.n_points and 0 <= frame < p.n_frames
@@ -307,9 +320,21 @@ class ActionContext(QObject):
         self.point_mode = ""
         self.last_error = ""
         self.view.properties_requested.connect(self.set_properties)
+        self.view.point_clicked.connect(self._point_clicked)
+        self.view.keyframe_moved.connect(self._keyframe_moved)
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
+        self.proxies = ProxyBuilder(self)
+
+    def _point_clicked(self, camera: int, x: float, y: float) -> None:
+        from carapost.ui.handlers.target import clicked
+
+        clicked(self, camera, x, y)
+
+    def _keyframe_moved(self, camera: int, point: int, x: float, y: float) -> None:
+        self.act("Drag Keyframe", self.session.edit_target_track, point, camera,
+                 self.project.current_frame, (x, y))
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -359,9 +384,11 @@ class ActionContext(QObject):
         session.stack.on_change = self.history_changed.emit
         project = session.project
         if frames is None:
-            frames = frame_source_for(project, on_ready=self.on_frame_ready)
+            frames = self.video_frames(project)
+        self.proxies.stop()
         self.view.set_project(project, frames)
         self._bind_images()
+        self._start_proxies()
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
@@ -372,17 +399,36 @@ class ActionContext(QObject):
         frames = self.view.frames
         self.session.set_image_source(frames.require if frames.has_images else None)
 
+    def _start_proxies(self) -> None:
+        # Proxies already written are used at once; missing ones are written in the
+        # background when the user wants that (View > Build Playback Proxies otherwise).
+        frames = self.view.frames
+        if not hasattr(frames, "attach_proxies"):
+            return
+        if build_proxies(self.settings):
+            self.proxies.start(frames)
+        else:
+            frames.attach_proxies()
+
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
+        self.proxies.stop()
         self.view.frames.close()
         self.view.frames = frames
         self._bind_images()
+        self._start_proxies()
         for view in self.shell.all_views() if self.shell is not None else ():
             view.refresh(None)
 
     def reload_frames(self) -> None:
         """Open the project's videos again (after their paths changed)."""
-        self.set_frames(frame_source_for(self.project, on_ready=self.on_frame_ready))
+        self.set_frames(self.video_frames(self.project))
+
+    def video_frames(self, project: Project) -> FrameSource:
+        """The frame service of ``project``'s videos, its cache sized by the user's
+        setting (none when the take has no videos)."""
+        return frame_source_for(project, on_ready=self.on_frame_ready,
+                                cache_mb=frame_cache_mb(self.settings))
 
     def refuse_busy(self, what: str) -> bool:
         """True (and the refusal shown in the status bar) while a job is running."""
@@ -448,10 +494,12 @@ class ActionContext(QObject):
         p = self.project
         if p.n_frames == 0:
             return
-        p.set_current_frame(int(frame))
-        if self.playback.playing:
-            self.frames.prefetch(range(p.current_frame + 1, p.current_frame + 16),
-                                 list(range(p.n_cameras)))
+        frame = min(max(int(frame), 0), p.n_frames - 1)
+        step = frame - p.current_frame
+        # The decoders start before the views redraw; a step sets the read-ahead's
+        # direction, a jump keeps it.
+        self.frames.request(frame, None, direction=step if abs(step) == 1 else 0)
+        p.set_current_frame(frame)
 
     def on_frame_ready(self, frame: int, camera: int) -> None:
         """Decoder-thread callback: hop to the GUI thread through a queued signal."""
@@ -474,6 +522,7 @@ class ActionContext(QObject):
     def shutdown(self) -> None:
         """Stop playback and the worker, stop listening, close the images."""
         self.playback.stop()
+        self.proxies.stop()
         if self.runner.busy:
             self.runner.cancel()
             self.runner.wait(30)

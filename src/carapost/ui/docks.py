@@ -23,6 +23,7 @@ from carapost.ui.panes import (
     SelectionPane,
     TrackerPane,
 )
+from carapost.ui.problems import ProblemsPane
 
 Area = Qt.DockWidgetArea
 
@@ -58,6 +59,7 @@ PANES: tuple[PaneSpec, ...] = (
     PaneSpec("Properties", PropertiesPane, Area.LeftDockWidgetArea),
     PaneSpec("Selection", SelectionPane, Area.LeftDockWidgetArea, tab_with="Properties"),
     PaneSpec("Tracker", TrackerPane, Area.LeftDockWidgetArea, tab_with="Properties"),
+    PaneSpec("Find Problems", ProblemsPane, Area.RightDockWidgetArea, tab_with="History"),
 )
 
 

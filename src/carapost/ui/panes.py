@@ -233,9 +233,14 @@ class PropertiesPane(QWidget):
                 self.tree.setItemWidget(item, 1, editor)
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
-        if preferences is None and sections is None:
+        main_pane = preferences is None and sections is None
+        if main_pane:
             preferences = ("show_version_check_dialog",)
         self.preference_editors = self._add_preferences(preferences or (), preferences_title)
+        if main_pane:
+            from carapost.ui.frame_settings import add_frame_settings
+
+            self.frame_editors = add_frame_settings(self.tree, ctx)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 
@@ -382,8 +387,8 @@ class SelectionPane(QWidget):
 class TrackerPane(QWidget):
     """Target Tracker controls and settings.
 
-    The buttons stay disabled until ``carapost.commands.target_track`` exists; the
-    Target Tracker wires them to its handlers.
+    The buttons call the Target Tracker handlers (:mod:`carapost.ui.handlers.target`):
+    a track button reads Pause while its run is on the worker.
     """
 
     BUTTONS = (("<<", "Track back to start", "back_to_start"),
@@ -393,7 +398,7 @@ class TrackerPane(QWidget):
                ("Clear Tracked Points", "Clear Tracked Points", "clear"),
                ("Add Keyframe To Current Frame", "Add Keyframe To Current Frame",
                 "add_keyframe"))
-    REQUIRES = "carapost.commands.target_track:track_points"
+    REQUIRES = "carapost.commands.target_track:prepare_target_track"
 
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
@@ -423,10 +428,45 @@ class TrackerPane(QWidget):
         self.settings.tree.expandAll()
         layout.addWidget(self.settings, 1)
         self.settings_box.toggled.connect(self.settings.setVisible)
+        if available:
+            from carapost.ui.handlers.target import wire_tracker_pane
+
+            wire_tracker_pane(self, ctx)
+
+
+def sample_text(project: Any) -> str:
+    """One line on the selected point's sample at the current frame ("" unless exactly
+    one point is selected)."""
+    from carapost.algorithms.codes import (
+        RECON_FILTERED,
+        RECON_INTERPOLATED,
+        RECON_NAMES,
+        RECON_NONE,
+    )
+
+    ids = list(project.selection.points)
+    if len(ids) != 1 or ids[0] not in set(project.points.ids.tolist()):
+        return ""
+    col = int(project.points.index_of(ids)[0])
+    f = project.current_frame
+    if not 0 <= f < project.n_frames:
+        return ""
+    recon = int(project.points.recon[f, col])
+    text = f"{project.point_label(col)} at frame {f}: {RECON_NAMES.get(recon, '?')}"
+    sig = float(project.points.sigma[f, col])
+    if recon in (RECON_INTERPOLATED, RECON_FILTERED):
+        if np.isfinite(sig):
+            text += f", estimated error {sig:.2f} mm"
+        return text
+    if recon != RECON_NONE:
+        text += f", sigma {sig:.3f} mm" if np.isfinite(sig) else ", sigma unknown"
+    n = int(np.isfinite(project.points.obs[f, col, :, 0]).sum())
+    return text + f", {n} camera{'s' if n != 1 else ''}"
 
 
 class SelectedPointPane(QWidget):
-    """Continuity of the one selected point, overall and per camera."""
+    """Continuity of the one selected point, overall and per camera, and the estimated
+    uncertainty (sigma) of its sample at the current frame."""
 
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
@@ -434,7 +474,16 @@ class SelectedPointPane(QWidget):
         self.chart = ContinuityView(ctx.view, single=True)
         self.chart.setMinimumHeight(90)
         layout.addWidget(self.chart)
+        # the sample at the current frame: how it was made, its estimated error (sigma:
+        # from the cameras that see it, or the self-test of Interpolate Gaps for a fill)
+        self.sample = QLabel("")
+        self.sample.setToolTip("The selected point's sample at the current frame: how it "
+                               "was made and its estimated error (mm, one standard "
+                               "deviation)")
+        layout.addWidget(self.sample)
+        self.ctx = ctx
         ctx.view.changed.connect(self.refresh)
+        self.sample.setText(sample_text(ctx.project))
 
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
@@ -442,3 +491,5 @@ class SelectedPointPane(QWidget):
             self.chart.refresh(None)
         else:
             self.chart.refresh(change)
+        self.sample.setText(sample_text(self.ctx.project))
+        self.chart.setToolTip(self.sample.text())

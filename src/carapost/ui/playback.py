@@ -1,13 +1,24 @@
-"""Playback of the view range at the take's frame rate (View > Play, Space)."""
+"""Playback of the view range at the take's frame rate (View > Play, Space).
+
+The frame shown follows the wall clock: frame = start + elapsed x fps. When the images
+of a frame are not decoded by the time the next one is due, that frame is dropped (the
+views show the newest frame whose images have all arrived) and the status bar says how
+many frames per second are really shown, so a take that plays slowly is never mistaken
+for slow motion.
+"""
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtCore import QObject, Qt, QTimer, Signal
 
 if TYPE_CHECKING:
     from carapost.ui.context import ActionContext
+
+#: Seconds between two reports of the playback rate in the status bar.
+REPORT_EVERY_S = 1.0
 
 
 class Playback(QObject):
@@ -17,20 +28,43 @@ class Playback(QObject):
     -------
     playing_changed(bool)
         Playback started or stopped (the timebar button and View > Play follow).
+    rate_changed(float, float)
+        Once a second while playing: frames per second shown and the take's rate.
+
+    Attributes
+    ----------
+    shown, dropped : int
+        Frames shown with all their images, and frames skipped or shown late, since
+        playback started.
     """
 
     playing_changed = Signal(bool)
+    rate_changed = Signal(float, float)
 
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__(ctx)
         self.ctx = ctx
         self.timer = QTimer(self)
+        self.timer.setTimerType(Qt.TimerType.PreciseTimer)
         self.timer.timeout.connect(self._tick)
+        self._t0 = 0.0
+        self._f0 = 0
+        self._fps = 0.0
+        self.shown = 0
+        self.dropped = 0
+        self._window: list[int] = [0, 0]  # shown, dropped since the last report
+        self._last_report = 0.0
 
     @property
     def playing(self) -> bool:
         """Whether playback runs."""
         return self.timer.isActive()
+
+    @property
+    def fps(self) -> float:
+        """Frame rate playback follows (the take's; 30 when the take does not say)."""
+        rate = float(self.ctx.project.take.fps or 0.0)
+        return rate if rate > 0 else 30.0
 
     def toggle(self, on: bool) -> None:
         """Play (from the view range's start when at its end) or stop."""
@@ -38,10 +72,25 @@ class Playback(QObject):
         if on and p.n_frames:
             if p.current_frame >= p.view_range[1]:
                 self.ctx.set_frame(p.view_range[0])
-            # one timer tick per frame of the take's rate (at least 1 ms)
-            self.timer.start(max(int(1000 / max(p.take.fps, 1)), 1))
+            self._fps = self.fps
+            self._t0 = time.perf_counter()
+            self._f0 = p.current_frame
+            self.shown = self.dropped = 0
+            self._window = [0, 0]
+            self._last_report = self._t0
+            self.ctx.frames.set_playing(self._fps)
+            # Ticks at twice the frame rate so a frame is at most half a frame late.
+            self.timer.start(max(int(500 / self._fps), 1))
         else:
             self.timer.stop()
+            self.ctx.frames.set_playing(None)
+            # back to the original images (the views may show a proxy frame)
+            shell = self.ctx.shell
+            for view in shell.all_views() if shell is not None else ():
+                if view.kind == "sensor":
+                    view.refresh(None)
+            if self.shown or self.dropped:
+                self._report(final=True)
         self.playing_changed.emit(self.playing)
 
     def stop(self) -> None:
@@ -49,9 +98,53 @@ class Playback(QObject):
         if self.playing:
             self.toggle(False)
 
+    def _ready(self, frame: int) -> bool:
+        frames = self.ctx.frames
+        if not frames.asynchronous:  # images made on demand (synthetic takes, tests)
+            return True
+        return all(frames.cached(frame, c) is not None
+                   for c in range(self.ctx.project.n_cameras))
+
     def _tick(self) -> None:
         p = self.ctx.project
-        if p.current_frame >= p.view_range[1]:
-            self.stop()
+        now = time.perf_counter()
+        end = p.view_range[1]
+        due = min(self._f0 + int((now - self._t0) * self._fps), end)
+        if due <= p.current_frame:
+            if p.current_frame >= end:
+                self._finish()
             return
-        self.ctx.set_frame(p.current_frame + 1)
+        # Show the newest frame up to the due one whose images of every camera have
+        # arrived (the cameras stay in step); the frames passed over are dropped.
+        show = next((f for f in range(due, p.current_frame, -1) if self._ready(f)), None)
+        if show is not None:
+            skipped = show - p.current_frame - 1
+            self.shown += 1
+            self._window[0] += 1
+            self.dropped += skipped
+            self._window[1] += skipped
+            self.ctx.set_frame(show)
+        # the decoders head for the clock, not for the frame on screen
+        self.ctx.frames.request(due, None, direction=1)
+        if now - self._last_report >= REPORT_EVERY_S:
+            self._report()
+            self._last_report = now
+        if p.current_frame >= end:
+            self._finish()
+
+    def _finish(self) -> None:
+        self.stop()
+
+    def _report(self, final: bool = False) -> None:
+        shown, dropped = (self.shown, self.dropped) if final else self._window
+        total = shown + dropped
+        if total == 0:
+            return
+        elapsed = max(time.perf_counter() - self._t0, 1e-6) if final else REPORT_EVERY_S
+        rate = shown / elapsed
+        self.rate_changed.emit(rate, self._fps)
+        if dropped:
+            self.ctx.status(f"Playing {rate:.0f} of {self._fps:.0f} frames/s: "
+                            f"{dropped} of {total} frames dropped (decoding cannot keep up)",
+                            2500)
+        self._window = [0, 0]

@@ -59,6 +59,8 @@ PREFERENCES: tuple[Preference, ...] = (
                "Show each tracked frame in the views while target tracking (slower)."
                " Default is our choice (the guide gives none)."),
 )
+#: Settings key: write playback proxies in the background when a take opens.
+BUILD_PROXIES_KEY = "frames/build_proxies"
 _PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES}
 
 
@@ -70,6 +72,48 @@ def make_settings() -> QSettings:
         return QSettings(str(Path(folder) / "carapost.ini"), QSettings.Format.IniFormat)
     return QSettings(QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANISATION,
                      APPLICATION)
+
+
+#: Settings key of the decoded-image cache size (megabytes).
+FRAME_CACHE_KEY = "frames/cache_mb"
+#: Bounds of the cache size a user may set (megabytes).
+FRAME_CACHE_RANGE = (64.0, 65536.0)
+
+
+def frame_cache_mb(settings: QSettings) -> float:
+    """Size of the decoded-image cache in megabytes (default 1500: ~500 frames of four
+    1280x720 cameras). It holds 8-bit gray images of the open take, shared by the
+    views, playback and the jobs that read images."""
+    from carapost.io.frameservice import DEFAULT_CACHE_MB
+
+    try:
+        value = float(settings.value(FRAME_CACHE_KEY, DEFAULT_CACHE_MB))
+    except (TypeError, ValueError):
+        value = DEFAULT_CACHE_MB
+    lo, hi = FRAME_CACHE_RANGE
+    return min(max(value, lo), hi)
+
+
+def set_frame_cache_mb(settings: QSettings, value: float) -> None:
+    """Store the decoded-image cache size (clamped to `FRAME_CACHE_RANGE`); it applies
+    to the next take opened."""
+    lo, hi = FRAME_CACHE_RANGE
+    settings.setValue(FRAME_CACHE_KEY, min(max(float(value), lo), hi))
+
+
+def build_proxies(settings: QSettings) -> bool:
+    """Whether playback proxies (fast-decoding copies of the camera videos, in the user
+    cache, for display only) are written in the background when a take opens (default
+    yes; View > Build Playback Proxies writes them on request)."""
+    value = settings.value(BUILD_PROXIES_KEY, True)
+    if isinstance(value, str):
+        return value.strip().lower() in ("true", "1", "yes", "on")
+    return bool(value)
+
+
+def set_build_proxies(settings: QSettings, on: bool) -> None:
+    """Store whether proxies are written after a take opens."""
+    settings.setValue(BUILD_PROXIES_KEY, bool(on))
 
 
 def recent_files(settings: QSettings) -> list[str]:

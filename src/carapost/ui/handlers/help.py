@@ -15,7 +15,8 @@ THIRD_PARTY = (
     ("PySide6 (Qt for Python)", "LGPL-3.0"), ("numpy", "BSD-3-Clause"),
     ("scipy", "BSD-3-Clause"), ("numba", "BSD-2-Clause"),
     ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"), ("pyqtgraph", "MIT"),
-    ("lxml", "BSD-3-Clause"),
+    ("lxml", "BSD-3-Clause"), ("av (PyAV)", "BSD-3-Clause; its bundled FFmpeg LGPL-2.1+"),
+    ("threadpoolctl", "BSD-3-Clause"),
 )
 
 

@@ -53,8 +53,18 @@ def step_key(ctx: ActionContext, delta: int) -> None:
 
 
 def toggle_play(ctx: ActionContext, on: bool) -> None:
-    """Play / Stop (Space): plays every frame of the view range."""
+    """Play / Stop (Space): plays the view range at the take's frame rate (from the
+    playback proxies when there are some), dropping frames that cannot be decoded in
+    time and saying so in the status bar."""
     ctx.playback.toggle(on)
+
+
+def build_proxies(ctx: ActionContext) -> None:
+    """View > Build Playback Proxies: write the missing proxies in the background."""
+    if not ctx.frames.has_images or not hasattr(ctx.frames, "attach_proxies"):
+        ctx.status("Build Playback Proxies: the take has no camera videos")
+    elif not ctx.proxies.start(ctx.frames):
+        ctx.status("Build Playback Proxies: every camera has its proxy")
 
 
 def toggle_lock(ctx: ActionContext, on: bool) -> None:

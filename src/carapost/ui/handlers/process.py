@@ -100,9 +100,20 @@ def default_brim(ctx: ActionContext, version: str) -> None:
 
 def load_rom(ctx: ActionContext) -> None:
     """Process > Load ROM (the ROM project is read and checked by ``session.load_rom``)."""
+    from carapost.commands.stack import CommandError
+    from carapost.io.errors import CaraFileError
+
+    def load(path: str) -> object:
+        try:
+            return ctx.session.load_rom(path)
+        except CommandError as exc:
+            if isinstance(exc.__cause__, CaraFileError):
+                raise exc.__cause__ from None  # a damaged file: shown in a box, as for Open
+            raise
+
     path = ctx.dialogs.open_file("Load ROM", CARA_FILTER)
     if path:
-        ctx.act("Load ROM", ctx.session.load_rom, path)
+        ctx.act("Load ROM", load, path)
 
 
 def align_data(ctx: ActionContext) -> bool:

@@ -18,9 +18,11 @@ from PySide6.QtCore import QPointF, QRectF, Qt
 from PySide6.QtGui import QColor, QPainterPath, QPen, QTransform
 from PySide6.QtWidgets import QGraphicsPathItem, QGraphicsRectItem, QLabel, QMenu, QVBoxLayout
 
+from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.target_overlay import TargetOverlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
 
@@ -87,6 +89,18 @@ def points_in_polygon(xy: NDArray, poly: NDArray) -> NDArray[np.bool_]:
     with np.errstate(divide="ignore", invalid="ignore"):
         crosses = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / (y1 - y0) + x0)
     return (crosses.sum(axis=1) % 2 == 1) & ~np.isnan(xy[:, 0])
+
+
+def crossed_circle() -> QPainterPath:
+    """The marker symbol of an interpolated sample: a unit circle with a cross in it."""
+    path = QPainterPath()
+    path.addEllipse(QPointF(0, 0), 0.5, 0.5)
+    r = 0.5 / math.sqrt(2)
+    path.moveTo(-r, -r)
+    path.lineTo(r, r)
+    path.moveTo(-r, r)
+    path.lineTo(r, -r)
+    return path
 
 
 def rotation_transform(rotation: int, width: int, height: int) -> QTransform:
@@ -194,13 +208,19 @@ class CameraView(BaseView):
                                               pen=pg.mkPen(ORANGE, width=1.5), brush=None)
         self.rom = _Scatter(pxMode=True, symbol="o", size=6,
                                       pen=None, brush=pg.mkBrush(150, 200, 255, 160))
+        # interpolated 3D samples: a small crossed circle at their projection
+        self.interp = _Scatter(pxMode=True, symbol=crossed_circle(), size=11,
+                               pen=pg.mkPen(RED, width=1.5), brush=None)
+        self.interp.setZValue(5)
         for item in (self.det_ellipses, self.det_cross, self.det_selected, self.preview,
                      self.errors, self.sticks, self.measure_line, self.points, self.selected,
-                     self.proj_conn, self.proj_unconn, self.rom, self.image, self.border):
+                     self.proj_conn, self.proj_unconn, self.rom, self.interp, self.image,
+                     self.border):
             item.setParentItem(self.group)
             # overlays never take the mouse: clicks and drags belong to the view box
             item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
             item.setAcceptHoverEvents(False)
+        self.targets = TargetOverlay(self.group)
         self._labels: list[pg.TextItem] = []
         self.band = QGraphicsRectItem()
         self.band.setPen(pg.mkPen((255, 255, 255), style=Qt.PenStyle.DashLine))
@@ -222,6 +242,13 @@ class CameraView(BaseView):
         self.header = QLabel(self.gv)
         self.header.setStyleSheet("color: white; background: rgba(0,0,0,120); padding: 2px;")
         self.header.move(4, 4)
+        # why there is no image (missing or damaged video), over the view's lower left
+        self.notice = QLabel(self.gv)
+        self.notice.setStyleSheet("color: #ffb0a0; background: rgba(0,0,0,160); padding: 3px;")
+        self.notice.setWordWrap(True)
+        self.notice.hide()
+        self._current_image: NDArray | None = None
+        self._image_frame: int | None = None  # frame of the image shown
         self.report = QLabel(self.gv)
         self.report.setStyleSheet("color: #8ff; background: rgba(0,0,0,140); padding: 2px;")
         self.report.move(4, 26)
@@ -316,20 +343,35 @@ class CameraView(BaseView):
             parts.append("selected")
         if self.measuring:
             parts.append("Measure")
+        mode = {"add": "Add Target Track", "edit": "Edit Target Track"}.get(
+            getattr(self.ctx, "point_mode", ""))
+        if mode:
+            parts.append(mode)
         return ("  [" + ", ".join(parts) + "]") if parts else ""
 
     def _overlay_items(self) -> list:
         return [self.det_ellipses, self.det_cross, self.det_selected, self.preview,
                 self.errors, self.sticks, self.points, self.selected, self.proj_conn,
-                self.proj_unconn, self.rom]
+                self.proj_unconn, self.rom, self.interp]
 
     def _draw_image(self, frame: int) -> None:
         opts = self.ctx.options
         img = None
+        note = None
         if opts.image:
             src = self.ctx.frames
             img = src.cached(frame, self.camera)
-            if img is None:
+            if src.asynchronous:
+                note = src.message(frame, self.camera)
+            if img is None and src.asynchronous:
+                # Decoded on the frame service's threads: keep the previous image until
+                # ``frame_ready`` brings this one (the GUI never waits for a decoder).
+                src.request(frame, self.camera)
+                if note is None and self._current_image is not None:
+                    self._image_frame = None
+                    self._set_notice(None)
+                    return
+            elif img is None:
                 img = src.image(frame, self.camera)
         if img is None:
             self.image.hide()
@@ -339,6 +381,24 @@ class CameraView(BaseView):
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
+        self._image_frame = frame if img is not None and note is None else None
+        self._set_notice(note)
+
+    def _set_notice(self, text: str | None) -> None:
+        if not text:
+            self.notice.hide()
+            return
+        self.notice.setText(f"No image: {text}")
+        self.notice.setFixedWidth(max(self.gv.width() - 8, 120))
+        self.notice.adjustSize()
+        self.notice.move(4, max(self.gv.height() - self.notice.height() - 4, 24))
+        self.notice.show()
+
+    @property
+    def image_frame(self) -> int | None:
+        """Take frame of the image on screen (None while none, or while a newer
+        frame's image is being decoded)."""
+        return self._image_frame
 
     def _draw_overlays(self, frame: int) -> None:
         ctx, p, opts, c = self.ctx, self.ctx.project, self.ctx.options, self.camera
@@ -371,7 +431,8 @@ class CameraView(BaseView):
             self.det_selected.hide()
         # blob preview
         self.preview.hide()
-        if opts.blob_preview and getattr(self, "_current_image", None) is not None:
+        if (opts.blob_preview and self._current_image is not None
+                and self._image_frame == frame):
             prev = ctx.blob_preview(frame, c, self._current_image)
             if prev is not None and len(prev.centre):
                 xy, conn = ellipse_polyline(prev.centre.astype(np.float64),
@@ -446,8 +507,16 @@ class CameraView(BaseView):
                 if len(seg):
                     self.sticks.setData(seg[:, 0], seg[:, 1], connect="pairs")
                     self.sticks.show()
+        # interpolated samples (no camera measured them): crossed circles
+        self.interp.hide()
+        if proj is not None and opts.points and P:
+            fill = (pts.recon[frame] == RECON_INTERPOLATED) & ~np.isnan(proj[:, 0])
+            if fill.any():
+                self.interp.setData(pos=proj[fill])
+                self.interp.show()
         # ROM points: projections of the ROM frame, when a ROM is loaded
         self.rom.hide()
+        self.targets.draw(p, frame, c)
         # labels
         self._draw_labels(obs, valid, proj)
 
@@ -520,6 +589,10 @@ class CameraView(BaseView):
     def click(self, scene_pos: QPointF, mods, double: bool) -> None:
         """Click: select what is under the mouse (Ctrl toggles, Shift selects the sensor)."""
         p = self.ctx.project
+        if getattr(self.ctx, "point_mode", ""):   # Add / Edit Target Track
+            q = self.to_image(scene_pos)
+            self.ctx.point_clicked.emit(self.camera, q.x(), q.y())
+            return
         if mods & Qt.KeyboardModifier.ShiftModifier and not mods & Qt.KeyboardModifier.AltModifier:
             if p.properties["select_sensors"]:
                 cams = set(p.selection.cameras)
@@ -554,7 +627,23 @@ class CameraView(BaseView):
         p.set_selection(points=points, detections=dets)
 
     def drag(self, ev, lasso: bool) -> None:
-        """Rubber band, lasso or measurement drag."""
+        """Rubber band, lasso or measurement drag; dragging a selected keyframe moves it
+        (one History entry, on release)."""
+        f, p = self.ctx.project.current_frame, self.ctx.project
+        if ev.isStart():
+            d = self.to_image(ev.buttonDownScenePos())
+            pid = self.targets.grab(p, f, self.camera, (d.x(), d.y()))
+            self._key_drag = None if pid is None else (pid, d, p.points.obs[
+                f, int(p.points.index_of([pid])[0]), self.camera].astype(float))
+        if getattr(self, "_key_drag", None) is not None:
+            pid, d, orig = self._key_drag
+            q = self.to_image(ev.scenePos())
+            xy = (orig[0] + q.x() - d.x(), orig[1] + q.y() - d.y())
+            self.targets.draw(p, f, self.camera, (pid, xy))
+            if ev.isFinish():
+                self._key_drag = None
+                self.ctx.keyframe_moved.emit(self.camera, pid, *xy)
+            return
         pos = self.vb.mapSceneToView(ev.scenePos())
         if ev.isStart():
             down = self.vb.mapSceneToView(ev.buttonDownScenePos())

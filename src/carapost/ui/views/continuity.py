@@ -75,6 +75,8 @@ def point_codes(project: Project, frames: tuple[int, int] | None = None,
         count += ((pts.source[sl, :, c] != SOURCE_NONE)
                   & ~np.isnan(pts.obs[sl, :, c, 0]))[:, cols]
     count *= measured
+    if pts.n_cameras == 0:  # an imported C3D: measured by a system we know nothing of
+        count = (measured * 4).astype(np.uint8)
     present = ~np.isnan(pts.positions[sl, :, 0][:, cols])
     codes = np.where(count > 0, CAM1 - 1 + np.minimum(count, 4), INTERPOLATED)
     codes = np.where(present, codes, GAP).astype(np.uint8)

@@ -1,0 +1,378 @@
+"""Frame access and playback in the main window, on a real take with videos.
+
+Run under Xvfb with a real window::
+
+    xvfb-run -a -s "-screen 0 1920x1080x24" python benchmarks/playback.py TAKE.json
+
+``TAKE.json`` is a take from ``carapost synth`` or ``carapost demo`` (4 x 1280x720
+FFV1). Without it, a 300-frame synthetic take is rendered into a temporary folder first.
+``--codecs`` also measures the readers (OpenCV against PyAV) and the proxy formats.
+
+Metrics (one JSON object per line; times from the request to the images of all four
+cameras drawn in their views):
+
+* ``first_jump_s``: the first jump after the take was opened.
+* ``jump_ms_p95``: jumps to random frames anywhere in the take (95th percentile).
+* ``step_ms_p95``: Next/Prev Frame, one step every 100 ms after a pause in which the
+  read-ahead runs (95th percentile, forwards and backwards).
+* ``playback_fps``: frames shown per second with all their images while playing from
+  the originals (View > Play; the take's rate is the target).
+* ``gui_stall_ms_max``: longest gap between the ticks of a 10 ms timer on the GUI
+  thread over everything above.
+* ``detect_current_frame_s``: Go To Frame on a frame not cached, then Detect Blobs
+  [Current Frame] until its result is in the History.
+* ``rss_mb_max`` / ``cache_mb_max``: resident memory and image cache over a scrub
+  session of ``--scrub-s`` seconds (random jumps and steps).
+
+The script only uses what every version of the window has (``set_frame``, the camera
+views, the actions), so the same file measures the code before the frame service.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("CARAPOST_SETTINGS_DIR", tempfile.mkdtemp(prefix="carapost-bench-"))
+
+
+def emit(metric: str, value: float, unit: str, **extra: object) -> None:
+    print(json.dumps({"metric": metric, "value": round(float(value), 4), "unit": unit,
+                      **extra}), flush=True)
+
+
+def p95(values: list[float]) -> float:
+    return float(np.percentile(values, 95)) if values else float("nan")
+
+
+def rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+class Stalls:
+    """Longest gap between the ticks of a 10 ms timer on the GUI thread."""
+
+    def __init__(self) -> None:
+        from PySide6.QtCore import Qt, QTimer
+
+        self.timer = QTimer()
+        self.timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self.timer.timeout.connect(self._tick)
+        self.last = time.perf_counter()
+        self.max_gap = 0.0
+        self.phase = "open"
+        self.by_phase: dict[str, float] = {}
+
+    def start(self) -> None:
+        self.last = time.perf_counter()
+        self.timer.start(10)
+
+    def _tick(self) -> None:
+        now = time.perf_counter()
+        gap = now - self.last
+        self.max_gap = max(self.max_gap, gap)
+        self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
+        self.last = now
+
+
+class Bench:
+    def __init__(self, app, take: Path) -> None:
+        from carapost.session import Session
+        from carapost.ui.mainwindow import MainWindow
+
+        self.app = app
+        self.w = MainWindow(restore=False)
+        self.w.resize(1920, 1050)
+        self.w.show()
+        self.pump(0.2)
+        self.session = Session.import_take(take)
+        self.p = self.session.project
+        self.views = []
+        self.stalls = Stalls()
+        self.stalls.start()
+
+    def pump(self, seconds: float = 0.0) -> None:
+        end = time.perf_counter() + seconds
+        while True:
+            self.app.processEvents()
+            if time.perf_counter() >= end:
+                return
+            time.sleep(0.001)
+
+    def sensor_views(self):
+        return [v for v in self.w.context.shell.all_views() if v.kind == "sensor"]
+
+    def shown(self, frame: int) -> bool:
+        views = self.sensor_views()
+        for v in views:
+            if hasattr(v, "image_frame"):
+                if v.image_frame != frame:
+                    return False
+            elif getattr(v, "_drawn_frame", None) != frame:
+                return False
+        return bool(views)
+
+    def go(self, frame: int, timeout: float = 60.0) -> float:
+        """Seconds from ``set_frame`` to the images of every camera on screen."""
+        t0 = time.perf_counter()
+        self.w.set_frame(frame)
+        self.w.flush()
+        while not self.shown(frame):
+            self.app.processEvents()
+            if time.perf_counter() - t0 > timeout:
+                raise RuntimeError(f"frame {frame} never showed")
+            time.sleep(0.0005)
+        return time.perf_counter() - t0
+
+    # -- the measurements ------------------------------------------------------------
+    def open_and_first_jump(self) -> None:
+        try:  # proxies are measured on their own, later
+            from carapost.ui.settings import set_build_proxies
+
+            set_build_proxies(self.w.context.settings, False)
+        except ImportError:
+            pass
+        t0 = time.perf_counter()
+        self.w.context.set_session(self.session)
+        self.w.flush()
+        self.pump(0.05)
+        emit("open_s", time.perf_counter() - t0, "s")
+        n = self.p.n_frames
+        emit("first_jump_s", self.go(int(n * 0.8)), "s", frame=int(n * 0.8))
+
+    def jumps(self, count: int = 25) -> None:
+        self.stalls.phase = "jumps"
+        rng = random.Random(1)
+        n = self.p.n_frames
+        times = []
+        for _ in range(count):
+            f = rng.randrange(n)
+            while abs(f - self.p.current_frame) < 30:
+                f = rng.randrange(n)
+            times.append(self.go(f) * 1e3)
+            self.pump(0.05)
+        emit("jump_ms_p95", p95(times), "ms", median=round(statistics.median(times), 1),
+             jumps=count)
+
+    def steps(self, count: int = 30) -> None:
+        self.stalls.phase = "steps"
+        n = self.p.n_frames
+        times = []
+        for direction in (1, -1):
+            start = n // 3 if direction > 0 else 2 * n // 3
+            self.go(start)
+            self.pump(1.5)  # the read-ahead runs while the artist looks
+            for k in range(1, count + 1):
+                times.append(self.go(start + direction * k) * 1e3)
+                self.pump(0.1)
+        emit("step_ms_p95", p95(times), "ms", median=round(statistics.median(times), 1),
+             steps=len(times))
+
+    def playback(self, seconds: float = 6.0) -> None:
+        self.stalls.phase = "playback"
+        ctx = self.w.context
+        p = self.p
+        p.set_view_range((0, p.n_frames - 1)) if hasattr(p, "set_view_range") else None
+        self.go(0)
+        self.pump(0.5)
+        drawn: set[int] = set()
+        t0 = time.perf_counter()
+        ctx.playback.toggle(True)
+        while ctx.playback.playing and time.perf_counter() - t0 < seconds:
+            self.app.processEvents()
+            if self.shown(p.current_frame):
+                drawn.add(p.current_frame)
+            time.sleep(0.0005)
+        elapsed = time.perf_counter() - t0
+        ctx.playback.stop()
+        emit("playback_fps", len(drawn) / elapsed, "frames/s", source="originals",
+             take_fps=p.take.fps, seconds=round(elapsed, 2))
+
+    def playback_from_proxies(self, seconds: float = 6.0) -> None:
+        """Write the proxies (View > Build Playback Proxies), then play from them."""
+        self.stalls.phase = "playback_from_proxies"
+        ctx = self.w.context
+        if not hasattr(ctx, "proxies"):
+            return
+        t0 = time.perf_counter()
+        self.w.action("view.build_proxies").trigger()
+        while ctx.proxies.running:
+            self.pump(0.05)
+        self.pump(0.2)
+        emit("proxy_build_s", time.perf_counter() - t0, "s", cameras=self.p.n_cameras,
+             frames=self.p.n_frames)
+        p = self.p
+        self.go(0)
+        self.pump(0.5)
+        drawn: set[int] = set()
+        t0 = time.perf_counter()
+        ctx.playback.toggle(True)
+        while ctx.playback.playing and time.perf_counter() - t0 < seconds:
+            self.app.processEvents()
+            if all(ctx.frames.cached(p.current_frame, c) is not None
+                   for c in range(p.n_cameras)):
+                drawn.add(p.current_frame)
+            time.sleep(0.0005)
+        elapsed = time.perf_counter() - t0
+        ctx.playback.stop()
+        emit("playback_fps", len(drawn) / elapsed, "frames/s", source="proxies",
+             take_fps=p.take.fps, seconds=round(elapsed, 2),
+             reported_dropped=ctx.playback.dropped)
+
+    def detect_current(self) -> None:
+        self.stalls.phase = "detect_current"
+        rng = random.Random(7)
+        times = []
+        for _ in range(3):
+            f = rng.randrange(self.p.n_frames)
+            t0 = time.perf_counter()
+            self.w.set_frame(f)
+            self.w.flush()
+            self.w.action("process.blobs_current").trigger()
+            while self.w.runner.busy:
+                self.app.processEvents()
+                time.sleep(0.001)
+            times.append(time.perf_counter() - t0)
+            self.pump(0.3)
+        emit("detect_current_frame_s", statistics.median(times), "s",
+             runs=[round(t, 3) for t in times])
+
+    def scrub_session(self, seconds: float) -> None:
+        self.stalls.phase = "scrub_session"
+        rng = random.Random(3)
+        n = self.p.n_frames
+        peak = rss_mb()
+        cache_peak = 0.0
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            if rng.random() < 0.3:
+                self.go(rng.randrange(n))
+            else:
+                f = self.p.current_frame
+                for k in range(1, 11):
+                    self.go(min(max(f + k, 0), n - 1))
+                    self.pump(0.03)
+            peak = max(peak, rss_mb())
+            stats = getattr(self.w.context.frames, "stats", lambda: {})()
+            cache_peak = max(cache_peak, stats.get("cache_mb", 0.0))
+        stats = getattr(self.w.context.frames, "stats", lambda: {})()
+        emit("rss_mb_max", peak, "MB", seconds=seconds,
+             maxrss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3))
+        emit("cache_mb_max", cache_peak, "MB", limit_mb=stats.get("cache_limit_mb"))
+
+
+def bench_codecs(take: Path) -> None:
+    """Readers and proxy formats on the take's first video (one core, no window)."""
+    import av
+    import cv2
+
+    from carapost.io.decode import AVReader
+
+    video = sorted(p for p in take.parent.glob("*cam0.*") if p.suffix != ".json")[0]
+    rng = random.Random(5)
+    n = AVReader(video).n_frames
+    targets = [rng.randrange(n) for _ in range(15)]
+    cap = cv2.VideoCapture(str(video))
+    t0 = time.perf_counter()
+    for _ in range(60):
+        cap.read()
+    emit("opencv_sequential_ms", (time.perf_counter() - t0) / 60 * 1e3, "ms/frame")
+    t0 = time.perf_counter()
+    for k in targets:
+        cap.set(cv2.CAP_PROP_POS_FRAMES, k)
+        cap.read()
+    emit("opencv_random_ms", (time.perf_counter() - t0) / len(targets) * 1e3, "ms/read")
+    reader = AVReader(video)
+    t0 = time.perf_counter()
+    for i in range(60):
+        reader.read(i)
+    emit("pyav_sequential_ms", (time.perf_counter() - t0) / 60 * 1e3, "ms/frame")
+    t0 = time.perf_counter()
+    for k in targets:
+        reader.read(k)
+    emit("pyav_random_ms", (time.perf_counter() - t0) / len(targets) * 1e3, "ms/read",
+         keyframe_interval=reader.index.max_interval)
+    frames = [reader.read(i) for i in range(60)]
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, codec, pix, half, opts in (
+                ("mjpeg_full", "mjpeg", "yuvj420p", False, {"q:v": "4"}),
+                ("mjpeg_half", "mjpeg", "yuvj420p", True, {"q:v": "4"}),
+                ("ffv1_allkey_full", "ffv1", "gray", False, {"g": "1"}),
+                ("ffv1_allkey_half", "ffv1", "gray", True, {"g": "1"})):
+            path = Path(tmp) / f"{name}.{'avi' if codec == 'mjpeg' else 'mkv'}"
+            out = av.open(str(path), "w")
+            st = out.add_stream(codec, rate=60)
+            h, w = frames[0].shape
+            if half:
+                h, w = h // 2, w // 2
+            st.width, st.height, st.pix_fmt, st.options = w, h, pix, opts
+            for img in frames:
+                im = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if half else img
+                for pk in st.encode(av.VideoFrame.from_ndarray(im, format="gray")):
+                    out.mux(pk)
+            for pk in st.encode():
+                out.mux(pk)
+            out.close()
+            c = av.open(str(path))
+            t0 = time.perf_counter()
+            count = sum(1 for fr in c.decode(c.streams.video[0]) if fr.to_ndarray() is not None)
+            c.close()
+            emit(f"proxy_{name}_decode_ms", (time.perf_counter() - t0) / count * 1e3,
+                 "ms/frame", kb_per_frame=round(path.stat().st_size / count / 1e3))
+
+
+def render_take(folder: Path, frames: int) -> Path:
+    from carapost.synth import SynthConfig, generate_take
+
+    return Path(generate_take(folder, SynthConfig(preset="speech", frames=frames, seed=0),
+                              workers=2))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("take", nargs="?", help="take .json (default: render 300 frames)")
+    ap.add_argument("--scrub-s", type=float, default=120.0)
+    ap.add_argument("--codecs", action="store_true", help="also measure readers/proxies")
+    args = ap.parse_args()
+    from carapost.ui.app import application
+
+    tmp = tempfile.TemporaryDirectory()
+    take = Path(args.take) if args.take else render_take(Path(tmp.name), 300)
+    if args.codecs:
+        bench_codecs(take)
+    app = application()
+    b = Bench(app, take)
+    cpu0 = time.process_time()
+    b.open_and_first_jump()
+    b.jumps()
+    b.steps()
+    b.playback()
+    b.detect_current()
+    emit("gui_stall_ms_max", b.stalls.max_gap * 1e3, "ms",
+         by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()})
+    b.scrub_session(args.scrub_s)
+    b.playback_from_proxies()
+    emit("gui_stall_ms_max_all", b.stalls.max_gap * 1e3, "ms",
+         by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()},
+         note="including the scrub session and proxy playback")
+    emit("cpu_s", time.process_time() - cpu0, "s")
+    b.w.context.shutdown()
+    b.w.close()
+    tmp.cleanup()
+    sys.stdout.flush()
+    os._exit(0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,480 @@
+"""The frame service of an open take: one decoder thread per camera, newest request wins.
+
+`FrameService` extends `carapost.io.video.TakeFrames` (its sources and its LRU cache of
+decoded images, bounded in megabytes) with what a window and its jobs need:
+
+- **One decoder thread per camera**, each the only reader of its camera's video, so a
+  camera's frames are decoded in order and the four cameras of a take decode at once
+  (FFmpeg releases the GIL while decoding).
+- **Views ask, never wait**: `request(frame, direction)` records the frame the user is
+  looking at and returns at once. Each camera's thread serves the newest request only:
+  a request that was superseded before its decode began is dropped (counted in
+  ``dropped``), and a decode heading for a superseded frame stops at the next frame.
+  ``on_ready(frame, camera)`` is called from the thread when an image lands.
+- **Read-ahead** in the direction of travel while a thread is idle: forward in decode
+  order, backward a keyframe interval at a time (the frames from the keyframe before the
+  wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
+  current one and never more than half the cache.
+- **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
+  Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
+  the other cameras of the same frame are queued too, so a frame of four cameras
+  decodes on all cores. A cached image is returned at once.
+- **Clear failures**: a camera whose video is missing, unreadable or shorter than the
+  take yields blank images and `message(frame, camera)` says why (the views show it).
+
+Nothing here imports Qt; `carapost.ui.frames` adapts ``on_ready`` to a queued signal.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from concurrent.futures import Future
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from carapost.io.errors import CaraFileError
+from carapost.io.video import ReadyCallback, TakeFrames, VideoSource
+
+log = logging.getLogger("carapost.io")
+
+__all__ = ["DEFAULT_CACHE_MB", "FrameService"]
+
+#: Default size of the image cache (about 500 frames of four 1280x720 cameras).
+DEFAULT_CACHE_MB = 1500.0
+
+_Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
+_UNOPENED: Any = object()
+# Proxy images share the cache under (frame, camera + _PROXY_KEY).
+_PROXY_KEY = 1 << 20
+
+
+class _Camera:
+    """State of one camera's decoder thread (guarded by the service's condition)."""
+
+    def __init__(self) -> None:
+        self.wanted: int | None = None  # newest view request not yet started
+        self.origin: int | None = None  # frame read-ahead starts from
+        self.target: int | None = None  # frame being decoded for a view request
+        self.jobs: deque[_Job] = deque()
+        self.thread: threading.Thread | None = None
+
+
+class FrameService(TakeFrames):
+    """Images of every camera of a take for a window and its jobs.
+
+    Parameters
+    ----------
+    take : Take
+    cache_mb : float
+        Upper bound of the decoded-image cache in megabytes (default 1500).
+    on_ready : callable, optional
+        ``on_ready(frame, camera)`` from a decoder thread when an image lands in the
+        cache (requested or read ahead).
+    read_ahead : int
+        Frames decoded ahead of the current one in the direction of travel (while
+        playing, set it to about two seconds of the take: `set_read_ahead`).
+
+    Attributes
+    ----------
+    dropped : int
+        View requests superseded by a newer one before (or while) they were decoded.
+    """
+
+    def __init__(self, take: Any, *, cache_mb: float = DEFAULT_CACHE_MB,
+                 on_ready: ReadyCallback | None = None, read_ahead: int = 24) -> None:
+        super().__init__(take, cache_mb=cache_mb, workers=1, on_ready=on_ready, strict=False)
+        self._cond = threading.Condition()
+        self._cams = [_Camera() for _ in range(take.n_cameras)]
+        self._direction = 1
+        self._read_ahead = max(int(read_ahead), 0)
+        self._errors: dict[int, str] = {}  # camera -> why it has no images
+        self._frame_errors: dict[tuple[int, int], str] = {}
+        self._service_threads: set[int] = set()
+        self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
+        self._playing = False
+        self._proxies: dict[int, VideoSource] = {}
+        self.dropped = 0
+
+    # -- sources with their failure kept for the views --------------------------------
+    def source(self, camera: int) -> VideoSource | None:
+        """The camera's opened video (None, with `message` saying why, when unreadable).
+
+        Opening (index, frame count check) happens under a lock of that camera only, so
+        the GUI thread's `get_cached` never waits for a decoder opening a file.
+        """
+        src = self._sources.get(camera, _UNOPENED)
+        if src is not _UNOPENED:
+            return src
+        with self._open_locks[camera]:
+            src = self._sources.get(camera, _UNOPENED)
+            if src is not _UNOPENED:
+                return src
+            cam = self.take.cameras[camera]
+            try:
+                if not cam.video_path:
+                    raise CaraFileError(f"<{cam.name}>", "the camera has no video file")
+                src = VideoSource(cam.video_path)
+                src.verify_frame_count()
+            except CaraFileError as exc:
+                self._errors[camera] = str(exc)
+                log.warning("Camera %s shows no images: %s", cam.name, exc)
+                src = None
+            with self._source_lock:
+                self._sources[camera] = src
+            return src
+
+    def message(self, frame: int, camera: int) -> str | None:
+        """Why ``camera`` has no image at ``frame`` (None when it has one or may have)."""
+        if camera in self._errors:
+            return self._errors[camera]
+        err = self._frame_errors.get((frame, camera))
+        if err is not None:
+            return err
+        src = self._sources.get(camera)
+        if src is not None:
+            index = frame + int(self.take.cameras[camera].frame_offset)
+            if not 0 <= index < src.n_frames:
+                return (f"{src.path.name} has frames 0-{src.n_frames - 1}; take frame "
+                        f"{frame} is video frame {index}")
+        return None
+
+    # -- playback proxies (display only; processing reads the originals) --------------
+    def attach_proxies(self) -> int:
+        """Open the complete, current proxies of the take's videos (see
+        `carapost.io.proxy`); returns how many cameras have one."""
+        from carapost.io.proxy import existing_proxy
+
+        for c, cam in enumerate(self.take.cameras):
+            if c in self._proxies or not cam.video_path:
+                continue
+            path = existing_proxy(cam.video_path)
+            if path is None:
+                continue
+            try:
+                proxy = VideoSource(path)
+            except CaraFileError as exc:
+                log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
+                continue
+            # checked against the original on the camera's thread (`_decode_proxy`):
+            # opening the original here would make the GUI thread wait
+            self._proxies[c] = proxy
+        return len(self._proxies)
+
+    @property
+    def proxies(self) -> int:
+        """Number of cameras with an open proxy."""
+        return len(self._proxies)
+
+    def _use_proxy(self, camera: int) -> bool:
+        return self._playing and camera in self._proxies
+
+    @property
+    def showing_proxies(self) -> bool:
+        """Whether images come from proxies now (while playing, when there are some)."""
+        return self._playing and bool(self._proxies)
+
+    def get_display(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
+        """What a view shows without waiting: the original if cached, else while playing
+        the proxy image if decoded, else (blank frames outside a video) `get_cached`."""
+        img = self.get_cached(frame, camera)
+        if img is None and self._use_proxy(camera):
+            img = self._cache_get((int(frame), int(camera) + _PROXY_KEY))
+        return img
+
+    def _decode_proxy(self, frame: int, camera: int) -> None:
+        index = self._video_index(frame, camera)
+        proxy = self._proxies.get(camera)
+        src = self._sources.get(camera)
+        if proxy is not None and src is not None and proxy.n_frames != src.n_frames:
+            log.warning("Camera %s: the playback proxy has %d frames, the video %d; "
+                        "playing the original", self.take.cameras[camera].name,
+                        proxy.n_frames, src.n_frames)
+            self._proxies.pop(camera, None)
+            proxy = None
+        if index is None or proxy is None:
+            self._notify(frame, camera)
+            return
+        key = (frame, camera + _PROXY_KEY)
+        if self._cache_get(key) is None:
+            try:
+                self._cache_put(key, proxy.read(index))
+            except CaraFileError as exc:  # a damaged proxy: back to the original
+                log.warning("Camera %s: %s; playing the original",
+                            self.take.cameras[camera].name, exc)
+                self._proxies.pop(camera, None)
+                return
+        self._notify(frame, camera)
+
+    def reset_sources(self) -> None:
+        """Reopen videos on next use (after a camera's video path changed)."""
+        super().reset_sources()
+        self._errors.clear()
+        self._frame_errors.clear()
+
+    # -- requests -------------------------------------------------------------------------
+    def set_read_ahead(self, frames: int, *, playing: bool = False) -> None:
+        """Frames to decode ahead of the current one (e.g. 2 s of the take while playing).
+
+        While ``playing``, a decode on its way to a frame is finished even when a later
+        frame is requested meanwhile (so playback shows frames, dropping the ones it
+        cannot decode in time); while scrubbing, it stops for the newer request.
+        """
+        with self._cond:
+            self._read_ahead = max(int(frames), 0)
+            self._playing = bool(playing)
+            self._cond.notify_all()
+
+    def request(self, frame: int, cameras: Any = None, *, direction: int = 0) -> None:
+        """Ask for the images of ``frame`` without waiting (the GUI's call).
+
+        Parameters
+        ----------
+        frame : int
+            Take frame the user is looking at; supersedes earlier requests.
+        cameras : iterable of int, optional
+            Cameras shown (default: all).
+        direction : int
+            +1 or -1: the direction of travel for read-ahead (0 keeps the last one).
+        """
+        if self._closed:
+            return
+        frame = int(frame)
+        cams = range(self.take.n_cameras) if cameras is None else [int(c) for c in cameras]
+        with self._cond:
+            if direction:
+                self._direction = 1 if direction > 0 else -1
+            for c in cams:
+                state = self._cams[c]
+                state.origin = frame
+                if self.get_display(frame, c) is not None:
+                    if state.wanted is not None:
+                        self.dropped += 1
+                    state.wanted = None
+                else:
+                    if state.wanted is not None and state.wanted != frame:
+                        self.dropped += 1
+                    state.wanted = frame
+                self._start(c)
+            self._cond.notify_all()
+
+    def get(self, frame: int, camera: int) -> NDArray[np.uint8]:
+        """Image of ``camera`` at ``frame``, waiting for it (any thread but the GUI's).
+
+        Decoded by the camera's thread, which also decodes the other cameras' images of
+        the same frame alongside; a cached image returns at once.
+
+        Raises
+        ------
+        CaraFileError
+            The camera's video is missing or the frame cannot be decoded.
+        """
+        frame, camera = int(frame), int(camera)
+        self._check(frame, camera)
+        img = self._cache_get((frame, camera))
+        if img is not None:
+            return img
+        if self._closed or threading.get_ident() in self._service_threads:
+            return super().get(frame, camera)
+        fut: Future[NDArray[np.uint8]] = Future()
+        with self._cond:
+            for c in range(self.take.n_cameras):
+                if c == camera:
+                    self._cams[c].jobs.append((frame, fut))
+                elif self._cache_get((frame, c)) is None and not any(
+                        f == frame for f, _ in self._cams[c].jobs):
+                    self._cams[c].jobs.append((frame, None))
+                else:
+                    continue
+                self._start(c)
+            self._cond.notify_all()
+        return fut.result()
+
+    # -- decoder threads ------------------------------------------------------------------
+    def _start(self, camera: int) -> None:
+        state = self._cams[camera]
+        if state.thread is None:
+            name = f"carapost-decode-{self.take.cameras[camera].name}"
+            state.thread = threading.Thread(target=self._run, args=(camera,), name=name,
+                                            daemon=True)
+            state.thread.start()
+
+    def _ahead_frame(self, camera: int) -> int | None:
+        """Next frame to read ahead for ``camera`` (condition held), None when done."""
+        state = self._cams[camera]
+        if state.origin is None or self._read_ahead == 0:
+            return None
+        frame_bytes = max(sum(int(w) * int(h) for w, h in
+                              (c.image_size for c in self.take.cameras)), 1)
+        limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
+        step = self._direction
+        key_cam = camera + _PROXY_KEY if self._use_proxy(camera) else camera
+        for k in range(1, limit + 1):
+            f = state.origin + step * k
+            if not 0 <= f < self.take.n_frames:
+                return None
+            if (self._cache_get((f, key_cam)) is None and self._cache_get((f, camera)) is None
+                    and (f, camera) not in self._frame_errors):
+                return f
+        return None
+
+    def _run(self, camera: int) -> None:
+        self._service_threads.add(threading.get_ident())
+        state = self._cams[camera]
+        while True:
+            with self._cond:
+                while True:
+                    if self._closed:
+                        self._fail_jobs(state)
+                        return
+                    if state.wanted is not None:
+                        frame, kind, fut = state.wanted, "view", None
+                        state.wanted = None
+                        state.target = frame
+                        break
+                    if state.jobs:
+                        frame, fut = state.jobs.popleft()
+                        kind = "job"
+                        break
+                    ahead = self._ahead_frame(camera)
+                    if ahead is not None:
+                        frame, kind, fut = ahead, "ahead", None
+                        break
+                    self._cond.wait()
+            if kind != "job" and self._use_proxy(camera):
+                state.target = None
+                self._decode_proxy(frame, camera)
+                continue
+            try:
+                img = self._decode_to(frame, camera, kind)
+            except Exception as exc:  # the waiting job gets the error; the view a message
+                if fut is not None:
+                    fut.set_exception(exc)
+                continue
+            finally:
+                state.target = None
+            if fut is not None:
+                if img is None:
+                    fut.set_exception(CaraFileError(str(self.take.cameras[camera].name),
+                                                    self.message(frame, camera) or
+                                                    f"no image at frame {frame}"))
+                else:
+                    fut.set_result(img)
+
+    def _fail_jobs(self, state: _Camera) -> None:
+        while state.jobs:
+            _, fut = state.jobs.popleft()
+            if fut is not None and not fut.done():
+                fut.set_exception(CaraFileError("<frames>", "the take's videos were closed"))
+
+    def _next_step(self, camera: int, kind: str, i: int, index: int,
+                   reader: Any) -> str | tuple[int, int]:
+        """Before decoding video frame ``i`` on the way to ``index``: ``"go"``,
+        ``"stop"`` (give way to newer work), or a new (frame, index) target reached by
+        decoding on (a newer view request beyond ``i`` before the next keyframe)."""
+        state = self._cams[camera]
+        with self._cond:
+            if self._closed:
+                return "stop"
+            if kind == "job":
+                return "go"
+            if kind == "ahead":
+                return "stop" if state.wanted is not None or state.jobs else "go"
+            wanted = state.wanted
+            if wanted is None:
+                return "go"
+            w_index = wanted + int(self.take.cameras[camera].frame_offset)
+            on_the_way = w_index >= i and (
+                reader is None or reader.index.keyframe_before(w_index) <= i)
+            if on_the_way or not self._playing:
+                self.dropped += 1  # the older target is given up
+                if on_the_way:
+                    state.wanted = None
+                    state.target = wanted
+                    return wanted, w_index
+                return "stop"
+            return "go"
+
+    def _decode_to(self, frame: int, camera: int, kind: str) -> NDArray[np.uint8] | None:
+        """Decode ``frame`` of ``camera`` into the cache, with every frame decoded on
+        the way (from the keyframe before it, or from the decoder's position)."""
+        index = self._video_index(frame, camera)
+        if index is None:
+            self._notify(frame, camera)
+            return self._blank_image(camera) if camera not in self._errors else None
+        img = self._cache_get((frame, camera))
+        if img is not None:
+            self._notify(frame, camera)
+            return img
+        src = self.source(camera)
+        assert src is not None
+        start = index
+        reader = getattr(src, "_reader", None)
+        if reader is not None:
+            key = reader.index.keyframe_before(index)
+            start = reader._next if key <= reader._next <= index else key
+        offset = int(self.take.cameras[camera].frame_offset)
+        if (kind == "view" and self._playing and reader is not None
+                and 0 <= reader._next < index
+                and index - reader._next <= 2 * reader.index.max_interval):
+            # Playing and a little behind the clock: the next frame in decode order
+            # costs one decode and is shown if it is still due; a seek would cost a
+            # keyframe interval. The clock's frame stays wanted.
+            with self._cond:
+                if self._cams[camera].wanted is None:
+                    self._cams[camera].wanted = frame
+            index = start = reader._next
+            frame = index - offset
+            img = self._cache_get((frame, camera))
+            if img is not None:
+                # cached already (a job read it): step the decoder past it all the same
+                src.read(index)
+                self._notify(frame, camera)
+                return img
+        i = start
+        while i <= index:
+            step = self._next_step(camera, kind, i, index, reader)
+            if step == "stop":
+                return None
+            if isinstance(step, tuple):
+                frame, index = step
+            f = i - offset
+            try:
+                img = src.read(i)
+            except CaraFileError as exc:
+                self._frame_errors[(f, camera)] = str(exc)
+                log.warning("Camera %s: %s", self.take.cameras[camera].name, exc)
+                self._notify(frame, camera)
+                raise
+            if 0 <= f < self.take.n_frames and self._cache_get((f, camera)) is None:
+                self._cache_put((f, camera), img)
+                self._notify(f, camera)
+            i += 1
+        return img
+
+    def _notify(self, frame: int, camera: int) -> None:
+        callback = self.on_ready
+        if callback is not None:
+            try:
+                callback(frame, camera)
+            except Exception:  # a broken listener must not stop decoding
+                log.exception("on_ready callback failed")
+
+    def close(self) -> None:
+        """Stop the decoder threads (they finish the frame in hand) and close the videos."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._cond.notify_all()
+        for state in self._cams:
+            if state.thread is not None and state.thread is not threading.current_thread():
+                state.thread.join(timeout=5.0)
+        self._closed = False  # let TakeFrames.close run its own shutdown
+        super().close()
+        for proxy in self._proxies.values():
+            proxy.close()
+        self._proxies.clear()

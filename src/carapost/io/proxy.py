@@ -1,0 +1,116 @@
+"""Playback proxies: an all-intra MJPEG copy of a camera video that decodes fast.
+
+The lossless FFV1 originals decode at ~26 ms per 1280x720 frame on one core and only
+from a keyframe on; an MJPEG copy at full resolution decodes in ~2.5 ms and every frame
+is a keyframe (measured, docs/benchmarks.md "Frame access"; FFV1 with a keyframe on
+every frame is no faster than the original, half-resolution MJPEG saves another 1.8 ms
+but would have to be scaled back in the views). Full resolution keeps the views' pixel
+coordinates unchanged, so a proxy can stand in for its original at any zoom.
+
+Proxies are for display only: the views play from them and switch back to the original
+frame when playback stops; processing always reads the originals. They live in the
+user cache (`carapost.io.decode.cache_dir`, subfolder ``proxies``), named after the
+original's path, size and modification time, so a changed video never plays a stale
+proxy; deleting them loses nothing. A proxy is written to a temporary file and renamed
+when complete, so an interrupted write leaves no half proxy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from carapost.io.decode import AVReader, cache_dir
+from carapost.io.errors import CaraFileError
+
+log = logging.getLogger("carapost.io")
+
+__all__ = ["PROXY_QUALITY", "proxy_path", "write_proxy"]
+
+#: MJPEG quantiser (2 best - 31 worst): grey levels within a few units of the original.
+PROXY_QUALITY = 4
+
+
+def proxy_path(video: str | Path) -> Path | None:
+    """Where the proxy of ``video`` is (or would be) stored; None if the video is gone."""
+    video = Path(video)
+    try:
+        st = video.stat()
+    except OSError:
+        return None
+    digest = hashlib.sha1(str(video.absolute()).encode("utf-8")).hexdigest()[:16]
+    return cache_dir() / "proxies" / f"{video.stem}-{digest}-{st.st_size}-{st.st_mtime_ns}.avi"
+
+
+def existing_proxy(video: str | Path) -> Path | None:
+    """The proxy of ``video`` if one is complete and current, else None."""
+    path = proxy_path(video)
+    return path if path is not None and path.is_file() else None
+
+
+def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | None = None,
+                ) -> Path | None:
+    """Write the MJPEG proxy of ``video`` (or return the existing one).
+
+    Parameters
+    ----------
+    video : path
+        An original camera video.
+    progress : callable (done, total) -> bool, optional
+        Called after each frame; returning False cancels (no file is left).
+
+    Returns
+    -------
+    Path or None
+        The proxy, or None when cancelled.
+
+    Raises
+    ------
+    CaraFileError
+        If the original cannot be read or the proxy cannot be written.
+    """
+    import av
+
+    video = Path(video)
+    target = proxy_path(video)
+    if target is None:
+        raise CaraFileError(video, "no such file")
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f"{target.stem}.{os.getpid()}.partial.avi")
+    reader = AVReader(video)
+    done = False
+    try:
+        out = av.open(str(tmp), "w")
+        try:
+            first = reader.read(0)
+            stream = out.add_stream("mjpeg", rate=int(round(reader.fps or 60)))
+            stream.width, stream.height = int(first.shape[1]), int(first.shape[0])
+            stream.pix_fmt = "yuvj420p"
+            stream.options = {"q:v": str(PROXY_QUALITY)}
+            stream.codec_context.qmin = stream.codec_context.qmax = PROXY_QUALITY
+            for i in range(reader.n_frames):
+                img = first if i == 0 else reader.read(i)
+                frame = av.VideoFrame.from_ndarray(img, format="gray")
+                frame.pts = i
+                for packet in stream.encode(frame):
+                    out.mux(packet)
+                if progress is not None and progress(i + 1, reader.n_frames) is False:
+                    return None
+            for packet in stream.encode():
+                out.mux(packet)
+        finally:
+            out.close()
+        os.replace(tmp, target)
+        done = True
+        return target
+    except av.error.FFmpegError as exc:
+        raise CaraFileError(tmp, f"the proxy cannot be written ({exc})") from exc
+    finally:
+        reader.close()
+        if not done:
+            tmp.unlink(missing_ok=True)
