@@ -51,6 +51,7 @@ True
 
 from __future__ import annotations
 
+import logging
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -77,9 +78,13 @@ __all__ = [
     "stabilise_manual",
 ]
 
+log = logging.getLogger("carapost.algorithms")
+
 #: Points of the automatic stable set kept in every frame (the rest of each frame's
 #: stable points are chosen per frame, as in assisted stabilisation).
 AUTO_SEEDS = 6
+#: Points of the first automatic stable set (the smallest spread of distances).
+AUTO_FIRST_SEEDS = 12
 
 #: The Properties pane section of :class:`StabilizationParameters`.
 STABILIZATION = "Stabilization Parameters"
@@ -206,7 +211,11 @@ def apply_transforms(transforms: ArrayLike, positions: ArrayLike) -> NDArray[np.
     X = np.asarray(positions, np.float64)
     if T.ndim == 2:
         return X @ T[:3, :3].T + T[:3, 3]
-    return np.einsum("fij,fpj->fpi", T[:, :3, :3], X) + T[:, None, :3, 3]
+    if X.shape[0] * X.shape[1] >= 10_000:  # compiled: numpy's batched 3 x 3 matmul is slow
+        from carapost.algorithms._stabilise_jit import transform_points
+
+        return transform_points(np.ascontiguousarray(T), np.ascontiguousarray(X))
+    return np.matmul(X, np.swapaxes(T[:, :3, :3], 1, 2)) + T[:, None, :3, 3]
 
 
 def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
@@ -222,8 +231,8 @@ def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
     sw = w.sum(1)
     ok = ((w > 0).sum(1) >= 3) & (sw > 0)
     s = w / np.where(sw > 0, sw, 1.0)[:, None]
-    ca = np.einsum("fn,fni->fi", s, A)
-    cb = np.einsum("fn,fni->fi", s, B)
+    ca = _wsum(s, A)
+    cb = _wsum(s, B)
     H = np.swapaxes((A - ca[:, None]) * s[..., None], 1, 2) @ (B - cb[:, None])
     U, S, Vt = np.linalg.svd(H)
     # collinear or coincident points leave the rotation undetermined
@@ -233,18 +242,18 @@ def _weighted_kabsch(A: NDArray, B: NDArray, w: NDArray
     Vt = Vt.copy()
     Vt[:, 2] *= d[:, None]
     R = np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)
-    t = cb - np.einsum("fij,fj->fi", R, ca)
+    t = cb - (R @ ca[..., None])[..., 0]
     return R, t, ok
+
+
+def _wsum(w: NDArray, a: NDArray) -> NDArray:
+    """sum_n w[f, n] a[f, n, :] -> (F, 3), as a batched matmul."""
+    return (w[:, None, :] @ a)[:, 0]
 
 
 # ----------------------------------------------------------------------------------------
 # errors
 # ----------------------------------------------------------------------------------------
-def _rms(d2: NDArray, mask: NDArray) -> float:
-    n = int(mask.sum())
-    return float(np.sqrt(d2[mask].sum() / n)) if n else float("nan")
-
-
 def stabilisation_errors(stabilised: NDArray, base_frame: int, stable: NDArray,
                          base_weight: float = 1.0, inter_weight: float = 1.0
                          ) -> tuple[float, float, float]:
@@ -266,16 +275,12 @@ def stabilisation_errors(stabilised: NDArray, base_frame: int, stable: NDArray,
         RMS distances (mm) to the base frame and to the previous frame over the stable
         points, and ``base_weight * base + inter_weight * inter``.
     """
-    d_base = ((stabilised - stabilised[base_frame]) ** 2).sum(-1)
-    m_base = stable & np.isfinite(d_base)
-    m_base[base_frame] = False
-    base = _rms(np.nan_to_num(d_base), m_base) if m_base.any() else 0.0
-    if len(stabilised) > 1:
-        d_int = ((stabilised[1:] - stabilised[:-1]) ** 2).sum(-1)
-        m_int = stable[1:] & np.isfinite(d_int)
-        inter = _rms(np.nan_to_num(d_int), m_int) if m_int.any() else 0.0
-    else:
-        inter = 0.0
+    from carapost.algorithms._stabilise_jit import error_sums
+
+    sb, nb, si, ni = error_sums(np.ascontiguousarray(stabilised, np.float64), int(base_frame),
+                                np.ascontiguousarray(stable, np.bool_))
+    base = float(np.sqrt(sb / nb)) if nb else 0.0
+    inter = float(np.sqrt(si / ni)) if ni else 0.0
     return base, inter, base_weight * base + inter_weight * inter
 
 
@@ -336,8 +341,9 @@ def stabilise_manual(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     T[~ok] = np.nan
     stable = np.zeros((F, P), dtype=bool)
     stable[:, cols] = True
-    S = apply_transforms(T, X)
-    base, inter, err = stabilisation_errors(S, int(base_frame), stable)
+    # the errors are measured on the chosen points only: map just those
+    S = apply_transforms(T, A)
+    base, inter, err = stabilisation_errors(S, int(base_frame), np.ones(A.shape[:2], bool))
     return StabilisationResult(T, int(base_frame), cols, stable, base, inter, err)
 
 
@@ -346,14 +352,19 @@ def stabilise_manual(positions: ArrayLike, points: Sequence[int] | NDArray, *,
 # ----------------------------------------------------------------------------------------
 def _stable_mask(d2: NDArray, fraction: float, keep: NDArray) -> NDArray[np.bool_]:
     """Per frame, the ``fraction`` of finite points with the smallest d2 (at least 3),
-    plus ``keep`` (the seed points, when present)."""
+    plus ``keep`` (the seed points, when present) unless a seed is clearly off: more than
+    3 times the frame's median stable distance (a selected point that moves with
+    expression after all)."""
     fin = np.isfinite(d2)
     n_fin = fin.sum(1)
     k = np.minimum(np.clip(np.ceil(fraction * n_fin).astype(np.intp), 3, None), n_fin)
     srt = np.sort(np.where(fin, d2, np.inf), axis=1)
-    thresh = srt[np.arange(len(d2)), np.maximum(k - 1, 0)]
+    rows = np.arange(len(d2))
+    thresh = srt[rows, np.maximum(k - 1, 0)]
+    median = srt[rows, np.maximum(k - 1, 0) // 2]
     with np.errstate(invalid="ignore"):
-        return (fin & (d2 <= thresh[:, None]) & (k[:, None] > 0)) | (keep & fin)
+        seeds = keep & fin & (d2 <= 9.0 * median[:, None])
+        return (fin & (d2 <= thresh[:, None]) & (k[:, None] > 0)) | seeds
 
 
 def _cross_matrix(v: NDArray) -> NDArray:
@@ -368,10 +379,11 @@ def _jtj(w: NDArray, a: NDArray, b: NDArray) -> NDArray:
     """sum_i w_i J(a_i)^T J(b_i) per frame, J(s) = [-[s]x | I] (3 x 6): (F, 6, 6)."""
     F = len(w)
     sw = w.sum(1)
-    sa = np.einsum("fn,fni->fi", w, a)
-    sb = np.einsum("fn,fni->fi", w, b)
-    ab = np.einsum("fn,fni,fni->f", w, a, b)
-    ba = np.einsum("fn,fni,fnj->fij", w, b, a)
+    sa = _wsum(w, a)
+    sb = _wsum(w, b)
+    wb_ = b * w[..., None]
+    ab = (wb_ * a).sum((1, 2))
+    ba = np.swapaxes(wb_, 1, 2) @ a
     out = np.zeros((F, 6, 6))
     out[:, :3, :3] = ab[:, None, None] * np.eye(3) - ba
     out[:, :3, 3:] = _cross_matrix(sa)
@@ -382,8 +394,12 @@ def _jtj(w: NDArray, a: NDArray, b: NDArray) -> NDArray:
 
 def _jtr(w: NDArray, s: NDArray, r: NDArray) -> NDArray:
     """sum_i w_i J(s_i)^T r_i per frame: (F, 6) (rotation part s x r, then r)."""
-    return np.concatenate([np.einsum("fn,fni->fi", w, np.cross(s, r)),
-                           np.einsum("fn,fni->fi", w, r)], 1)
+    wr = r * w[..., None]
+    # sum_n s x (w r) = the antisymmetric part of sum_n (w r) s^T
+    M = np.swapaxes(wr, 1, 2) @ s  # (F, 3, 3): M[i, j] = sum w r_i s_j
+    rot = np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0],
+                    M[:, 1, 0] - M[:, 0, 1]], 1)
+    return np.concatenate([rot, wr.sum(1)], 1)
 
 
 def _gauss_newton_step(S: NDArray, ref: NDArray, stable: NDArray, wb: float, wi: float,
@@ -396,23 +412,13 @@ def _gauss_newton_step(S: NDArray, ref: NDArray, stable: NDArray, wb: float, wi:
     tridiagonal (6 x 6 blocks) and solved as one banded system. ``fixed`` (the base
     frame) does not move. Returns the updates (F, 6): omega (rad), tau (mm).
     """
+    from carapost.algorithms._stabilise_jit import normal_equations
+
     F = len(S)
-    fin = np.isfinite(S).all(-1)
-    Sz = np.where(fin[..., None], S, 0.0)
-    wB = wb * (stable & fin)
-    r = np.where(wB[..., None] > 0, Sz - np.nan_to_num(ref), 0.0)
-    diag = _jtj(wB, Sz, Sz)
-    g = _jtr(wB, Sz, r)
-    off = np.zeros((max(F - 1, 0), 6, 6))  # block (f, f-1), f = 1..F-1
-    if wi > 0 and F > 1:
-        wI = wi * (stable[1:] & fin[1:] & fin[:-1])
-        a, b = Sz[1:], Sz[:-1]
-        rI = np.where(wI[..., None] > 0, a - b, 0.0)
-        diag[1:] += _jtj(wI, a, a)
-        diag[:-1] += _jtj(wI, b, b)
-        off = -_jtj(wI, a, b)
-        g[1:] += _jtr(wI, a, rI)
-        g[:-1] -= _jtr(wI, b, rI)
+    diag, off, g = normal_equations(np.ascontiguousarray(S, np.float64),
+                                    np.ascontiguousarray(ref, np.float64),
+                                    np.ascontiguousarray(stable, np.float64),
+                                    float(wb), float(wi))
     scale = max(float(np.abs(diag).max(initial=0.0)), 1.0)
     diag += 1e-9 * scale * np.eye(6)
     diag[fixed] += 1e6 * scale * np.eye(6)
@@ -441,6 +447,7 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
                        base_frame: int, params: StabilizationParameters | None = None,
                        candidates: NDArray[np.bool_] | None = None,
                        reference: NDArray | None = None,
+                       point_weights: NDArray | None = None,
                        progress: Progress = None) -> StabilisationResult:
     """Stabilize Data [Assisted]: from a selection, add stable points and minimise the
     weighted stabilisation error.
@@ -460,6 +467,9 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     reference : ndarray, shape (P, 3), optional
         The shape every frame is fitted to, in base-frame coordinates (default: the base
         frame's positions; automatic stabilisation passes a de-noised median shape).
+    point_weights : ndarray, shape (P,), optional
+        Weight of each point in the fits (default 1; automatic stabilisation weights
+        each point by the inverse of its motion in a first pass).
     progress : callable, optional
         ``progress(iteration, max_iterations)``; False stops (result ``cancelled``).
 
@@ -492,6 +502,8 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
     it = 0
     cancelled = False
     valid = np.isfinite(T).all((1, 2))
+    pw = (np.ones(P) if point_weights is None
+          else np.nan_to_num(np.asarray(point_weights, np.float64)))[None, :]
     last = np.inf
     S = apply_transforms(T, Xc)
     for it in range(1, int(p.max_processing_iterations) + 1):
@@ -503,7 +515,8 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
         if not np.isfinite(err) or last - err <= p.tolerance * max(err, 1e-3):
             break
         last = err
-        step = _gauss_newton_step(S, ref, stable & valid[:, None], wb, wi, int(base_frame))
+        step = _gauss_newton_step(S, ref, (stable & valid[:, None]) * pw, wb, wi,
+                                  int(base_frame))
         dT = _to4(rodrigues_to_matrix(step[:, :3]), step[:, 3:])
         T = np.where(valid[:, None, None], dT @ T, T)
         T[base_frame] = np.eye(4)  # held by the solve; exact here
@@ -646,7 +659,9 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
     """
     p = params or StabilizationParameters()
     X = np.asarray(positions, np.float64)
-    seed = choose_stable_points(X, fraction=p.stable_points_percent, candidates=candidates)
+    # the seed set's size is fixed: the Stable Points Percent is each frame's choice
+    seed = choose_stable_points(X, fraction=0.0, candidates=candidates,
+                                min_points=AUTO_FIRST_SEEDS)
     base = choose_base_frame(X, seed)
     seed = seed[:AUTO_SEEDS]
     # the seed set must exist at the base frame; keep the ones that do
@@ -666,6 +681,7 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
     spread = np.where(ok & np.isfinite(spread), spread, np.inf)
     refined = np.argsort(spread, kind="stable")[:AUTO_SEEDS]
     refined = refined[np.isfinite(spread[refined])]
+    log.debug("automatic stabilisation: base frame %d, seeds %s", base, refined.tolist())
     if len(refined) < 3:
         refined = seed
     # the median stabilised shape is a reference without the base frame's noise
@@ -673,8 +689,13 @@ def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | No
         warnings.simplefilter("ignore", RuntimeWarning)
         shape = np.nanmedian(S, axis=0)
     shape = np.where(np.isfinite(X[base]), shape, np.nan)
+    # inverse-variance weights: a point's motion once stabilised, over the noise floor
+    # (the spread of the most stable points)
+    floor = float(np.median(spread[refined]))
+    weights = np.where(np.isfinite(spread), 1.0 / (floor ** 2 + spread ** 2), 0.0)
+    weights /= weights.max()
     return stabilise_assisted(X, refined, base_frame=base, params=p, candidates=candidates,
-                              reference=shape, progress=progress)
+                              reference=shape, point_weights=weights, progress=progress)
 
 
 # ----------------------------------------------------------------------------------------
