@@ -103,6 +103,22 @@ def _cmd_process(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from carapost.batch import run, terminal_progress
+
+    report = run(args.inputs, args.output, rom=args.rom, brim=args.brim, c3d=args.c3d,
+                 fbx=args.fbx, patch_tracking=args.patch_tracking, scheduler=args.scheduler,
+                 workers=args.workers, retries=args.retries, force=args.force,
+                 progress=None if args.quiet else terminal_progress())
+    s = report["summary"]
+    print(f"{s['done']} done, {s['failed']} failed, {s['skipped']} skipped of {s['total']} "
+          f"takes in {report['seconds']:.1f} s; report: {args.output}/batch_report.json")
+    for row in report["takes"]:
+        if row["status"] == "failed":
+            print(f"  failed: {row['take']}: {row['error']}", file=sys.stderr)
+    return 1 if s["failed"] else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``carapost`` command."""
     p = argparse.ArgumentParser(
@@ -145,6 +161,29 @@ def build_parser() -> argparse.ArgumentParser:
                     help="patch track point-cameras without a blob (a little more "
                          "coverage, about 2.5x slower: every image is decoded again "
                          "while tracking)")
+
+    sp = add("batch", _cmd_batch,
+             "process many takes on Dask (a local cluster, or --scheduler); resumable")
+    sp.add_argument("inputs", nargs="+", metavar="INPUT",
+                    help="take file, folder (searched recursively) or wildcard")
+    sp.add_argument("-o", "--output", required=True, metavar="OUTDIR",
+                    help="folder for <take>.cara (.c3d, .fbx), the manifest and the report")
+    sp.add_argument("--rom", help="ROM .cara project to initialise every take from")
+    sp.add_argument("--brim", help="brim model for every take (.csv or .svg)")
+    sp.add_argument("--c3d", action="store_true", help="also export <take>.c3d")
+    sp.add_argument("--fbx", action="store_true", help="also export <take>.fbx")
+    sp.add_argument("--patch-tracking", action="store_true",
+                    help="patch track point-cameras without a blob (slower)")
+    sp.add_argument("--scheduler", metavar="ADDRESS",
+                    help="use a running Dask scheduler (tcp://host:8786) instead of a "
+                         "local cluster")
+    sp.add_argument("--workers", type=int, metavar="N",
+                    help="local cluster workers (default: one per core)")
+    sp.add_argument("--retries", type=int, default=1, metavar="K",
+                    help="times a take is rerun when its worker dies (default 1)")
+    sp.add_argument("--force", action="store_true",
+                    help="process every take, also those already up to date")
+    sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")

@@ -194,8 +194,10 @@ def _stage(what: str, call: Callable[[], Any]) -> Any:
         raise ValueError(f"{what}: {exc}" if what else str(exc)) from None
 
 
-def detect_all(session: Session, progress: Callable[[int, int], bool] | None = None) -> None:
-    """Stage: Detect Blobs in every frame of every camera.
+def detect_all(session: Session, progress: Callable[[int, int], bool] | None = None, *,
+               workers: int = 2) -> None:
+    """Stage: Detect Blobs in every frame of every camera (on ``workers`` detector
+    processes; 1 detects in the calling process, as a batch worker does).
 
     Raises
     ------
@@ -206,7 +208,7 @@ def detect_all(session: Session, progress: Callable[[int, int], bool] | None = N
     """
     project = session.project
     cmd = _stage("Detect Blobs", lambda: session.detect_blobs(
-        "all", cameras=range(project.n_cameras), progress=progress))
+        "all", cameras=range(project.n_cameras), progress=progress, workers=workers))
     if cmd is None or cmd.cancelled:  # None: cancelled at once
         raise RuntimeError("cancelled during blob detection; nothing was written")
     if project.detections.total == 0:
@@ -282,6 +284,12 @@ def write_outputs(session: Session, inputs: TakeInputs) -> dict[str, str | None]
     return result
 
 
+def _mean_residual(residual: NDArray[np.float32]) -> float:
+    """Mean of the finite residuals (mm); NaN when there is none."""
+    r = residual[np.isfinite(residual)]
+    return float(r.mean()) if r.size else float("nan")
+
+
 def process_take(
     take_path: str | Path,
     *,
@@ -292,6 +300,7 @@ def process_take(
     fbx: str | Path | None = None,
     progress: Callable[[int, int], bool] | None = None,
     patch_tracking: bool = False,
+    workers: int = 2,
 ) -> dict[str, Any]:
     """Process a take headlessly: import, detect, solve, initialise, track, save, export.
 
@@ -321,6 +330,9 @@ def process_take(
         while tracking, both passes, which makes the whole run about 2.5x slower for
         +0.1 % coverage and +0.05 mm RMSE on the rendered speech takes
         (docs/benchmarks.md).
+    workers : int
+        Blob detector processes (1: detect in this process; a batch worker, whose
+        parallelism is the takes, passes 1).
 
     Returns
     -------
@@ -328,6 +340,7 @@ def process_take(
         ``project``, ``c3d``, ``fbx`` (paths written or None), ``frames``, ``cameras``,
         ``points`` (face points), ``brim_points``, ``initialised`` (face points at the
         first frame), ``tracked_fraction`` (face point-frames with 3D / point-frames),
+        ``mean_residual`` (mm, over the measured face samples; NaN when none),
         ``brim_source``, ``seconds`` per stage.
 
     Raises
@@ -369,7 +382,7 @@ def process_take(
 
     with session:  # closes the videos before anything is written
         t0 = time.perf_counter()
-        detect_all(session, None if progress is None else detect_progress)
+        detect_all(session, None if progress is None else detect_progress, workers=workers)
         seconds["detect"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         brim_source = calibrate(session, inputs)
@@ -390,6 +403,7 @@ def process_take(
         "brim_points": int((project.points.kind == KIND_BRIM).sum()),
         "initialised": n_init,
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
+        "mean_residual": _mean_residual(project.points.residual[:, face]),
         "brim_source": brim_source if inputs.rom is None else "ROM",
         "seconds": {k: round(v, 2) for k, v in seconds.items()},
     })
