@@ -24,7 +24,7 @@ test: $(STAMP)
 	QT_QPA_PLATFORM=offscreen $(VPY) -m pytest -q
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff check src tests benchmarks examples
 
 screenshots: $(STAMP)
 	xvfb-run -a -s "-screen 0 1920x1080x24" $(VPY) -m carapost.ui.screenshots docs/screenshots
