@@ -119,6 +119,33 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 1 if s["failed"] else 0
 
 
+def _cmd_history(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from carapost.io.cara import load_project
+    from carapost.session.script import to_python
+
+    project = load_project(args.project)
+    if not args.python:
+        steps = project.script or []
+        for i, step in enumerate(s for s in steps if "import" not in s):
+            print(f"{i + 1:3d}. {step.get('call') or 'group ' + repr(step.get('group'))}")
+        return 0
+    if project.script is None:
+        raise CliError(f"{args.project}: the project holds no record of its History (it "
+                       "was not made by a Session of this version)")
+    print(to_python(project.script, name=Path(args.project).name), end="")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from carapost.session.script import replay
+
+    out = replay(args.script, args.take, args.output)
+    print(f"wrote {out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``carapost`` command."""
     p = argparse.ArgumentParser(
@@ -184,6 +211,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--force", action="store_true",
                     help="process every take, also those already up to date")
     sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+    sp = add("history", _cmd_history,
+             "list the History a project was made with (--python: as a script)")
+    sp.add_argument("project", help=".cara project")
+    sp.add_argument("--python", action="store_true",
+                    help="print it as a Python script of Session calls (for replay)")
+
+    sp = add("replay", _cmd_replay, "run a history script on a take and save the project")
+    sp.add_argument("script", help="script written by carapost history --python")
+    sp.add_argument("take", help="one camera file of the take, or its folder")
+    sp.add_argument("-o", "--output", required=True, help="project file to write")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")
