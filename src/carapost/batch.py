@@ -448,17 +448,22 @@ def _local_cluster(workers: int) -> tuple[Any, Any]:
     import dask
     from distributed import Client, LocalCluster
 
+    _quiet_distributed()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0}):
         # ":0": the HTTP server (dashboard, health checks) on a free port, so two batches
         # on one machine never contend for 8787
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
-    # the scheduler runs in this process: its INFO lines would drown the progress bar
+    _quiet_distributed()
+    return cluster, Client(cluster, set_as_default=False)
+
+
+def _quiet_distributed() -> None:
+    """The scheduler runs in this process: its INFO lines would drown the progress bar."""
     for name in list(logging.root.manager.loggerDict):
         if name == "distributed" or name.startswith("distributed."):
             logging.getLogger(name).setLevel(logging.WARNING)
-    return cluster, Client(cluster, set_as_default=False)
 
 
 def _worker_died(exc: BaseException | None) -> bool:
