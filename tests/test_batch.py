@@ -251,3 +251,36 @@ def test_module_examples():
     import carapost.batch
 
     assert doctest.testmod(carapost.batch).failed == 0
+
+
+@pytest.mark.slow
+def test_ctrl_c_keeps_finished_takes_and_leaves_nothing_half_written(shoot, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "carapost.cli", "batch", str(shoot / "day1"),
+                             "-o", str(out), "--workers", "1"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    start = time.monotonic()
+    while not (out / MANIFEST_NAME).exists() and time.monotonic() - start < 300:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    text, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, text
+    rep = json.loads((out / "batch_report.json").read_text())
+    statuses = [r["status"] for r in rep["takes"]]
+    assert statuses.count("done") >= 1 and "cancelled" in statuses
+    done = {Path(r["project"]).name for r in rep["takes"] if r["status"] == "done"}
+    assert set(read_manifest(out)) == done
+    assert not list(out.glob(".*.part"))  # no temporary file of a killed writer
+    from carapost.io.cara import load_project
+
+    for name in (p.name for p in out.glob("*.cara")):
+        load_project(out / name)  # every project there is whole
+    # the next run does the rest
+    rep2 = run([shoot / "day1"], out, workers=2)
+    assert rep2["summary"]["skipped"] == len(done)
+    assert rep2["summary"]["done"] == 4 - len(done)
