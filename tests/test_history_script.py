@@ -131,3 +131,26 @@ def test_module_examples():
     import carapost.session.script
 
     assert doctest.testmod(carapost.session.script).failed == 0
+
+
+def test_hand_built_commands_and_undone_steps_in_the_record():
+    from carapost.commands import edit
+    from carapost.model.project import new_project
+
+    project = new_project(6, 2)
+    project.script = [{"import": {"take_brim": False}}]
+    s = Session(project)
+    s.set_active_range(1, 4)
+    s.push(edit.SetRange(project, "view_range", (0, 3), "Set View Range By Hand"))
+    s.set_active_range(2, 3)
+    s.undo()
+    steps = s.script_steps()
+    assert [st.get("call") for st in steps] == [None, "set_active_range", "push"]
+    text = to_python(steps, name="demo")
+    assert "s.set_active_range(first=1, last=4)" in text
+    assert "# not replayable: push('Set View Range By Hand')" in text
+    assert "last=3" not in text  # undone
+    assert "IMPORT = {'take_brim': False}" in text
+    compile(text, "history.py", "exec")
+    s.clear_history()  # the effect stays in the project, so does the record
+    assert s.script_steps() == steps

@@ -112,7 +112,7 @@ class ScriptActions:
             if getattr(cls, name) is not member:  # overridden lower in the MRO
                 continue
             setattr(cls, name, _recording(name, member))
-        for name in ("prepare", "apply", "group", "clear_history", "save"):
+        for name in _SPECIAL:
             setattr(cls, name, _SPECIAL[name](getattr(cls, name)))
         original_init = cls.__init__
 
@@ -296,8 +296,28 @@ def _wrap_save(func: Callable[..., Any]) -> Callable[..., Any]:
     return save
 
 
+def _wrap_push(func: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(func)
+    def push(self: Any, command: Any) -> Any:
+        rec = self._script()
+        if rec["depth"]:
+            return func(self, command)
+        before = _state(self.project)
+        position = self.stack.position
+        rec["depth"] += 1
+        try:
+            out = func(self, command)
+        finally:
+            rec["depth"] -= 1
+        # a command built by hand has no call to replay: the script says so
+        what = getattr(command, "description", type(command).__name__)
+        self._note("push", [], {"unrecordable": f"push({what!r})"}, before, position)
+        return out
+    return push
+
+
 _SPECIAL = {"prepare": _wrap_prepare, "apply": _wrap_apply, "group": _wrap_group,
-            "clear_history": _wrap_clear, "save": _wrap_save}
+            "clear_history": _wrap_clear, "save": _wrap_save, "push": _wrap_push}
 
 
 # ======================================================================================
