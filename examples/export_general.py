@@ -59,7 +59,7 @@ def plot_tracks(project, columns: list[int], camera: int, path: str) -> None:
     ax_y.invert_yaxis()  # image y grows downwards
     name = project.take.cameras[camera].name
     ax_x.set_title(f"{project.take.name}: 2D tracks in {name}")
-    ax_x.legend(fontsize="small", ncol=4)
+    ax_x.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
