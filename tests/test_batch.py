@@ -284,3 +284,11 @@ def test_ctrl_c_keeps_finished_takes_and_leaves_nothing_half_written(shoot, tmp_
     rep2 = run([shoot / "day1"], out, workers=2)
     assert rep2["summary"]["skipped"] == len(done)
     assert rep2["summary"]["done"] == 4 - len(done)
+
+
+def test_a_running_scheduler_by_address(shoot, client, tmp_path):
+    """--scheduler ADDRESS: the batch connects to a running cluster and leaves it up."""
+    address = client.scheduler.address
+    rep = run([shoot / "day1/Take02"], tmp_path / "out", scheduler=address)
+    assert rep["summary"]["done"] == 1 and rep["workers"] == 2
+    assert client.submit(sum, [1, 2]).result() == 3  # still running
