@@ -15,7 +15,7 @@ THIRD_PARTY = (
     ("PySide6 (Qt for Python)", "LGPL-3.0"), ("numpy", "BSD-3-Clause"),
     ("scipy", "BSD-3-Clause"), ("numba", "BSD-2-Clause"),
     ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"), ("pyqtgraph", "MIT"),
-    ("lxml", "BSD-3-Clause"),
+    ("lxml", "BSD-3-Clause"), ("dask (and distributed)", "BSD-3-Clause"),
 )
 
 
