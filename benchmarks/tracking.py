@@ -26,6 +26,17 @@ Prints JSON lines:
   initialised at its last frame), scored like ``evaluate`` (points matched one-to-one to
   markers by mean distance); ``take_fps`` also gives ``cpu_fps``. One 600-frame case
   takes 0.5-2 minutes.
+- with ``--variety``: takes unlike the standard ones
+  (:func:`carapost.synth.variety.other_rig_config`: Poisson-disk markers of radius
+  1.2-2.0 mm and grey ~20-50, other head shapes, portrait cameras, 40 mm caddies 180 mm
+  apart, more flex and slip) rendered, processed end to end by ``process_take`` and
+  scored per sample group (seen by one caddy only, by both, all):
+  ``variety_rmse_mm``, ``variety_p99_mm``, ``variety_max_mm``, ``variety_coverage``,
+  ``variety_over_0_5mm``, ``variety_swaps``, ``variety_spurious``,
+  ``uncertainty_within_1sigma`` and ``uncertainty_within_2sigma`` (fraction of samples
+  whose error is within their 1 / 2 sigma), one line per take and group, then the same
+  pooled over the takes (``take: "pooled"``). ``--variety-set heldout`` (the default)
+  scores the held-out takes, never used to tune; ``tuning`` the development ones.
 """
 
 from __future__ import annotations
@@ -230,6 +241,112 @@ def bench_rom(folder: Path) -> None:
     emit("rom_track_swaps", ev["swaps"], "count", spurious_points=ev["spurious_points"])
 
 
+def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
+    """Render, process and score the takes of another renderer (see the module doc)."""
+    from carapost.api import open_project
+    from carapost.model.project import KIND_FACE
+    from carapost.pipeline import process_take
+    from carapost.synth import generate_take
+    from carapost.synth.scoring import GROUPS, group_quality
+    from carapost.synth.variety import HELD_OUT_VARIANTS, TUNING_VARIANTS, other_rig_config
+
+    indices = HELD_OUT_VARIANTS if which == "heldout" else TUNING_VARIANTS
+    pooled: dict[str, list] = {g: [] for g in GROUPS}
+    totals = {"swaps": 0, "spurious": 0}
+    for index in indices:
+        cfg = other_rig_config(index, frames=frames, take_name="take")
+        take = folder / f"variety{index}_{frames}"
+        if not (take / "truth.npz").is_file():
+            generate_take(take, cfg)
+        out = take.with_suffix(".cara")
+        t0 = time.perf_counter()
+        info = process_take(take, output=out)
+        seconds = time.perf_counter() - t0
+        project = open_project(out)
+        truth = np.load(take / "truth.npz")
+        face = project.points.kind == KIND_FACE
+        pos = project.points.positions[:, face]
+        sig = project.points.arrays["sigma"][:, face]
+        C = project.n_cameras
+        caddies = [list(range((C + 1) // 2)), list(range((C + 1) // 2, C))]
+        q = group_quality(truth["points3d"], truth["visible"], pos, caddies, sig)
+        common = {"set": which, "take": index, "preset": cfg.preset, "frames": frames,
+                  "markers": cfg.poisson_markers, "size": list(cfg.size),
+                  "pipeline_seconds": round(seconds, 1), "stage_seconds": info["seconds"]}
+        _emit_groups(q, common)
+        totals["swaps"] += int(q["all"]["swaps"])
+        totals["spurious"] += int(q["all"]["spurious"])
+        # pooled over takes: keep each take's errors and sigmas by group
+        errs = _group_errors(truth["points3d"], truth["visible"], pos, sig, caddies)
+        for g in GROUPS:
+            pooled[g].append(errs[g])
+    pooled_q = {}
+    for g in GROUPS:
+        e = np.concatenate([x[0] for x in pooled[g]]) if pooled[g] else np.zeros(0)
+        sg = np.concatenate([x[1] for x in pooled[g]]) if pooled[g] else np.zeros(0)
+        cov = [x[2] for x in pooled[g] if x[2] is not None]
+        ok = np.isfinite(sg) & (sg > 0)
+        pooled_q[g] = {
+            "samples": int(e.size),
+            "rmse_mm": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
+            "p99_mm": float(np.percentile(e, 99)) if e.size else None,
+            "max_mm": float(e.max()) if e.size else None,
+            "over_0_5mm": float(np.mean(e > 0.5)) if e.size else None,
+            "coverage": float(np.mean(cov)) if cov else None,
+            "within_1sigma": float(np.mean(e[ok] <= sg[ok])) if ok.any() else None,
+            "within_2sigma": float(np.mean(e[ok] <= 2 * sg[ok])) if ok.any() else None,
+        }
+    pooled_q["all"].update(totals)
+    _emit_groups(pooled_q, {"set": which, "take": "pooled", "frames": frames,
+                            "takes": list(indices), "load_average": _load_average()})
+
+
+def _group_errors(truth, visible, pos, sig, caddies):
+    """Per group: (errors, sigmas, coverage) of the matched samples (for pooling)."""
+    from carapost.synth.scoring import GROUPS, score_tracks
+
+    Y = np.asarray(pos, dtype=np.float64)
+    present = np.isfinite(Y[..., 0]).any(0)
+    Y, sg_p = Y[:, present], np.asarray(sig, dtype=np.float64)[:, present]
+    vis = np.asarray(visible).astype(bool)
+    s = score_tracks(Y, truth, vis)
+    F, M = truth.shape[:2]
+    err = np.full((F, M), np.nan)
+    sg = np.full((F, M), np.nan)
+    for i in np.flatnonzero(s.match >= 0):
+        err[:, s.match[i]] = np.linalg.norm(Y[:, i] - truth[:, s.match[i]], axis=-1)
+        sg[:, s.match[i]] = sg_p[:, i]
+    n_cad = np.stack([vis[..., cams].any(-1) for cams in caddies], axis=-1).sum(-1)
+    seen = vis.sum(-1) >= 2
+    masks = {"all": np.isfinite(truth[..., 0]), "one_caddy": seen & (n_cad == 1),
+             "two_caddies": seen & (n_cad >= 2)}
+    out = {}
+    for g in GROUPS:
+        m = masks[g] & np.isfinite(err)
+        grp_seen = seen & masks[g]
+        hit = np.nan_to_num(err, nan=np.inf) <= 2.0
+        out[g] = (err[m], sg[m], float(hit[grp_seen].mean()) if grp_seen.any() else None)
+    return out
+
+
+def _emit_groups(q: dict, common: dict) -> None:
+    def r(v, n=4):
+        return None if v is None else round(float(v), n)
+
+    for g, row in q.items():
+        extra = {**common, "group": g, "samples": row["samples"]}
+        emit("variety_rmse_mm", r(row["rmse_mm"]), "mm", **extra)
+        emit("variety_p99_mm", r(row["p99_mm"]), "mm", **extra)
+        emit("variety_max_mm", r(row["max_mm"]), "mm", **extra)
+        emit("variety_over_0_5mm", r(row["over_0_5mm"]), "fraction", **extra)
+        emit("variety_coverage", r(row["coverage"]), "fraction", **extra)
+        emit("uncertainty_within_1sigma", r(row["within_1sigma"]), "fraction", **extra)
+        emit("uncertainty_within_2sigma", r(row["within_2sigma"]), "fraction", **extra)
+        if g == "all":
+            emit("variety_swaps", row["swaps"], "count", **extra)
+            emit("variety_spurious", row["spurious"], "count", **extra)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=600)
@@ -244,16 +361,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--takes", default="",
                     help="comma-separated track_take cases: speech,fast,blink,dense156,"
                          "sparse35,back (truth-derived detections, --frames frames)")
+    ap.add_argument("--variety", action="store_true",
+                    help="render, process and score takes of another renderer")
+    ap.add_argument("--variety-set", choices=("heldout", "tuning"), default="heldout")
+    ap.add_argument("--variety-frames", type=int, default=120)
+    ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /
                     "carapost-bench-tracking")
     args = ap.parse_args(argv)
-    bench_speed(args.frames, args.runs)
+    if not args.skip_speed:
+        bench_speed(args.frames, args.runs)
     if args.takes:
         bench_takes(args.frames, [c.strip() for c in args.takes.split(",") if c.strip()])
     if not args.skip_accuracy:
         args.cache.mkdir(parents=True, exist_ok=True)
         for seed in (int(x) for x in args.accuracy_seeds.split(",") if x.strip()):
             bench_accuracy(args.accuracy_frames, args.cache, seed)
+    if args.variety:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        bench_variety(args.variety_frames, args.cache, args.variety_set)
     if args.rom:
         args.cache.mkdir(parents=True, exist_ok=True)
         bench_rom(args.cache)

@@ -38,6 +38,12 @@ def fixtures_dir() -> Path:
     return path
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _autosaves_in_a_temporary_folder(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Autosaves of never-saved projects go to a temporary folder, never the user's."""
+    os.environ["CARAPOST_AUTOSAVE_DIR"] = str(tmp_path_factory.mktemp("autosave"))
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     """A fixed-seed random generator, fresh for every test."""

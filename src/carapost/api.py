@@ -47,19 +47,25 @@ __all__ = [
 ]
 
 
-def open_project(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
+def open_project(path: str | Path, *, relocate: RelocateCallback | None = None,
+                 recover: bool | None = None) -> Project:
     """Open a ``.cara`` project (`Session.open` without the session).
 
     Camera videos that moved are looked for beside the project first, then
     ``relocate(camera_name, missing_path)`` is asked (see `relocate_files` to fix them
-    afterwards).
+    afterwards). ``recover``: when an autosave copy newer than the file exists, True
+    opens the copy, False the file; None (default) opens the file, warns
+    (`NewerAutosaveWarning`) and sets ``project.newer_autosave`` to the copy's path.
 
     Raises
     ------
     CaraFileError
         Missing, damaged or foreign files and projects of a newer format.
     """
-    return Session.open(path, relocate=relocate).project
+    session = Session.open(path, relocate=relocate, recover=recover)
+    project = session.project
+    project.newer_autosave = session.newer_autosave  # type: ignore[attr-defined]
+    return project
 
 
 def save_project(project: Project, path: str | Path) -> Path:

@@ -10,6 +10,7 @@ import argparse
 import logging
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from carapost import __version__
 
@@ -43,14 +44,30 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     from carapost.api import evaluate
 
-    print(json.dumps(evaluate(args.project, args.truth), indent=1))
+    with _open_session(args) as session:
+        print(json.dumps(evaluate(session.project, args.truth), indent=1))
     return 0
 
 
-def _cmd_export_c3d(args: argparse.Namespace) -> int:
-    from carapost.session import Session
+def _open_session(args: argparse.Namespace) -> Any:
+    """Session.open of ``args.project``; a newer autosave copy is reported on stderr."""
+    import warnings
 
-    with Session.open(args.project) as session:
+    from carapost.session import Session
+    from carapost.session.recovery import NewerAutosaveWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NewerAutosaveWarning)
+        session = Session.open(args.project, recover=True if args.recover else None)
+    if session.newer_autosave is not None:
+        print(f"carapost {args.command}: warning: {args.project} has a newer autosave copy "
+              f"({session.newer_autosave}); the file was used. Pass --recover to use the "
+              "copy.", file=sys.stderr)
+    return session
+
+
+def _cmd_export_c3d(args: argparse.Namespace) -> int:
+    with _open_session(args) as session:
         session.export_c3d(args.output, frame_range=args.range, include_brim=args.brim,
                            stabilized=args.stabilized)
     print(f"wrote {args.output}")
@@ -58,20 +75,16 @@ def _cmd_export_c3d(args: argparse.Namespace) -> int:
 
 
 def _cmd_export_fbx(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_fbx(args.output, frame_range=args.range, include_brim=args.brim,
                            up_axis=args.up, include_cameras=args.cameras,
-                           include_sticks=args.sticks)
+                           include_sticks=args.sticks, stabilized=args.stabilized)
     print(f"wrote {args.output}")
     return 0
 
 
 def _cmd_export_xcp(args: argparse.Namespace) -> int:
-    from carapost.session import Session
-
-    with Session.open(args.project) as session:
+    with _open_session(args) as session:
         session.export_xcp(args.output, frame=args.frame)
     print(f"wrote {args.output}")
     return 0
@@ -97,6 +110,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
         c3d=args.c3d,
         fbx=args.fbx,
         patch_tracking=args.patch_tracking,
+        stabilize=args.stabilize,
     )
     for key, value in result.items():
         print(f"{key}: {value}")
@@ -146,6 +160,23 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+RECOVER_HELP = ("when an autosave copy newer than the project exists (the program stopped "
+                "before saving), use the copy")
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _quiet_stdout() -> int:
+    """The reader of our output went away (``carapost evaluate ... | head``): not an
+    error of ours; point stdout at devnull so the interpreter's flush stays quiet."""
+    import os
+
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``carapost`` command."""
     p = argparse.ArgumentParser(
@@ -188,6 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="patch track point-cameras without a blob (a little more "
                          "coverage, about 2.5x slower: every image is decoded again "
                          "while tracking)")
+    sp.add_argument("--stabilize", choices=("auto", "assisted"),
+                    help="stabilise the tracked take (Stabilize Data [Automatic], or "
+                         "[Assisted] seeded with the automatically chosen stable points "
+                         "and base frame 0); the exports are then stabilised")
 
     sp = add("batch", _cmd_batch,
              "process many takes on Dask (a local cluster, or --scheduler); resumable")
@@ -226,6 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project")
     sp.add_argument("truth")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
 
     for name, func, what in (
         ("export-c3d", _cmd_export_c3d, "C3D"),
@@ -233,19 +269,21 @@ def build_parser() -> argparse.ArgumentParser:
     ):
         sp = add(name, func, f"export a project's points as {what}")
         sp.add_argument("project")
+        sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
         sp.add_argument("output")
         sp.add_argument("--range", choices=("active", "all"), default="all")
         sp.add_argument("--brim", action="store_true", help="include brim points")
-        if name == "export-c3d":
-            sp.add_argument("--stabilized", action="store_true",
-                            help="export stabilised coordinates")
-        else:
+        sp.add_argument("--stabilized", action="store_true",
+                        help="export stabilised (and aligned) coordinates; the project must "
+                             "be stabilised")
+        if name == "export-fbx":
             sp.add_argument("--up", choices=("y", "z"), default="y", help="up axis")
             sp.add_argument("--cameras", action="store_true", help="include animated cameras")
             sp.add_argument("--sticks", action="store_true", help="include the stick mesh")
 
     sp = add("export-xcp", _cmd_export_xcp, "export the cameras of one frame as XCP")
     sp.add_argument("project")
+    sp.add_argument("--recover", action="store_true", help=RECOVER_HELP)
     sp.add_argument("output")
     sp.add_argument("--frame", type=int, default=None, help="frame (default: current frame)")
     return p
@@ -273,19 +311,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (CliError, CaraFileError, CommandError, FileNotFoundError, ValueError) as exc:
-        print(f"carapost {args.command}: error: {exc}", file=sys.stderr)
+    except BrokenPipeError:
+        return _quiet_stdout()
+    except (CliError, CaraFileError, CommandError, OSError, ValueError) as exc:
+        print(f"carapost {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"carapost {args.command}: error: out of memory", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("carapost: cancelled", file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        # the reader of our output went away (`carapost evaluate ... | head`): not an
-        # error of ours; point stdout at devnull so the interpreter's flush stays quiet
-        import os
-
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except Exception as exc:
+        if args.verbose:
+            raise
+        print(f"carapost {args.command}: error: unexpected {type(exc).__name__}: "
+              f"{_one_line(exc)} (run with -v for the details)", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

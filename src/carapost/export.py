@@ -59,7 +59,7 @@ class ExportOptions:
     include_brim : bool
         Also write the brim points (Include Brim Points).
     stabilized : bool
-        Stabilised coordinates (Export Stabilized Coordinates; C3D only).
+        Stabilised (and aligned) coordinates (Export Stabilized Coordinates).
     up_axis : {"y", "z"}
         FBX scene up axis (FBX Up Axis).
     include_cameras : bool
@@ -122,9 +122,11 @@ def check_output(path: str | Path, suffixes: str | tuple[str, ...]) -> Path:
     CaraFileError
         ``path`` is a folder or its folder does not exist.
     """
+    from carapost.io.atomic import checked_path
+
     if isinstance(suffixes, str):
         suffixes = (suffixes,)
-    p = Path(path)
+    p = checked_path(path)  # empty names and NUL bytes first
     if p.suffix.lower() not in suffixes:
         allowed = " or ".join(suffixes)
         raise OutputNameError(p, f"the output must be a {allowed} file (the file name must "
@@ -165,13 +167,31 @@ def _export_columns(project: Project, include_brim: bool) -> NDArray[np.intp]:
     return cols.astype(np.intp)
 
 
-def _exported_points(project: Project, frame_range: FrameRange, include_brim: bool
+def _exported_points(project: Project, frame_range: FrameRange, include_brim: bool,
+                     stabilized: bool = False
                      ) -> tuple[int, int, NDArray[np.intp], NDArray[np.float64], list[str]]:
     """What C3D and FBX both write: the inclusive frames, the point columns, their
-    positions over those frames (float64) and their labels made unique."""
+    positions over those frames (float64; stabilised and aligned when ``stabilized``)
+    and their labels made unique."""
+    from carapost.model.stabilization import has_processing, processed_positions
+
     a, b = resolve_frame_range(project, frame_range)
     cols = _export_columns(project, include_brim)
-    positions = project.points.positions[a:b + 1][:, cols].astype(np.float64)
+    if stabilized:
+        if not has_processing(project):
+            raise ValueError("stabilised export needs a stabilised project; this project has "
+                             "no stabilisation (run Stabilize Data first, or export without "
+                             "it)")
+        positions = processed_positions(project, a, b, cols)
+        st = project.stabilization
+        if st is not None:
+            outside = ~np.isfinite(st.transforms[a:b + 1]).all((1, 2))
+            if outside.any():
+                log.warning("Exporting stabilised coordinates: %d of the %d frames are not "
+                            "stabilised (stabilised frames %d-%d) and are written as gaps",
+                            int(outside.sum()), b - a + 1, st.first, st.last)
+    else:
+        positions = project.points.positions[a:b + 1][:, cols].astype(np.float64)
     labels = _unique_labels([project.point_label(int(c)) for c in cols])
     return a, b, cols, positions, labels
 
@@ -204,6 +224,7 @@ def export_c3d(
     frame_range: FrameRange = "all",
     include_brim: bool = False,
     stabilized: bool = False,
+    residual: str = "sigma",
 ) -> Path:
     """Export points as C3D (File > Export C3D).
 
@@ -217,7 +238,12 @@ def export_c3d(
     include_brim : bool
         Also write the brim points.
     stabilized : bool
-        Write stabilised coordinates (needs a stabilised project).
+        Write stabilised (and aligned) coordinates: needs a stabilised or aligned
+        project; frames outside the stabilised range are written as gaps.
+    residual : {"sigma", "rays"}
+        What the residual word (the spec's "average residual", mm) holds: ``"sigma"``
+        the sample's estimated 3D error standard deviation where it has one, else its
+        RMS distance to its rays; ``"rays"`` always the distance to the rays.
 
     Returns
     -------
@@ -225,19 +251,21 @@ def export_c3d(
 
     Notes
     -----
-    Residuals are the points' residuals, the camera contribution mask comes from
-    `carapost.model.queries.contribution_mask`, interpolated and filtered samples are
-    written as modified, the first frame number is the burnt-in number (index + 1) and
-    the start timecode is that of the first exported frame.
+    Residuals are as ``residual`` says (docs/file-formats.md), the camera contribution
+    mask comes from `carapost.model.queries.contribution_mask`, interpolated and filtered
+    samples are written as modified (a stabilised sample is a measurement in other coordinates: a
+    rigid change of frame does not clear its camera mask), the first frame number is
+    the burnt-in number (index + 1) and the start timecode is that of the first exported
+    frame.
     """
     from carapost.io.c3d import write_c3d
     from carapost.model.queries import contribution_mask
 
     path = check_output(path, ".c3d")
-    if stabilized:
-        raise ValueError("stabilised export needs a stabilised project; this project has no "
-                         "stabilisation (run Stabilize first, or export without it)")
-    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim)
+    if residual not in ("sigma", "rays"):
+        raise ValueError(f"residual must be 'sigma' or 'rays', got {residual!r}")
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim,
+                                                     stabilized)
     pts = project.points
     sl = slice(a, b + 1)
     recon = pts.recon[sl][:, cols]
@@ -245,12 +273,16 @@ def export_c3d(
     mask = None
     if 1 <= len(cams) <= 16:
         mask = contribution_mask(project, (a, b))[:, cols]
+    res = pts.residual[sl][:, cols].astype(np.float64)
+    if residual == "sigma":
+        sig = pts.arrays["sigma"][sl][:, cols].astype(np.float64)
+        res = np.where(np.isfinite(sig), sig, res)
     write_c3d(
         path,
         positions,
         labels=labels,
         rate=project.take.fps,
-        residuals=pts.residual[sl][:, cols].astype(np.float64),
+        residuals=res,
         camera_mask=mask,
         modified=np.isin(recon, (RECON_INTERPOLATED, RECON_FILTERED)),
         first_frame=a + 1,
@@ -262,6 +294,21 @@ def export_c3d(
     return path
 
 
+def export_sigma_csv(project: Project, path: str | Path, *, frame_range: FrameRange = "all",
+                     include_brim: bool = False, stabilized: bool = False) -> Path:
+    """Write the per-sample uncertainty sidecar CSV of an export
+    (`carapost.io.sigma_csv`): the same points, frames and coordinates as `export_c3d`
+    (a rigid change of frame leaves the error's size as it was)."""
+    from carapost.io.sigma_csv import write_sigma_csv
+
+    path = check_output(path, ".csv")
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim,
+                                                     stabilized)
+    sl = slice(a, b + 1)
+    return write_sigma_csv(path, positions, project.points.arrays["sigma"][sl][:, cols],
+                           project.points.recon[sl][:, cols], labels, first_frame=a + 1)
+
+
 def export_fbx(
     project: Project,
     path: str | Path,
@@ -271,6 +318,7 @@ def export_fbx(
     up_axis: str = "y",
     include_cameras: bool = False,
     include_sticks: bool = False,
+    stabilized: bool = False,
 ) -> Path:
     """Export points (and optionally the solved cameras) as binary FBX (File > Export FBX).
 
@@ -290,6 +338,9 @@ def export_fbx(
     include_sticks : bool
         Write the project's sticks whose two points are both exported, as moving
         two-vertex line meshes.
+    stabilized : bool
+        Stabilised (and aligned) coordinates; the cameras, when included, move with
+        them (each camera's pose is expressed in the stabilised frame).
 
     Returns
     -------
@@ -301,7 +352,8 @@ def export_fbx(
     up = str(up_axis).lower()
     if up not in ("y", "z"):
         raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
-    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim)
+    a, b, cols, positions, labels = _exported_points(project, frame_range, include_brim,
+                                                     stabilized)
     sl = slice(a, b + 1)
     cameras = None
     if include_cameras:
@@ -313,6 +365,13 @@ def export_fbx(
         t = cal.t[sl].copy()
         R[~cal.solved[sl]] = np.nan
         t[~cal.solved[sl]] = np.nan
+        if stabilized:
+            from carapost.model.stabilization import processed_transforms
+
+            # x_cam = R X + t with X = inv(T) X_s: R' = R Rs^T, t' = t - R' ts
+            T = processed_transforms(project, a, b)
+            R = np.einsum("fcij,fkj->fcik", R, T[:, :3, :3])
+            t = t - np.einsum("fcij,fj->fci", R, T[:, :3, 3])
         cameras = {
             "R": R, "t": t, "focal_px": cal.intrinsics.focal,
             "image_size": cal.intrinsics.image_size,

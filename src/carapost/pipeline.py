@@ -45,6 +45,8 @@ __all__ = [
     "detect_all",
     "initialise",
     "process_take",
+    "remove_spurious",
+    "stabilise_take",
     "track_all",
     "write_outputs",
 ]
@@ -273,14 +275,79 @@ def track_all(session: Session, *, patch_tracking: bool = False,
             raise RuntimeError("cancelled during tracking; nothing was written")
 
 
-def write_outputs(session: Session, inputs: TakeInputs) -> dict[str, str | None]:
-    """Stage: save the project, then the exports (each file atomically)."""
+def remove_spurious(session: Session) -> list[dict[str, str]]:
+    """Stage: Remove Spurious Points (tracked face points that are not markers) before
+    anything is written; returns ``{"label", "reason"}`` of each removed point (logged)."""
+    cmd = session.remove_spurious_points(quiet=True)
+    removed = [] if cmd is None else [{"label": lab, "reason": why}
+                                      for lab, why in cmd.removed]  # type: ignore[attr-defined]
+    for r in removed:
+        log.warning("Removed point %s: %s", r["label"], r["reason"])
+    return removed
+
+
+def stabilise_take(session: Session, mode: str) -> str:
+    """Stage: Stabilize Data over the whole take, without a selection.
+
+    ``mode`` "auto" is Stabilize Data [Automatic]; "assisted" seeds Stabilize Data
+    [Assisted] with the automatically chosen stable points and base frame 0 (the
+    frame the take was initialised at). Returns the log line with the errors.
+
+    Raises
+    ------
+    ValueError
+        Unknown mode, or the take cannot be stabilised (too few points).
+    """
+    from carapost.algorithms.params import from_mapping
+    from carapost.algorithms.stabilise import StabilizationParameters, choose_stable_points
+
+    project = session.project
+    session.set_active_range(0, project.n_frames - 1)
+    if mode == "auto":
+        cmd = _stage("Stabilize Data [Automatic]", lambda: session.stabilize("auto"))
+    elif mode == "assisted":
+        params = from_mapping(StabilizationParameters, project.properties)
+        face = project.points.kind == KIND_FACE
+        cand = face | ((project.points.kind == KIND_BRIM)
+                       & params.stabilization_use_brim_points)
+        X = project.points.positions
+        try:
+            seed = choose_stable_points(X, fraction=params.stable_points_percent,
+                                        candidates=cand)
+        except ValueError as exc:
+            raise ValueError(f"Stabilize Data [Assisted]: {exc}") from None
+        # the seeds must be gap-free over the take, as an artist's selection is
+        full = np.isfinite(X[:, seed, 0]).all(0)
+        ids = project.points.ids[seed[full]][:6]
+        if len(ids) < 3:
+            raise ValueError("Stabilize Data [Assisted]: fewer than 3 stable points are "
+                             "tracked in every frame; use --stabilize auto")
+        cmd = _stage("", lambda: session.stabilize("assisted", ids.tolist(), base_frame=0))
+    else:
+        raise ValueError(f"stabilize must be 'auto' or 'assisted', got {mode!r}")
+    return cmd.message if cmd is not None else ""
+
+
+def write_outputs(session: Session, inputs: TakeInputs, *, stabilized: bool = False
+                  ) -> dict[str, str | None]:
+    """Stage: save the project, then the exports (each file atomically; stabilised
+    coordinates when ``stabilized``)."""
     written = session.save(inputs.output)
-    result: dict[str, str | None] = {"project": str(written), "c3d": None, "fbx": None}
+    result: dict[str, str | None] = {"project": str(written), "c3d": None, "fbx": None,
+                                     "sigma_csv": None}
     if inputs.c3d is not None:
-        result["c3d"] = str(session.export_c3d(inputs.c3d, **PROCESS_EXPORT))
+        from carapost.export import export_sigma_csv
+        from carapost.io.sigma_csv import sidecar_path
+
+        result["c3d"] = str(session.export_c3d(inputs.c3d, **{**PROCESS_EXPORT,
+                                                              "stabilized": stabilized}))
+        result["sigma_csv"] = str(export_sigma_csv(
+            session.project, sidecar_path(inputs.c3d),
+            frame_range=PROCESS_EXPORT["frame_range"],
+            include_brim=PROCESS_EXPORT["include_brim"], stabilized=stabilized))
     if inputs.fbx is not None:
-        result["fbx"] = str(session.export_fbx(inputs.fbx, **PROCESS_FBX_EXPORT))
+        result["fbx"] = str(session.export_fbx(inputs.fbx, **{**PROCESS_FBX_EXPORT,
+                                                              "stabilized": stabilized}))
     return result
 
 
@@ -300,13 +367,15 @@ def process_take(
     fbx: str | Path | None = None,
     progress: Callable[[int, int], bool] | None = None,
     patch_tracking: bool = False,
+    stabilize: str | None = None,
     workers: int = 2,
 ) -> dict[str, Any]:
-    """Process a take headlessly: import, detect, solve, initialise, track, save, export.
+    """Process a take headlessly: import, detect, solve, initialise, track, (stabilise,)
+    save, export.
 
     Each stage is one function of this module over a `carapost.Session` (so a batch
     runner can reuse them): `check_take_inputs`, `Session.import_take`, `detect_all`,
-    `calibrate`, `initialise`, `track_all`, `write_outputs`.
+    `calibrate`, `initialise`, `track_all`, `stabilise_take`, `write_outputs`.
 
     Parameters
     ----------
@@ -330,6 +399,9 @@ def process_take(
         while tracking, both passes, which makes the whole run about 2.5x slower for
         +0.1 % coverage and +0.05 mm RMSE on the rendered speech takes
         (docs/benchmarks.md).
+    stabilize : {"auto", "assisted"}, optional
+        Stabilise the tracked take (`stabilise_take`); the C3D/FBX exports are then
+        stabilised coordinates.
     workers : int
         Blob detector processes (1: detect in this process; a batch worker, whose
         parallelism is the takes, passes 1).
@@ -337,11 +409,13 @@ def process_take(
     Returns
     -------
     dict
-        ``project``, ``c3d``, ``fbx`` (paths written or None), ``frames``, ``cameras``,
+        ``project``, ``c3d``, ``fbx``, ``sigma_csv`` (the C3D's per-sample uncertainty
+        sidecar, `carapost.io.sigma_csv`) (paths written or None), ``frames``, ``cameras``,
         ``points`` (face points), ``brim_points``, ``initialised`` (face points at the
         first frame), ``tracked_fraction`` (face point-frames with 3D / point-frames),
         ``mean_residual`` (mm, over the measured face samples; NaN when none),
-        ``brim_source``, ``seconds`` per stage.
+        ``brim_source``, ``removed_points`` (``{"label", "reason"}`` of each point Remove
+        Spurious Points deleted), ``seconds`` per stage.
 
     Raises
     ------
@@ -354,6 +428,8 @@ def process_take(
     from carapost.io.take_import import read_brim_csv
     from carapost.session import Session
 
+    if stabilize is not None and stabilize not in ("auto", "assisted"):
+        raise ValueError(f"stabilize must be 'auto' or 'assisted', got {stabilize!r}")
     inputs = check_take_inputs(take_path, output=output, rom=rom, brim=brim, c3d=c3d,
                                fbx=fbx)
     seconds: dict[str, float] = {}
@@ -394,8 +470,15 @@ def process_take(
         track_all(session, patch_tracking=patch_tracking,
                   progress=None if progress is None else track_progress)
         seconds["track"] = time.perf_counter() - t0
+        removed = remove_spurious(session)
+    stab_message = None
+    if stabilize is not None:
+        t0 = time.perf_counter()
+        stab_message = stabilise_take(session, stabilize)
+        seconds["stabilize"] = time.perf_counter() - t0
 
-    result: dict[str, Any] = dict(write_outputs(session, inputs))
+    result: dict[str, Any] = dict(write_outputs(session, inputs,
+                                                stabilized=stabilize is not None))
     face = project.points.kind == KIND_FACE
     has = np.isfinite(project.points.positions[:, face, 0])
     result.update({
@@ -405,7 +488,9 @@ def process_take(
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
         "mean_residual": _mean_residual(project.points.residual[:, face]),
         "brim_source": brim_source if inputs.rom is None else "ROM",
+        "removed_points": removed,
         "seconds": {k: round(v, 2) for k, v in seconds.items()},
+        "stabilization": stab_message,
     })
     log.info("Processed %s: %s", inputs.take, result)
     return result

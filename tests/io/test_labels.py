@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 from pathlib import Path
 
@@ -58,14 +59,22 @@ def test_bad_label_files(tmp_path: Path) -> None:
     assert read_label_file(empty) == []
 
 
-def test_merge_appends_copy_repeatedly() -> None:
+def test_merge_appends_copy_then_numbers() -> None:
     existing = ["Nose_Tip", "Chin", "Chin - Copy"]
-    new = ["Chin", "Brow", "Chin", "Nose_Tip", "Brow"]
+    new = ["Chin", "Brow", "Chin", "Nose_Tip", "Brow", "Chin - Copy"]
     assert merge_labels(existing, new) == [
-        "Chin - Copy - Copy", "Brow", "Chin - Copy - Copy - Copy", "Nose_Tip - Copy",
-        "Brow - Copy",
+        "Chin - Copy (2)", "Brow", "Chin - Copy (3)", "Nose_Tip - Copy", "Brow - Copy",
+        "Chin - Copy - Copy",
     ]
     assert merge_labels([], ["A", "B"]) == ["A", "B"]
+
+
+def test_merge_of_many_repeats_keeps_names_short() -> None:
+    # 30,000 repeats (a 250 KB file of one name): chained suffixes would make names of
+    # 200 KB (gigabytes in all); numbered copies stay short (timing: benchmarks/fuzz.py)
+    names = merge_labels(["Nose_Tip"], ["Nose_Tip"] * 30_000)
+    assert len(set(names)) == 30_000
+    assert names[0] == "Nose_Tip - Copy" and names[-1] == "Nose_Tip - Copy (30000)"
 
 
 @given(
@@ -79,11 +88,16 @@ def test_merge_gives_distinct_new_names(existing: list[str], new: list[str]) -> 
     assert not set(added) & set(existing)
     for i, (original, name) in enumerate(zip(new, added, strict=True)):
         suffix = name[len(original):]
-        assert name.startswith(original) and suffix == " - Copy" * (len(suffix) // 7)
-        # Minimal: one " - Copy" fewer would clash with a name already taken.
+        assert name.startswith(original)
+        m = re.fullmatch(r"( - Copy(?: \((\d+)\))?)?", suffix)
+        assert m is not None, suffix
+        # Minimal: the name itself, then every smaller copy number, is taken.
         taken = set(existing) | set(added[:i])
         if suffix:
-            assert name[: -len(" - Copy")] in taken
+            k = int(m.group(2) or 1)
+            assert original in taken
+            assert all(original + " - Copy" + ("" if j == 1 else f" ({j})") in taken
+                       for j in range(1, k))
         else:
             assert original not in taken
 

@@ -200,8 +200,7 @@ def test_unimplemented_guide_items_are_listed_disabled(make_window):
     missing = {a.id for a in table.menu_items() if not a.available}
     # the features that are still to come (Target Tracker, stabilisation, ...)
     assert missing == {"edit.add_target_track", "edit.edit_target_track",
-                       "edit.gaps_to_keys", "view.brim_svg", "view.show_stabilized",
-                       "process.stab_manual", "process.stab_assisted", "process.align",
+                       "edit.gaps_to_keys", "view.brim_svg",
                        "process.interpolate", "help.updates"}
     w = make_window()
     for id_ in missing:

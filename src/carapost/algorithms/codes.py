@@ -158,6 +158,9 @@ class PointArrays(NamedTuple):
         Tracking: points found during tracking, appended after the initial ones.
     structure : ndarray, shape (P, 3), optional
         Initialize From ROM: the ROM positions (the brim model for brim points).
+    sigma : ndarray, shape (n, P) float32, optional
+        Estimated standard deviation (mm) of each sample's 3D error (NaN where unknown);
+        None when the algorithm does not estimate it.
     """
 
     positions: NDArray[np.float32]
@@ -175,3 +178,4 @@ class PointArrays(NamedTuple):
     cancelled: bool = False
     n_new: int = 0
     structure: NDArray[np.float64] | None = None
+    sigma: NDArray[np.float32] | None = None

@@ -299,7 +299,7 @@ class ImportBrimSvg(SetBrimModel):
         try:
             labels, xyz = read_brim_svg(path)
         except CaraFileError as exc:
-            raise refuse(f"Import Calibration Brim [SVG]: {exc}") from None
+            raise refuse(f"Import Calibration Brim [SVG]: {exc}") from exc  # shown in a box
         super().__init__(labels, xyz, f"Import Calibration Brim [SVG] {Path(path).name}")
         self.path = str(path)
         log.info("%s: %d brim dots", self.description, len(xyz))

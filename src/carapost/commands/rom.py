@@ -45,7 +45,7 @@ class LoadRom(Command):
         try:
             rom = load_project(p)
         except CaraFileError as exc:
-            raise refuse(f"Load ROM: {exc}") from None
+            raise refuse(f"Load ROM: {exc}") from exc  # the window shows the file error
         if rom.points.count == 0:
             raise refuse(f"Load ROM: {p} has no points to initialise from")
         if rom.calibration.intrinsics is None:

@@ -85,11 +85,12 @@ def tracking_parameters(project: Project, what: str) -> TrackingParameters:
         raise refuse(f"{what}: {exc}") from None
 
 
-def tracked_arrays(value: Callable[[str], NDArray]) -> dict[str, Any]:
+def tracked_arrays(value: Callable[[str], NDArray], *, sigma: bool = False) -> dict[str, Any]:
     """The arrays a tracker writes (``value(name)`` for positions, recon, residual, obs,
-    source, detection, quality), with the keyframe flags cleared: for
-    :meth:`Journal.write_points`."""
-    arrays: dict[str, Any] = {name: value(name) for name in _ARRAYS}
+    source, detection, quality, and sigma when ``sigma``), with the keyframe flags
+    cleared: for :meth:`Journal.write_points` (which clears sigma without one)."""
+    names = _ARRAYS + (("sigma",) if sigma else ())
+    arrays: dict[str, Any] = {name: value(name) for name in names}
     arrays["keyframe"] = False
     return arrays
 
@@ -425,7 +426,7 @@ class TakeTrackComputation(_TrackedPoints):
             val[keep_start, : old.size] = cur[keep_start, : old.size]
             return val
 
-        journal.write_points(fr, cols, tracked_arrays(value))
+        journal.write_points(fr, cols, tracked_arrays(value, sigma=res.sigma is not None))
         cal = project.calibration
         Rn, tn = res.R.copy(), res.t.copy()
         Rn[keep_start], tn[keep_start] = cal.R[self.start], cal.t[self.start]

@@ -10,6 +10,7 @@ millimetres (x right, y up: the SVG's y axis, which points down, is flipped).
 from __future__ import annotations
 
 import re
+from collections import Counter
 from importlib import resources
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import numpy as np
 from lxml import etree
 from numpy.typing import NDArray
 
+from carapost.io.atomic import check_input_file
 from carapost.io.errors import CaraFileError
 
 __all__ = ["DEFAULT_BRIM_VERSIONS", "default_brim", "read_brim_svg"]
@@ -155,6 +157,7 @@ def read_brim_svg(path: str | Path) -> tuple[list[str], NDArray[np.float64]]:
         file and the problem).
     """
     path = Path(path)
+    check_input_file(path)
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -187,6 +190,23 @@ def read_brim_svg(path: str | Path) -> tuple[list[str], NDArray[np.float64]]:
             scale_x = scale_y
     labels: list[str] = []
     xy: list[NDArray] = []
+    # transform of each element to the document, computed once per group: walking every
+    # dot's ancestors again was quadratic in the depth of nested groups
+    transforms: dict[etree._Element, NDArray[np.float64]] = {}
+
+    def to_document(node: etree._Element) -> NDArray[np.float64]:
+        chain = []
+        while node is not None and node not in transforms:
+            chain.append(node)
+            node = node.getparent()
+        M = transforms[node] if node is not None else np.eye(3)
+        for n in reversed(chain):
+            own = _parse_transform(path, n.get("transform")) if isinstance(n.tag, str) \
+                else np.eye(3)
+            M = M @ own
+            transforms[n] = M
+        return M
+
     for el in root.iter():
         if not isinstance(el.tag, str):
             continue
@@ -204,20 +224,14 @@ def read_brim_svg(path: str | Path) -> tuple[list[str], NDArray[np.float64]]:
         if not (rx > 0 and ry > 0):
             raise CaraFileError(path, f"line {el.sourceline}: a dot must have a positive "
                                       "radius")
-        M = np.eye(3)
-        node = el
-        while node is not None:
-            if isinstance(node.tag, str):
-                M = _parse_transform(path, node.get("transform")) @ M
-            node = node.getparent()
-        p = M @ np.array([cx, cy, 1.0])
+        p = to_document(el) @ np.array([cx, cy, 1.0])
         xy.append(p[:2])
         labels.append(el.get("id") or f"Brim{len(labels) + 1:02d}")
     if len(xy) < 4:
         raise CaraFileError(path, f"holds {len(xy)} dot(s) (circle or ellipse elements); a "
                                   "brim needs at least 4")
     if len(set(labels)) != len(labels):
-        dup = sorted({lab for lab in labels if labels.count(lab) > 1})
+        dup = sorted(lab for lab, n in Counter(labels).items() if n > 1)[:20]
         raise CaraFileError(path, f"dot labels (id attributes) repeat: {', '.join(dup)}")
     if any(" " in lab for lab in labels):
         raise CaraFileError(path, "a dot label (id) contains a space")

@@ -1,12 +1,18 @@
 """The ``.cara`` project file: a ZIP container of ``manifest.json`` and ``.npy`` arrays.
 
-Layout (format version 1)::
+Layout (format version 2)::
 
     manifest.json              metadata (see :func:`_manifest`)
     points/<name>.npy          per-point arrays [F, P, ...] (positions, recon, obs, ...)
     detections/offsets.npy     [F*C+1] int64 run offsets
     detections/<field>.npy     flat detection fields (centre, axes, angle, colour, score)
     calibration/R.npy, t.npy, solved.npy   per-frame extrinsics
+    calibration/xcp_extras.json    optional: unknown content of an imported XCP file
+    stabilization/transforms.npy           [F, 4, 4] float64, only in a stabilised project
+
+Version 2 added the stabilisation (manifest ``stabilization`` + the transforms member),
+the alignment (manifest ``alignment``) and ``show_stabilized``; a version-1 file opens
+with none of them.
 
 Members are stored uncompressed: the arrays are mostly noise-like floats that deflate
 barely shrinks, and storing keeps save and open close to disk speed.
@@ -18,12 +24,14 @@ leaves a half-written project and a failed save never touches the original.
 
 from __future__ import annotations
 
-import io
+import contextlib
 import json
 import logging
+import math
 import mmap
 import os
 import struct
+import threading
 import time
 import zipfile
 import zlib
@@ -36,8 +44,17 @@ import numpy as np
 
 from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
-from carapost.io.atomic import atomic_output
+from carapost.io.atomic import atomic_output, check_input_file, checked_path, clean_stale_parts
 from carapost.io.errors import CaraFileError
+from carapost.io.ziplimits import (
+    MANIFEST_LIMIT,
+    check_member,
+    load_json,
+    npy_spec,
+    open_zip,
+    parse_npy_header,
+    read_member,
+)
 from carapost.model.project import (
     OPTIONAL_POINT_ARRAYS,
     POINT_ARRAYS,
@@ -53,8 +70,10 @@ from carapost.model.project import (
 
 log = logging.getLogger("carapost.io")
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 AUTOSAVE_SUFFIX = ".autosave"
+#: Optional member: the unknown content of the imported XCP calibration (JSON).
+XCP_EXTRAS_MEMBER = "calibration/xcp_extras.json"
 
 #: Called with (camera name, missing path); returns a replacement path or None.
 RelocateCallback = Callable[[str, str], "str | None"]
@@ -130,6 +149,10 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "imported_blob_parameters": project.imported_blob_parameters,
         # optional: the Session calls that made the project (`carapost history --python`)
         **({"script": project.script} if project.script is not None else {}),
+        "stabilization": None if project.stabilization is None
+        else project.stabilization.to_manifest(),
+        "alignment": None if project.alignment is None else project.alignment.to_manifest(),
+        "show_stabilized": bool(project.show_stabilized),
     }
 
 
@@ -144,6 +167,9 @@ def _arrays(project: Project) -> dict[str, np.ndarray]:
     out["calibration/R.npy"] = cal.R
     out["calibration/t.npy"] = cal.t
     out["calibration/solved.npy"] = cal.solved
+    if project.stabilization is not None:
+        out["stabilization/transforms.npy"] = np.asarray(project.stabilization.transforms,
+                                                         np.float64)
     return out
 
 
@@ -156,6 +182,13 @@ def _write_npy(zf: zipfile.ZipFile, name: str, arr: np.ndarray) -> None:
         np.lib.format.write_array_header_1_0(fh, np.lib.format.header_data_from_array_1_0(arr))
         if arr.size:
             fh.write(memoryview(arr.reshape(-1).view(np.uint8)))
+
+
+def _is_folder(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name too long: atomic_output says so
+        return False
 
 
 def save_project(project: Project, path: str | Path, *, autosave: bool = False) -> Path:
@@ -174,10 +207,13 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
     Path
         The file written.
     """
-    path = Path(path)
+    path = checked_path(path)
+    if not autosave and _is_folder(path):
+        raise CaraFileError(path, "is a folder, not a file name")
     if not autosave and path.suffix.lower() != ".cara":
         path = path.with_name(path.name + ".cara")
     path = path.absolute()
+    check_mapped_source(project)
     manifest = _manifest(project, path.parent)
     arrays = _arrays(project)
     manifest["arrays"] = {
@@ -191,15 +227,61 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         zf.writestr("manifest.json", json.dumps(manifest, indent=1))
         for name, arr in arrays.items():
             _write_npy(zf, name, arr)
+        if project.calibration.xcp_extras is not None:
+            # optional member: the unknown content of an imported XCP, written back on
+            # export (older carapost versions ignore it)
+            zf.writestr(XCP_EXTRAS_MEMBER, json.dumps(project.calibration.xcp_extras))
     if not autosave:
+        previous = project.path
         project.path = str(path)
         project.modified = False
         project.events.emit("file")
-        stale = autosave_path(path)
-        if stale.exists():
-            stale.unlink()
+        # the saved file is now the newest: autosave copies of this name, of the name
+        # it had before a Save As, and of the never-saved project are all stale
+        stale = [autosave_path(path), getattr(project, "untitled_autosave", None)]
+        if previous and Path(previous).absolute() != path:
+            stale.append(autosave_path(previous))
+        for copy in stale:
+            if copy is not None:
+                with contextlib.suppress(OSError):
+                    Path(copy).unlink(missing_ok=True)
+        project.untitled_autosave = None  # type: ignore[attr-defined]
+        source = getattr(project, "mapped_source", None)
+        if source is not None and Path(source[0]) == path:
+            # the mapping keeps the replaced file's data alive, and no one can reach
+            # that file by its name any more: nothing left to guard
+            project.mapped_source = None  # type: ignore[attr-defined]
     log.info("Saved %s", path)
     return path
+
+
+def check_mapped_source(project: Project) -> None:
+    """Refuse to read the arrays of a project mapped from a file that changed since.
+
+    Only projects larger than `PRIVATE_COPY_LIMIT` are mapped. If another program
+    truncated or rewrote their file in place, reading the mapping would crash the
+    process (truncation) or see other data; this check turns that into a clear error
+    before a save or an autosave reads them.
+
+    Raises
+    ------
+    CaraFileError
+        Naming the file, when its size, modification time or identity changed.
+    """
+    source = getattr(project, "mapped_source", None)
+    if source is None:
+        return
+    path, size, mtime_ns, ino = source
+    try:
+        st = os.stat(path)
+        same = (st.st_size, st.st_mtime_ns, st.st_ino) == (size, mtime_ns, ino)
+    except OSError:
+        same = False
+    if not same:
+        raise CaraFileError(path, "was changed or removed by another program while open; the "
+                                  "open project reads its arrays from it, so it can no longer "
+                                  "be saved safely. Restore the file (or close without "
+                                  "saving) and reopen it.")
 
 
 def autosave_path(path: str | Path) -> Path:
@@ -208,11 +290,57 @@ def autosave_path(path: str | Path) -> Path:
     return path.with_name(path.name + AUTOSAVE_SUFFIX)
 
 
+def untitled_autosave_folder() -> Path:
+    """Where autosave copies of never-saved projects go (``CARAPOST_AUTOSAVE_DIR``, else
+    ``$XDG_STATE_HOME/carapost/autosave`` or ``~/.local/state/carapost/autosave``)."""
+    env = os.environ.get("CARAPOST_AUTOSAVE_DIR")
+    if env:
+        return Path(env)
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "carapost" / "autosave"
+
+
+def untitled_autosaves() -> list[Path]:
+    """Autosave copies of never-saved projects left by sessions that did not end
+    normally, newest first (a normal close removes its own)."""
+    folder = untitled_autosave_folder()
+    try:
+        found = [p for p in folder.glob("*.cara") if p.is_file()]
+    except OSError:
+        return []
+    return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
+
+
+def discard_untitled_autosave(project: Project) -> None:
+    """Remove the autosave copy of a never-saved project (closed without saving)."""
+    copy = getattr(project, "untitled_autosave", None)
+    if copy is not None:
+        with contextlib.suppress(OSError):
+            Path(copy).unlink(missing_ok=True)
+        project.untitled_autosave = None  # type: ignore[attr-defined]
+
+
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
-    """Write the autosave copy of a project (beside its file, or ``path``)."""
+    """Write the autosave copy of a project (beside its file, or ``path``).
+
+    A project that was never saved is autosaved too, as a ``.cara`` file in
+    `untitled_autosave_folder` (named after the take and the time it was first
+    autosaved; File > Open opens it); its first save removes that copy.
+    """
     target = path or project.path
     if target is None:
-        return None
+        copy = getattr(project, "untitled_autosave", None)
+        if copy is None:
+            folder = untitled_autosave_folder()
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise CaraFileError(folder, f"cannot be created: {exc.strerror or exc}") from None
+            name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
+                           (project.take.name or "untitled"))[:80]
+            copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
+            project.untitled_autosave = copy  # type: ignore[attr-defined]
+        return save_project(project, copy, autosave=True)
     return save_project(project, autosave_path(target), autosave=True)
 
 
@@ -231,14 +359,11 @@ def recoverable_autosave(path: str | Path) -> Path | None:
 # Loading
 # ----------------------------------------------------------------------------------------
 def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
-    try:
-        raw = zf.read("manifest.json")
-    except KeyError:
-        raise CaraFileError(path, "not a carapost project: manifest.json is missing") from None
-    try:
-        manifest = json.loads(raw)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CaraFileError(path, f"manifest.json is not valid JSON ({exc})") from None
+    if "manifest.json" not in zf.NameToInfo:
+        raise CaraFileError(path, "not a carapost project: manifest.json is missing")
+    # bounded: the declared size is checked before inflating, the read stops at the limit
+    raw = read_member(zf, path, "manifest.json", MANIFEST_LIMIT)
+    manifest = load_json(path, raw, "manifest.json")
     if not isinstance(manifest, dict) or manifest.get("format") != "carapost-project":
         raise CaraFileError(path, "not a carapost project (manifest has no carapost format tag)")
     version = manifest.get("format_version")
@@ -254,35 +379,91 @@ def _read_manifest(zf: zipfile.ZipFile, path: Path) -> dict[str, Any]:
     return manifest
 
 
+def _private_copy_limit() -> int:
+    env = os.environ.get("CARAPOST_COPY_ON_OPEN_MB")
+    if env and env.strip().isdigit():
+        return int(env) << 20
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (OSError, ValueError, AttributeError):
+        ram = 16 << 30
+    return int(min(4 << 30, ram // 4))
+
+
+#: Projects up to this size (4 GiB, or a quarter of the memory if less;
+#: ``CARAPOST_COPY_ON_OPEN_MB`` overrides, 0 maps every project) are read into private
+#: memory at open (copy-on-open); larger ones are mapped copy-on-write (see
+#: `load_project`).
+PRIVATE_COPY_LIMIT = _private_copy_limit()
+
+_NPY_HEADER_MAX = 1 << 16
+#: Private reads of members bigger than this wait for `_Members.verify` (bytes).
+_DEFERRED_READ = 8 << 20
+#: Read and checksum step (bytes).
+_CHUNK = 1 << 24
+
+
 class _Members:
-    """Arrays of a project file, mapped copy-on-write instead of read.
+    """Arrays of a project file, read into private memory or mapped copy-on-write.
 
     Members are stored uncompressed, so each ``.npy`` payload is a contiguous run of the
-    file: it is mapped privately (edits stay in memory, the file is never written) and
-    pages come in as they are used, which keeps Open fast for long takes. Every member's
-    CRC-32 is still checked, on both cores, before the project is handed out.
+    file. With ``private`` (the default up to `PRIVATE_COPY_LIMIT`) every array is read
+    into memory of its own: the open project no longer depends on its file, which may then
+    be truncated, overwritten or deleted by anyone. Otherwise it is mapped privately (edits
+    stay in memory, the file is never written) and pages come in as they are used. Every
+    member's CRC-32 is checked, on both cores, before the project is handed out.
+    Deflated members (a project re-zipped by another tool) are inflated with their size
+    and shape checked first.
     """
 
-    def __init__(self, zf: zipfile.ZipFile, path: Path) -> None:
+    def __init__(self, zf: zipfile.ZipFile, path: Path, *, private: bool | None = None) -> None:
         self.zf = zf
         self.path = path
         self._fh = open(path, "rb")  # closed in close()
-        try:
-            self._map: mmap.mmap | None = mmap.mmap(self._fh.fileno(), 0,
-                                                    access=mmap.ACCESS_COPY)
-        except (OSError, ValueError):  # empty file or a file system without mmap
-            self._map = None
-        self._checks: list[tuple[str, int, int, int]] = []
+        self._lock = threading.Lock()
+        self.size = os.fstat(self._fh.fileno()).st_size
+        if private is None:
+            private = self.size <= PRIVATE_COPY_LIMIT
+        self.private = private
+        self._map: mmap.mmap | None = None
+        if not private:
+            try:
+                self._map = mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_COPY)
+            except (OSError, ValueError):  # empty file or a file system without mmap
+                self._map = None
+        # (name, expected CRC, buffers whose concatenation is the member's bytes)
+        self._checks: list[tuple[str, int, list[Any]]] = []
+        # deferred private reads: (name, expected CRC, npy header, destination, offset)
+        self._reads: list[tuple[str, int, bytes, memoryview, int]] = []
+
+    @property
+    def mapped(self) -> bool:
+        """Arrays are views of the file's mapping (not private copies)."""
+        return self._map is not None
 
     def close(self) -> None:
         self._fh.close()  # the mapping stays valid on its own
 
+    def _pread(self, offset: int, n: int) -> bytes:
+        if hasattr(os, "pread"):
+            return os.pread(self._fh.fileno(), n, offset)
+        with self._lock:  # Windows: no positional reads, one file position for all
+            self._fh.seek(offset)
+            return self._fh.read(n)
+
+    def _preadv(self, view: memoryview, offset: int) -> int:
+        if hasattr(os, "preadv"):
+            return os.preadv(self._fh.fileno(), [view], offset)
+        with self._lock:
+            self._fh.seek(offset)
+            return self._fh.readinto(view) or 0
+
     def _payload(self, info: zipfile.ZipInfo) -> tuple[int, int]:
         """Start and end (file offsets) of a stored member's bytes."""
-        self._fh.seek(info.header_offset)
-        header = self._fh.read(30)
+        header = self._pread(info.header_offset, 30)
         if len(header) != 30 or header[:4] != b"PK\x03\x04":
-            raise CaraFileError(self.path, f"the member {info.filename} is damaged")
+            raise CaraFileError(self.path, f"the member {info.filename} is damaged "
+                                           "(bad local header)")
         n_name, n_extra = struct.unpack("<HH", header[26:30])
         start = info.header_offset + 30 + n_name + n_extra
         return start, start + info.compress_size
@@ -290,60 +471,127 @@ class _Members:
     def read(self, name: str, spec: dict[str, Any]) -> np.ndarray:
         """The array of member ``name``, checked against the manifest's ``spec``."""
         path = self.path
+        shape, dtype = npy_spec(path, name, spec)
+        nbytes = math.prod(shape) * dtype.itemsize
         try:
             info = self.zf.getinfo(name)
         except KeyError:
             raise CaraFileError(path, f"the array {name} is missing") from None
+        # sizes from the directory, checked before anything is allocated or inflated
+        check_member(path, info, nbytes + _NPY_HEADER_MAX)
+        if info.file_size < nbytes:
+            raise CaraFileError(path, f"the array {name} is {info.file_size:,} bytes, too "
+                                      f"small for {dtype}{list(shape)}")
         try:
-            if self._map is None or info.compress_type != zipfile.ZIP_STORED:
-                with self.zf.open(name) as fh:
-                    arr = np.lib.format.read_array(fh, allow_pickle=False)
+            if info.compress_type == zipfile.ZIP_STORED:
+                arr = self._read_stored(name, info, shape, dtype, nbytes)
             else:
-                start, end = self._payload(info)
-                if end > len(self._map):
-                    raise CaraFileError(path, f"the array {name} is truncated")
-                buf = io.BytesIO(self._map[start : min(start + 4096, end)])
-                version = np.lib.format.read_magic(buf)
-                read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                               else np.lib.format.read_array_header_2_0)
-                shape, fortran, dtype = read_header(buf)
-                if dtype.hasobject or fortran:
-                    raise ValueError("object or Fortran-ordered arrays are not allowed")
-                offset = start + buf.tell()
-                count = int(np.prod(shape, dtype=np.int64))
-                if offset + count * dtype.itemsize != end:
-                    raise ValueError("its size does not match its header")
-                arr = np.frombuffer(self._map, dtype=dtype, count=count,
-                                    offset=offset).reshape(shape)
-                self._checks.append((name, start, end, info.CRC))
+                arr = self._read_deflated(name, info, shape, dtype, nbytes)
         except CaraFileError:
             raise
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        except MemoryError:
+            raise CaraFileError(path, f"the array {name} ({nbytes:,} bytes) does not fit in "
+                                      "memory") from None
+        except Exception as exc:
             raise CaraFileError(path, f"the array {name} is damaged ({exc})") from None
-        if list(arr.shape) != list(spec["shape"]) or str(arr.dtype) != spec["dtype"]:
+        return arr
+
+    def _check_header(self, name: str, got: tuple[tuple[int, ...], np.dtype[Any]],
+                      shape: tuple[int, ...], dtype: np.dtype[Any]) -> None:
+        if got[0] != shape or got[1] != dtype:
             raise CaraFileError(
-                path,
-                f"the array {name} is {arr.dtype}{list(arr.shape)}, the manifest says "
-                f"{spec['dtype']}{spec['shape']}",
-            )
+                self.path, f"the array {name} is {got[1]}{list(got[0])}, the manifest says "
+                           f"{dtype}{list(shape)}")
+
+    def _read_stored(self, name: str, info: zipfile.ZipInfo, shape: tuple[int, ...],
+                     dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
+        start, end = self._payload(info)
+        if end > self.size:
+            raise CaraFileError(self.path, f"the array {name} is truncated")
+        head = self._pread(start, min(_NPY_HEADER_MAX, end - start))
+        got_shape, got_dtype, hlen = parse_npy_header(head)
+        self._check_header(name, (got_shape, got_dtype), shape, dtype)
+        if start + hlen + nbytes != end:
+            raise CaraFileError(self.path, f"the array {name} is damaged (its size does not "
+                                           "match its header)")
+        count = math.prod(shape)
+        if self._map is not None:
+            arr = np.frombuffer(self._map, dtype=dtype, count=count,
+                                offset=start + hlen).reshape(shape)
+            self._checks.append((name, info.CRC, [memoryview(self._map)[start:end]]))
+            return arr
+        arr = np.empty(shape, dtype=dtype)
+        flat = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else memoryview(b"")
+        if nbytes > _DEFERRED_READ:
+            # read in verify(), on two threads together with the CRC (only shapes of
+            # the big arrays are looked at before that)
+            self._reads.append((name, info.CRC, head[:hlen], flat, start + hlen))
+            return arr
+        if self._pread_into(name, flat, start + hlen, zlib.crc32(head[:hlen])) != info.CRC:
+            raise CaraFileError(self.path, f"the array {name} is damaged (checksum mismatch)")
+        return arr
+
+    def _pread_into(self, name: str, flat: memoryview, pos: int, crc: int = 0) -> int:
+        """Fill ``flat`` from file offset ``pos``; returns the CRC-32 of what was read
+        (continuing ``crc``)."""
+        done = 0
+        while done < len(flat):
+            n = self._preadv(flat[done:done + _CHUNK], pos + done)
+            if n <= 0:
+                raise CaraFileError(self.path, f"the array {name} is truncated")
+            crc = zlib.crc32(flat[done:done + n], crc)
+            done += n
+        return crc
+
+    def _read_deflated(self, name: str, info: zipfile.ZipInfo, shape: tuple[int, ...],
+                       dtype: np.dtype[Any], nbytes: int) -> np.ndarray:
+        with self.zf.open(info) as fh:
+            # the header is read (a few hundred bytes inflated) and checked first
+            got_shape, got_dtype, hlen = parse_npy_header(fh)
+            self._check_header(name, (got_shape, got_dtype), shape, dtype)
+            if info.file_size != hlen + nbytes:
+                raise CaraFileError(self.path, f"the array {name} is damaged (its size does "
+                                               "not match its header)")
+            arr = np.empty(shape, dtype=dtype)
+            flat = memoryview(arr.reshape(-1).view(np.uint8)) if arr.size else None
+            done = 0
+            while flat is not None and done < nbytes:
+                n = fh.readinto(flat[done:done + (1 << 26)])
+                if not n:
+                    raise CaraFileError(self.path, f"the array {name} is truncated")
+                done += n
+            if fh.read(1):  # also makes zipfile check the CRC-32 at the end
+                raise CaraFileError(self.path, f"the array {name} is longer than its header")
         return arr
 
     def verify(self) -> None:
-        """Check the CRC-32 of every mapped member (zlib releases the GIL: two threads)."""
-        if not self._checks:
+        """Read the deferred arrays and check the CRC-32 of every member (preadv and zlib
+        release the GIL: two threads, biggest members first)."""
+        if not self._checks and not self._reads:
             return
-        view = memoryview(self._map)
 
-        def crc(item: tuple[str, int, int, int]) -> tuple[str, bool]:
-            name, start, end, expected = item
+        def crc(item: tuple[str, int, list[Any]]) -> tuple[str, bool]:
+            name, expected, parts = item
             value = 0
-            for a in range(start, end, 1 << 26):  # 64 MB steps
-                value = zlib.crc32(view[a : min(a + (1 << 26), end)], value)
+            for part in parts:
+                view = memoryview(part)
+                for a in range(0, len(view), _CHUNK):
+                    value = zlib.crc32(view[a : a + _CHUNK], value)
             return name, value == expected
 
+        def read(item: tuple[str, int, bytes, memoryview, int]) -> tuple[str, bool]:
+            name, expected, head, flat, pos = item
+            # the CRC of the header, continued over the payload as it comes in
+            return name, self._pread_into(name, flat, pos, zlib.crc32(head)) == expected
+
+        tasks: list[tuple[int, Callable[[Any], tuple[str, bool]], Any]] = [
+            (sum(len(memoryview(p)) for p in c[2]), crc, c) for c in self._checks]
+        tasks += [(len(r[3]), read, r) for r in self._reads]
+        tasks.sort(key=lambda t: -t[0])
         with ThreadPoolExecutor(max_workers=2) as pool:
-            results = list(pool.map(crc, sorted(self._checks, key=lambda c: c[1] - c[2])))
-        view.release()
+            results = list(pool.map(lambda t: t[1](t[2]), tasks))
+        self._checks.clear()
+        self._reads.clear()
         bad = [name for name, ok in results if not ok]
         if bad:
             raise CaraFileError(self.path, f"the array {bad[0]} is damaged (checksum mismatch)")
@@ -374,7 +622,8 @@ def _resolve_video(
     return abs_path
 
 
-def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
+def load_project(path: str | Path, *, relocate: RelocateCallback | None = None,
+                 private: bool | None = None) -> Project:
     """Open a ``.cara`` project.
 
     Parameters
@@ -383,6 +632,11 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) 
     relocate : callable, optional
         Asked for a camera video that is neither at its saved absolute path nor beside
         the project: ``relocate(camera_name, missing_path) -> new path or None``.
+    private : bool, optional
+        Read every array into memory of the project's own (True), or map the file
+        copy-on-write (False). By default projects up to `PRIVATE_COPY_LIMIT` bytes are
+        read (the open project then survives its file being truncated or overwritten);
+        larger ones are mapped, which opens faster and shares the page cache.
 
     Returns
     -------
@@ -394,26 +648,33 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None) 
         Missing, truncated, corrupt or foreign files, and projects of a newer format.
     """
     path = Path(path)
-    if not path.exists():
-        raise CaraFileError(path, "no such file")
-    try:
-        zf = zipfile.ZipFile(path, "r")
-    except zipfile.BadZipFile:
-        raise CaraFileError(path, "not a carapost project (not a ZIP container, or truncated)")\
-            from None
-    except OSError as exc:
-        raise CaraFileError(path, f"cannot be read: {exc.strerror or exc}") from None
+    check_input_file(path)
+    clean_stale_parts(path)
+    zf = open_zip(path)
     with zf:
         manifest = _read_manifest(zf, path)
-        members = _Members(zf, path)
+        try:
+            members = _Members(zf, path, private=private)
+        except OSError as exc:
+            raise CaraFileError(path, f"cannot be read: {exc.strerror or exc}") from None
         try:
             project = _build(members, manifest, path, relocate)
             members.verify()
+            if members.mapped:
+                # saves check that the file under the mapping did not change (see
+                # check_mapped_source)
+                st = os.stat(path)
+                source = (str(path.absolute()), st.st_size, st.st_mtime_ns, st.st_ino)
+                project.mapped_source = source  # type: ignore[attr-defined]
             return project
         except CaraFileError:
             raise
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise CaraFileError(path, f"the manifest is inconsistent ({exc!r})") from None
+        except MemoryError:
+            raise CaraFileError(path, "the project does not fit in memory") from None
+        except RecursionError:
+            raise CaraFileError(path, "the manifest is nested too deeply") from None
+        except Exception as exc:
+            raise CaraFileError(path, f"the manifest is inconsistent ({exc!r:.200})") from None
         finally:
             members.close()
 
@@ -482,6 +743,9 @@ def _build(
     intr = m.get("intrinsics")
     if intr is not None:
         cal.intrinsics = CameraIntrinsics(**intr)
+    if XCP_EXTRAS_MEMBER in members.zf.NameToInfo:
+        raw = read_member(members.zf, path, XCP_EXTRAS_MEMBER, MANIFEST_LIMIT)
+        cal.xcp_extras = load_json(path, raw, XCP_EXTRAS_MEMBER)
     project.labels = [str(x) for x in m.get("labels", [])]
     project.sticks = [Stick(int(a), int(b), tuple(col)) for a, b, col in m.get("sticks", [])]
     project.properties = Properties.from_dict(
@@ -499,6 +763,25 @@ def _build(
     project.imported_blob_parameters = m.get("imported_blob_parameters")
     script = m.get("script")
     project.script = list(script) if isinstance(script, list) else None
+    _build_stabilization(project, members, m, path)
     project.path = str(path.absolute())
     project.modified = False
     return project
+
+
+def _build_stabilization(project: Project, members: _Members, m: dict[str, Any],
+                         path: Path) -> None:
+    """Format 2: the stabilisation, alignment and Show Stabilized (absent in format 1)."""
+    from carapost.model.stabilization import Alignment, Stabilization
+
+    F = project.n_frames
+    st = m.get("stabilization")
+    if st is not None:
+        key = "stabilization/transforms.npy"
+        T = members.read(key, m["arrays"][key])
+        if T.shape != (F, 4, 4):
+            raise CaraFileError(path, f"{key} does not fit {F} frames")
+        project.stabilization = Stabilization.from_manifest(st, T)
+    if m.get("alignment") is not None:
+        project.alignment = Alignment.from_manifest(m["alignment"])
+    project.show_stabilized = bool(m.get("show_stabilized", False))

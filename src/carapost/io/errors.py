@@ -22,4 +22,18 @@ class CaraFileError(Exception):
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
         self.problem = problem
+        #: Set by `unexpected_error`: raised by a reader's last-resort net.
+        self.internal = False
         super().__init__(f"{self.path}: {problem}")
+
+
+def unexpected_error(path: str | Path, what: str, exc: BaseException) -> CaraFileError:
+    """The error of a reader's last-resort net: an exception no check anticipated.
+
+    The contract holds (the caller sees a `CaraFileError` naming the file), and
+    ``internal`` is set so that tests and the fuzz benchmark can count these: each one
+    is a check that should be made precise.
+    """
+    err = CaraFileError(path, f"{what} ({type(exc).__name__}: {exc})")
+    err.internal = True
+    return err

@@ -28,7 +28,6 @@ undocumented. Importing one raises `CaraFileError` saying how to supply the take
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import re
 from collections.abc import Callable
@@ -39,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.io.atomic import check_input_file
 from carapost.io.errors import CaraFileError
 from carapost.io.labels import merge_labels, read_label_file
 from carapost.io.timecode import Timecode
@@ -50,6 +50,7 @@ from carapost.io.video import (
     natural_key,
 )
 from carapost.io.xcp import read_xcp
+from carapost.io.ziplimits import load_json
 from carapost.model.project import CameraChannel, Project, Take
 
 log = logging.getLogger("carapost.io")
@@ -82,6 +83,9 @@ PICO_MESSAGE = (
 #: Called with (what, missing path) for a path that does not exist; returns a
 #: replacement path or None.
 RelocateCallback = Callable[[str, str], "str | None"]
+
+#: Largest take metadata file read (bytes).
+_TEXT_LIMIT = 64 << 20
 
 _CHANNEL_FILE = re.compile(r"^(?P<take>.+)_(?P<channel>[^_]+)$")
 
@@ -254,12 +258,14 @@ def read_take_metadata(path: str | Path) -> dict[str, Any]:
         If the file is not a JSON object or a known key has a bad value.
     """
     path = Path(path)
+    check_input_file(path)
     try:
-        meta = json.loads(path.read_text(encoding="utf-8-sig"))
+        raw = path.read_bytes()
     except OSError as exc:
         raise CaraFileError(path, f"cannot be read ({exc.strerror or exc})") from None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CaraFileError(path, f"is not valid JSON ({exc})") from None
+    if len(raw) > _TEXT_LIMIT:
+        raise CaraFileError(path, f"is {len(raw):,} bytes, too large for take metadata")
+    meta = load_json(path, raw, "")
     if not isinstance(meta, dict):
         raise CaraFileError(path, "must hold a JSON object of take metadata")
     for alias in ("frame_rate", "rate"):
@@ -290,7 +296,7 @@ def read_take_metadata(path: str | Path) -> dict[str, Any]:
         rot = spec.get("rotation", 0)
         if isinstance(off, bool) or not isinstance(off, int):
             raise CaraFileError(path, f"cameras.{name}.frame_offset must be an integer")
-        if rot not in (0, 90, 180, 270):
+        if isinstance(rot, bool) or rot not in (0, 90, 180, 270):
             raise CaraFileError(path, f"cameras.{name}.rotation must be 0, 90, 180 or 270")
     if "blob_parameters" in meta and not isinstance(meta["blob_parameters"], dict):
         raise CaraFileError(path, "blob_parameters must be a JSON object")
@@ -316,16 +322,28 @@ def read_brim_csv(path: str | Path) -> tuple[list[str], NDArray[np.float64]]:
         labels repeat, or it holds no marker.
     """
     path = Path(path)
+    check_input_file(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise CaraFileError(path, f"cannot be read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise CaraFileError(path, "is not a text file") from None
+    if "\0" in text:
+        raise CaraFileError(path, "is not a text file (it contains binary data)")
     labels: list[str] = []
+    seen: set[str] = set()  # a set: checking each label against a list was quadratic
     rows: list[list[float]] = []
     first = True
-    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+    reader = csv.reader(text.splitlines())
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as exc:
+            raise CaraFileError(path, f"line {reader.line_num}: {exc}") from None
+        lineno = reader.line_num
         cells = [c.strip() for c in row]
         if not cells or not any(cells) or cells[0].startswith("#"):
             continue
@@ -345,8 +363,9 @@ def read_brim_csv(path: str | Path) -> tuple[list[str], NDArray[np.float64]]:
             raise CaraFileError(path, f"line {lineno}: the label is empty")
         if not np.all(np.isfinite(xyz)):
             raise CaraFileError(path, f"line {lineno}: coordinates must be finite")
-        if cells[0] in labels:
+        if cells[0] in seen:
             raise CaraFileError(path, f"line {lineno}: label {cells[0]!r} appears twice")
+        seen.add(cells[0])
         labels.append(cells[0])
         rows.append(xyz)
     if not rows:

@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.io.atomic import check_input_file
 from carapost.io.errors import CaraFileError
 
 log = logging.getLogger("carapost.io")
@@ -165,6 +166,7 @@ class VideoSource:
             first = self._read_image(0)
             self.n_frames = len(self._files)
         else:
+            check_input_file(self.path)  # a FIFO or device would block the demuxer
             self._open()
             self.n_frames = int(round(self._cap.get(cv2.CAP_PROP_FRAME_COUNT)))
             fps = float(self._cap.get(cv2.CAP_PROP_FPS))
@@ -256,10 +258,14 @@ class VideoSource:
 
     def _read_image(self, index: int) -> NDArray[np.uint8]:
         file = self._files[index]
-        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise CaraFileError(file, "cannot be read as an image (damaged or unsupported)")
-        return _to_gray(image)
+        check_input_file(file)  # a FIFO named like an image would block imread
+        try:
+            image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise CaraFileError(file, "cannot be read as an image (damaged or unsupported)")
+            return _to_gray(image)
+        except cv2.error as exc:  # OpenCV refuses some damaged headers with an exception
+            raise CaraFileError(file, f"cannot be read as an image ({exc.err or exc})") from None
 
     def _read_video(self, index: int) -> NDArray[np.uint8]:
         if index == 0 and self._frame0 is not None:

@@ -39,7 +39,7 @@ from carapost.algorithms.camera import (
     matrix_to_quaternion,
     quaternion_to_matrix,
 )
-from carapost.io.atomic import atomic_write_bytes
+from carapost.io.atomic import atomic_write_bytes, check_input_file
 from carapost.io.errors import CaraFileError
 from carapost.io.labels import unique_names
 
@@ -51,6 +51,9 @@ QUATERNION_NORM_TOL = 1e-3
 
 _EXTRAS_VERSION = 1
 _KEYFRAMES_SLOT = "__KEYFRAMES__"
+
+#: Largest KeyFrame ``FRAME`` accepted (a frame index; 2^31 - 1).
+MAX_FRAME = 2**31 - 1
 _VICON3 = "Vicon3Parameter"
 # Attributes this module reads and rewrites; everything else is carried in extras.
 _CAMERA_KNOWN = {"PIXEL_ASPECT_RATIO", "SENSOR_SIZE", "SKEW"}
@@ -281,6 +284,7 @@ def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
         a camera lacks KeyFrames or has a missing, non-numeric or malformed attribute.
     """
     path = Path(path)
+    check_input_file(path)
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -297,6 +301,8 @@ def read_xcp(path: str | os.PathLike[str]) -> XcpCalibration:
     extras: dict[str, Any] = {
         "format": "xcp", "version": _EXTRAS_VERSION,
         "root_attrib": dict(root.attrib), "root_children": [], "cameras": [],
+        "prolog": [_to_xml(n) for n in reversed(list(root.itersiblings(preceding=True)))],
+        "epilog": [_to_xml(n) for n in root.itersiblings()],
     }
     parsed: list[dict[str, Any]] = []
     notes: list[str] = []
@@ -382,11 +388,14 @@ def _read_camera(path: Path, el: etree._Element, index: int, notes: list[str]) -
 
     if all("FRAME" in ka for ka in kfa):
         frame_col = _column(path, kfa, "FRAME", 1, lambda j: f"{label}, KeyFrame {j}")[:, 0]
-        bad = np.flatnonzero((frame_col != np.round(frame_col)) | (frame_col < 0))
+        # FRAME is a frame index: beyond 2^31 it cannot be one (and >= 2^63 wrapped
+        # negative in int64)
+        bad = np.flatnonzero((frame_col != np.round(frame_col)) | (frame_col < 0)
+                             | (frame_col > MAX_FRAME))
         if bad.size:
             j = int(bad[0])
-            raise CaraFileError(path, f"{label}, KeyFrame {j}: FRAME must be a non-negative "
-                                f"integer, got {kfa[j]['FRAME']!r}")
+            raise CaraFileError(path, f"{label}, KeyFrame {j}: FRAME must be an integer from "
+                                f"0 to {MAX_FRAME}, got {kfa[j]['FRAME']!r}")
         frames_arr = frame_col.astype(np.int64)
     elif n_kf == 1:
         frames_arr = np.zeros(1, dtype=np.int64)
@@ -525,6 +534,16 @@ def _to_xml(el: etree._Element) -> str:
 
 
 def _from_xml(text: str) -> etree._Element:
+    """The node ``_to_xml`` wrote: an element, or a comment, processing instruction or
+    entity reference (which cannot be parsed as a document of their own)."""
+    text = text.strip()
+    if text.startswith("<!--") and text.endswith("-->"):
+        return etree.Comment(text[4:-3])
+    if text.startswith("<?") and text.endswith("?>"):
+        target, _, data = text[2:-2].partition(" ")
+        return etree.ProcessingInstruction(target, data or None)
+    if text.startswith("&") and text.endswith(";") and " " not in text:
+        return etree.Entity(text[1:-1])
     parser = etree.XMLParser(remove_blank_text=True, resolve_entities=False, no_network=True)
     return etree.fromstring(text, parser)
 
@@ -563,7 +582,12 @@ def write_xcp(path: str | os.PathLike[str], calib: XcpCalibration, *,
     path = Path(path)
     root = _build_tree(calib, frame)
     body = etree.tostring(root, encoding="UTF-8", pretty_print=True)
-    data = b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n' + body
+    ex = calib.extras if isinstance(calib.extras, dict) else {}
+    # comments and processing instructions around the root element, kept by read_xcp
+    before = "".join(f"{t}\n" for t in ex.get("prolog", []) if isinstance(t, str))
+    after = "".join(f"{t}\n" for t in ex.get("epilog", []) if isinstance(t, str))
+    data = (b'<?xml version="1.0" encoding="UTF-8" standalone="no" ?>\n'
+            + before.encode("utf-8") + body + after.encode("utf-8"))
     atomic_write_bytes(path, data)
 
 

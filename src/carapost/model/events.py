@@ -30,6 +30,7 @@ PARTS = frozenset(
         "current_frame",
         "rom",
         "file",  # project path / saved state
+        "stabilization",  # Stabilize Data, Align Data, Show Stabilized (no raw change)
     }
 )
 

@@ -439,6 +439,10 @@ class Project:
         # the Session calls that made this project, oldest first (plain JSON values;
         # carapost.session.script writes and replays them; None: not recorded)
         self.script: list[dict[str, Any]] | None = None
+        # Stabilize Data / Align Data (carapost.model.stabilization): never raw positions
+        self.stabilization: Any = None
+        self.alignment: Any = None
+        self.show_stabilized = False
         self.modified = False
 
     # -- sizes ---------------------------------------------------------------------------

@@ -9,9 +9,10 @@ project file all read this one table.
 
 The algorithm sections are not written here: they are generated from the fields of the
 algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
-``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``), which declare
+``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``,
+``StabilizationParameters``), which declare
 label, unit, range and help once with :func:`carapost.algorithms.params.param`. Display,
-Selection, Gap-Filling, Stabilization, Export and Target Tracker have no parameter class
+Selection, Gap-Filling, Export and Target Tracker have no parameter class
 yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
@@ -55,6 +56,7 @@ from carapost.algorithms.params import (
     format_value,
 )
 from carapost.algorithms.rom import RomParameters
+from carapost.algorithms.stabilise import StabilizationParameters
 from carapost.algorithms.tracking import TrackingParameters
 from carapost.algorithms.triangulation import TriangulationParameters
 
@@ -268,6 +270,7 @@ PARAMETER_CLASSES: tuple[type, ...] = (
     RomParameters,
     TrackingParameters,
     TriangulationParameters,
+    StabilizationParameters,
 )
 
 _KINDS: dict[type, type] = {bool: bool, int: int, float: float, str: str}
@@ -307,7 +310,10 @@ def specs_from_parameters(cls: type) -> tuple[PropertySpec, ...]:
 
 
 _ALGORITHM_SPECS: tuple[PropertySpec, ...] = tuple(
-    s for cls in PARAMETER_CLASSES for s in specs_from_parameters(cls))
+    s for cls in PARAMETER_CLASSES if cls is not StabilizationParameters
+    for s in specs_from_parameters(cls))
+# the Stabilization section comes after Gap-Filling, as in the guide
+_STABILIZATION_SPECS = specs_from_parameters(StabilizationParameters)
 
 _OURS_RANGE = " Range is our choice."
 _OURS_DEFAULT = " Default is our choice (the guide gives none)."
@@ -347,25 +353,8 @@ SPECS: tuple[PropertySpec, ...] = (
        "Allow Single Sensor Tracking Gap-Filling", bool, True,
        help="Where one camera still sees the marker, keep the filled point on that camera's "
             "ray."),
-    # --- Stabilization Parameters -----------------------------------------------------
-    _p(STABILIZATION, "stabilization_use_brim_points", "Use Brim Points", bool, False,
-       help="Include brim markers in the stabilising set (only if the brim sits still on "
-            "the head)."),
-    _p(STABILIZATION, "base_frame_weighting", "Base Frame Weighting", float, 1.0, 0.0, 1000.0,
-       help="Weight of drift relative to the base frame in the stabilisation cost."
-            + " Upper bound is our choice."),
-    _p(STABILIZATION, "inter_frame_weighting", "Inter Frame Weighting", float, 1.0, 0.0,
-       1000.0,
-       help="Weight of frame-to-frame jitter in the stabilisation cost."
-            + " Upper bound is our choice."),
-    _p(STABILIZATION, "stable_points_percent", "Stable Points Percent", float, 0.25, 0.0, 1.0,
-       unit="0-1",
-       help="Expected fraction of points that stay still in each frame; lower it for very "
-            "expressive takes."),
-    _p(STABILIZATION, "max_processing_iterations", "Max Processing Iterations", int, 50, 1,
-       10_000,
-       help="Iteration cap of the stabilisation optimiser; more is slower but may fit "
-            "better." + _OURS_RANGE),
+    # --- Stabilization Parameters (StabilizationParameters, algorithms/stabilise.py) --
+    *_STABILIZATION_SPECS,
     # --- Export (contents are ours: the guide names the section only) -----------------
     _p(EXPORT, "export_range", "Export Range", CHOICE, "active", choices=("active", "all"),
        help="Export the active range only or the whole take." + _OURS_DEFAULT),

@@ -57,7 +57,9 @@ from carapost.session.process import (
     ProgressFn,
     one_of,
 )
+from carapost.session.quality import QualityActions
 from carapost.session.script import ScriptActions
+from carapost.session.stabilise import StabiliseActions
 
 log = logging.getLogger("carapost.session")
 
@@ -97,7 +99,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ScriptActions, ProcessActions):
+class Session(ScriptActions, ProcessActions, QualityActions, StabiliseActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from
@@ -124,30 +126,31 @@ class Session(ScriptActions, ProcessActions):
         self.stack = CommandStack(self.project)
         self._get_image = get_image
         self._frames: Any = None
+        #: The autosave copy found newer than the file at `open` (None: none was).
+        self.newer_autosave: Path | None = None
 
     # ====================================================================================
     # construction, images, closing
     # ====================================================================================
     @classmethod
     def open(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
-             get_image: ImageFn | None = None, source: str | Path | None = None) -> Session:
+             get_image: ImageFn | None = None, source: str | Path | None = None,
+             recover: bool | None = None) -> Session:
         """File > Open: a session on a ``.cara`` project (a fresh History).
 
         Videos that moved are looked for beside the project, then ``relocate(camera,
         missing_path)`` is asked (see `relocate_files` to fix them afterwards).
         ``source``: read this file instead (the recovered autosave copy of ``path``); the
         project belongs to ``path`` and stays modified until it is saved.
+        ``recover``: what to do when an autosave copy newer than ``path`` exists (the
+        program stopped before saving): True opens the copy, False opens ``path``
+        silently, None (the default) opens ``path``, warns (`NewerAutosaveWarning`) and
+        sets ``session.newer_autosave`` to the copy's path.
         """
-        from carapost.io.cara import load_project
+        from carapost.session.recovery import open_with_recovery
 
-        recovered = source is not None and Path(source) != Path(path)
-        project = load_project(source if recovered else path, relocate=relocate)
-        project.path = str(Path(path).absolute())
-        project.modified = False
-        session = cls(project, get_image=get_image)
-        if recovered:  # the autosave copy differs from the file until it is saved
-            session.stack.mark_unsaved()
-        return session
+        return open_with_recovery(cls, path, relocate=relocate, get_image=get_image,
+                                  source=source, recover=recover)
 
     @classmethod
     def import_take(cls, path: str | Path, *, relocate: RelocateCallback | None = None,
@@ -470,8 +473,9 @@ class Session(ScriptActions, ProcessActions):
 
     def export_fbx(self, path: str | Path, **overrides: Any) -> Path:
         """File > Export FBX with the Export properties (range, brim, FBX Up Axis, FBX
-        Include Cameras, FBX Include Sticks); keywords ``frame_range``, ``include_brim``,
-        ``up_axis``, ``include_cameras``, ``include_sticks`` replace them.
+        Include Cameras, FBX Include Sticks, Export Stabilized Coordinates); keywords
+        ``frame_range``, ``include_brim``, ``up_axis``, ``include_cameras``,
+        ``include_sticks``, ``stabilized`` replace them.
 
         Cameras asked for by the property (not by a keyword) are left out, with a
         warning, when the project has no calibration.
@@ -487,7 +491,8 @@ class Session(ScriptActions, ProcessActions):
             cameras = False
         return export_fbx(self.project, path, frame_range=o.frame_range,
                           include_brim=o.include_brim, up_axis=o.up_axis,
-                          include_cameras=cameras, include_sticks=o.include_sticks)
+                          include_cameras=cameras, include_sticks=o.include_sticks,
+                          stabilized=o.stabilized)
 
     def export_xcp(self, path: str | Path, frame: int | None = None) -> Path:
         """File > Export XCP [Current Frame] (or the cameras of ``frame``)."""

@@ -38,7 +38,8 @@ ImageFn = Callable[[int, int], NDArray[np.uint8]]
 #: The Process actions of :meth:`ProcessActions.prepare` (each has ``prepare_<action>``
 #: and a synchronous method of the same name).
 PROCESS_ACTIONS = ("detect_blobs", "solve_brim", "initialize_3d", "bundle_current_frame",
-                   "bundle_sequence", "track", "track_take", "initialize_from_rom")
+                   "bundle_sequence", "track", "track_take", "initialize_from_rom",
+                   "stabilize")
 
 
 def one_of(value: str, choices: Sequence[str], what: str) -> str:

@@ -384,3 +384,52 @@ def head_radius_lut(u: ArrayLike) -> NDArray[np.float32]:
     out = cv2.remap(_LUT["r"], mx.reshape(rows, width), my.reshape(rows, width),
                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out.ravel()[:n].reshape(phi.shape)
+
+
+def poisson_marker_set(count: int, rng: np.random.Generator,
+                       radius_mm: tuple[float, float] = (1.2, 2.0)) -> list[MarkerSpec]:
+    """``count`` markers placed by Poisson-disk sampling over the front of the face.
+
+    Another marker layout than the anatomical sets: blue-noise positions with no
+    symmetry and no anatomical labels (``P001``...), away from the eyes, nostrils and the
+    lip line, as a painter with a stencil-free brush would place them. Samples come from
+    :class:`scipy.stats.qmc.PoissonDisk` on the (azimuth, elevation) rectangle, the
+    radius shrunk until enough samples fall outside the excluded areas; ``count`` of
+    them are kept at random.
+
+    Parameters
+    ----------
+    count : int
+        Number of markers (>= 1).
+    rng : numpy.random.Generator
+    radius_mm : (float, float)
+        Range of the disc radii (mm), drawn uniformly per marker.
+
+    Returns
+    -------
+    list of MarkerSpec
+    """
+    from scipy.stats import qmc
+
+    lo, hi = np.array([-50.0, -50.0]), np.array([50.0, 45.0])
+    r = 0.75 / np.sqrt(count)  # about 1.2 count samples on the rectangle
+    for _ in range(40):
+        seed = int(rng.integers(2**31))
+        pts = qmc.scale(qmc.PoissonDisk(2, radius=r, seed=seed).fill_space(), lo, hi)
+        ph, ps = pts[:, 0], pts[:, 1]
+        a = np.abs(ph)
+        eye = ((a - 21) / 8.5) ** 2 + ((ps - 15) / 4.0) ** 2 < 1.0
+        nose = (a < 7) & (ps > -12) & (ps < 22)
+        lips = (a < 14) & (ps > -28) & (ps < -24)
+        side = (a > 46) & (ps < -36)
+        keep = ~(eye | nose | lips | side)
+        if keep.sum() >= count:
+            ph, ps = ph[keep], ps[keep]
+            break
+        r *= 0.92
+    else:  # pragma: no cover - the radius shrinks geometrically
+        raise ValueError(f"cannot place {count} markers on the face")
+    pick = np.sort(rng.choice(len(ph), size=count, replace=False))
+    radii = rng.uniform(radius_mm[0], radius_mm[1], count)
+    return [MarkerSpec(f"P{i + 1:03d}", float(ph[j]), float(ps[j]), float(rad))
+            for i, (j, rad) in enumerate(zip(pick, radii, strict=True))]

@@ -193,10 +193,17 @@ def render_background(scene: SynthScene, camera: int
     tex_rng = np.random.default_rng(20261122)  # the actor's skin is the same in every take
 
     layers = []
-    hit, t = _ray_cast_head(o, d)
+    S = np.asarray(scene.head_scale, dtype=np.float64)
+    # an axis-scaled head: cast in its unscaled frame (unit directions there, so the ray
+    # parameter scales by the direction's length)
+    ds = d / S
+    dl = np.linalg.norm(ds, axis=1)
+    hit, t = _ray_cast_head(o / S, ds / dl[:, None])
+    t = t / dl
     p = o[hit] + t[hit, None] * d[hit]
-    phi, psi = face.dirs_to_angles(p)
-    n = face.surface_normals(phi, psi)
+    phi, psi = face.dirs_to_angles(p / S)
+    n = face.surface_normals(phi, psi) / S
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
     val = np.zeros(len(o))
     val[hit] = _shade(p, n, cam, _skin_albedo(p, tex_rng), scene.config.highlights, d[hit], axis)
     layers.append((val, hit))
@@ -244,8 +251,9 @@ def prepare(scene: SynthScene) -> None:
         intr = scene.intrinsics
         # head-following warp: a spread of face points, ref = nominal camera, head at rest
         phi, psi = np.meshgrid(np.linspace(-55, 55, 12), np.linspace(-45, 45, 10))
-        ph = face.surface_points(phi.ravel(), psi.ravel())
-        nh = face.surface_normals(phi.ravel(), psi.ravel())
+        S = np.asarray(scene.head_scale, dtype=np.float64)
+        ph = face.surface_points(phi.ravel(), psi.ravel()) * S
+        nh = face.surface_normals(phi.ravel(), psi.ravel()) / S
         ref, _ = project(ph, scene.nominal_R, scene.nominal_t, intr)  # (K, C, 2)
         cen = camera_centres(scene.nominal_R, scene.nominal_t)  # (C, 3)
         vis = np.einsum("kci,ki->kc", cen[None] - ph[:, None], nh) > 0
@@ -293,15 +301,18 @@ def _background(scene: SynthScene, camera: int) -> dict:
 
 
 def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArray, t: NDArray,
-              centres: NDArray, normals: NDArray, radii: NDArray, strength: float) -> None:
+              centres: NDArray, normals: NDArray, radii: NDArray,
+              strength: float | NDArray) -> None:
     """Accumulate the coverage of discs into ``ink`` (H, W) in place.
 
     ``centres``/``normals`` are (S, J, 3): S time samples (motion blur) of J discs in the
     helmet frame; the coverage is averaged over the samples. Pixels whose centre is far
     inside or outside a disc (by more than the pixel's footprint on the disc's plane) are
     classified from that one sample; only pixels near the rim are super-sampled.
+    ``strength`` is the ink's opacity, one value or one per disc (J,).
     """
     S, J, _ = centres.shape
+    strength = np.broadcast_to(np.asarray(strength, dtype=np.float64), (J,))
     if J == 0:
         return
     intr = scene.intrinsics
@@ -376,7 +387,7 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
                                N[j, 0, 0][:, None, None, :]) < (radii[sel][j] ** 2)[:, None, None]
                 c_s[j, yy, xx] = inside.mean(axis=(1, 2))
             cov += c_s
-        cov *= strength / S
+        cov *= strength[sel][:, None, None] / S
         cov = cov.astype(np.float32)
         for k in range(len(sel)):
             xa, ya = x0[k], y0[k]
@@ -466,7 +477,9 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
     else:
         cen = scene.seen_points[frame, camera][None, vis]
         nor = scene.seen_normals[frame, camera][None, vis]
-    _disc_ink(ink, scene, camera, R, t, cen, nor, scene.marker_radius_mm[vis], 1 - _SKIN_INK)
+    marker_ink = _SKIN_INK if scene.marker_ink is None else scene.marker_ink[vis]
+    _disc_ink(ink, scene, camera, R, t, cen, nor, scene.marker_radius_mm[vis],
+              1 - marker_ink)
     bvis = scene.brim_visible[frame, :, camera]
     _disc_ink(ink, scene, camera, R, t, scene.brim3d[None, bvis], scene.brim_normals[None, bvis],
               scene.brim_radius_mm[bvis], 1 - _BRIM_INK)

@@ -85,12 +85,16 @@ def look_at(centre: NDArray[np.float64], target: NDArray[np.float64], roll_deg: 
 
 
 def rig_cameras(n_cameras: int, size: tuple[int, int],
-                rng: np.random.Generator | None = None
+                rng: np.random.Generator | None = None, *, baseline_mm: float = 45.0,
+                separation_mm: float = 128.0
                 ) -> tuple[CameraIntrinsics, NDArray[np.float64], NDArray[np.float64]]:
     """Nominal (unflexed) rig: intrinsics and extrinsics of ``n_cameras`` cameras.
 
     Cameras ``0 .. ceil(C/2)-1`` sit on the left caddy (actor's left, +x), the rest on the
-    right one; within a caddy they are stacked 45 mm apart, all looking at the face.
+    right one; within a caddy they are stacked ``baseline_mm`` apart, the caddies
+    ``separation_mm`` apart (top cameras), all looking at the face. The focal length is
+    set from the image's short side, so a portrait size (e.g. 720x1280) gives
+    portrait-mounted cameras with the same field of view across.
     With ``rng`` (a rig variant), every camera's position and aim move by a few mm, its
     roll by a few degrees and its focal length by up to 10 %: another rig of the same kind.
 
@@ -109,7 +113,8 @@ def rig_cameras(n_cameras: int, size: tuple[int, int],
         left = i < n_left
         j = i if left else i - n_left
         sx = 1.0 if left else -1.0
-        centre = np.array([sx * (64.0 - 4.0 * j), -42.0 - 45.0 * j, 232.0 - 8.0 * j])
+        centre = np.array([sx * (separation_mm / 2.0 - 4.0 * j), -42.0 - baseline_mm * j,
+                           232.0 - 8.0 * j])
         target = np.array([-sx * 8.0, 14.0 + 4.0 * j, 75.0])
         roll = (1.5 if left else -1.2) + 0.7 * j
         f_scale = 1.0
@@ -122,7 +127,7 @@ def rig_cameras(n_cameras: int, size: tuple[int, int],
         Rs.append(R)
         ts.append(t)
         # slightly different lenses per camera, face filling most of the frame
-        focal.append(f_scale * h * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
+        focal.append(f_scale * min(w, h) * (0.80 + 0.012 * ((i * 7) % 5 - 2)))
         pp.append([(w - 1) / 2.0 + 3.1 * ((i % 3) - 1) + 1.3,
                    (h - 1) / 2.0 - 2.2 * ((i % 2) - 0.5)])
         dc.append([pp[-1][0] - 1.7 + 0.9 * (i % 2), pp[-1][1] + 1.2 - 0.8 * (i % 3)])

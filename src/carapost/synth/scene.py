@@ -82,6 +82,27 @@ class SynthConfig:
         aims, rolls and focal lengths, the brim's dot layout and dot size, every marker's
         place on the face (about 1.5 mm) and the marker sizes (within 1-2.5 mm radius).
         Tests use it as a stand-in for takes of other rigs and renderers.
+    poisson_markers : int
+        0: the named marker set. N > 0: N markers placed by Poisson-disk sampling
+        (`carapost.synth.face.poisson_marker_set`, labels ``P001``...) instead.
+    marker_radius_mm : (float, float) or None
+        Draw every face marker's radius uniformly in this range (mm).
+    marker_ink : (float, float) or None
+        Draw every face marker's reflectance (relative to the skin under it) uniformly in
+        this range; default 0.16 for all (about grey 25-35 on lit skin). (0.12, 0.30)
+        gives discs of grey ~20-50.
+    head_scale : (float, float, float)
+        Scale of the head along x, y, z (another head shape: wider, longer, flatter
+        faces); expressions deform the head before the scale.
+    caddy_baseline_mm : float
+        Distance between the cameras of one caddy (mm).
+    caddy_separation_mm : float
+        Distance between the two caddies (mm, top cameras).
+    flex_scale : float
+        Scale of the per-camera rig flex (1: about 0.05 deg and 0.12 mm RMS per camera,
+        each camera of a caddy flexing on its own).
+    slip_scale : float
+        Scale of the helmet slip on the head (1: about 0.35 deg and 0.45 mm RMS).
     """
 
     preset: str = "speech"
@@ -101,6 +122,14 @@ class SynthConfig:
     timecode_start: str = "00:00:00:00"
     take_name: str = "synth"
     variant: int = 0
+    poisson_markers: int = 0
+    marker_radius_mm: tuple[float, float] | None = None
+    marker_ink: tuple[float, float] | None = None
+    head_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    caddy_baseline_mm: float = 45.0
+    caddy_separation_mm: float = 128.0
+    flex_scale: float = 1.0
+    slip_scale: float = 1.0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad parameter."""
@@ -132,6 +161,22 @@ class SynthConfig:
             raise ValueError(f"timecode_start must be HH:MM:SS:FF, got {self.timecode_start!r}")
         if int(self.variant) < 0:
             raise ValueError(f"variant must be >= 0, got {self.variant}")
+        if int(self.poisson_markers) < 0:
+            raise ValueError(f"poisson_markers must be >= 0, got {self.poisson_markers}")
+        for name, lo_ok, hi_ok in (("marker_radius_mm", 0.3, 6.0), ("marker_ink", 0.0, 1.0)):
+            rng_ = getattr(self, name)
+            if rng_ is not None and not (lo_ok <= rng_[0] <= rng_[1] <= hi_ok):
+                raise ValueError(f"{name} must be (low, high) within {lo_ok}..{hi_ok}, "
+                                 f"got {rng_}")
+        if len(self.head_scale) != 3 or not all(0.7 <= v <= 1.3 for v in self.head_scale):
+            raise ValueError(f"head_scale must be three factors in 0.7..1.3, "
+                             f"got {self.head_scale}")
+        if not (10.0 <= self.caddy_baseline_mm <= 120.0
+                and 60.0 <= self.caddy_separation_mm <= 300.0):
+            raise ValueError("caddy_baseline_mm must be in 10..120 and caddy_separation_mm "
+                             "in 60..300")
+        if not (0.0 <= self.flex_scale <= 10.0 and 0.0 <= self.slip_scale <= 10.0):
+            raise ValueError("flex_scale and slip_scale must be in 0..10")
         if not self.take_name or re.search(r"[\\/:*?\"<>|\s]", self.take_name):
             raise ValueError(f"take_name must be a plain file stem, got {self.take_name!r}")
 
@@ -210,6 +255,11 @@ class SynthScene:
     blur_normals: NDArray[np.float64] | None = field(default=None, repr=False)
     nominal_R: NDArray[np.float64] = field(default=None, repr=False)  # type: ignore[assignment]
     nominal_t: NDArray[np.float64] = field(default=None, repr=False)  # type: ignore[assignment]
+    #: Reflectance of each face marker relative to the skin (M,); None: 0.16 for all.
+    marker_ink: NDArray[np.float64] | None = field(default=None, repr=False)
+    #: Head shape scale along x, y, z (see `SynthConfig.head_scale`).
+    head_scale: NDArray[np.float64] = field(
+        default_factory=lambda: np.ones(3), repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -228,9 +278,13 @@ class SynthScene:
         return int(self.config.size[0]), int(self.config.size[1])
 
 
-def _marker_geometry(phi: NDArray, psi: NDArray, act: NDArray
+def _marker_geometry(phi: NDArray, psi: NDArray, act: NDArray,
+                     scale: NDArray | None = None
                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Deformed head-frame points and normals for activations ``act`` (..., K) -> (..., M, 3)."""
+    """Deformed head-frame points and normals for activations ``act`` (..., K) -> (..., M, 3).
+
+    ``scale`` (3,) stretches the deformed head along its axes (another head shape).
+    """
     d = 0.05
     p0 = face.surface_points(phi, psi)
     pts = face.deform(p0, act)
@@ -238,21 +292,27 @@ def _marker_geometry(phi: NDArray, psi: NDArray, act: NDArray
         face.deform(face.surface_points(phi - d, psi), act)
     b = face.deform(face.surface_points(phi, psi + d), act) - \
         face.deform(face.surface_points(phi, psi - d), act)
+    if scale is not None:
+        # an axis scale maps tangents by S, so the normal n ~ a x b maps by S^-1
+        pts, a, b = pts * scale, a * scale, b * scale
     n = np.cross(a, b)
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     return pts, n
 
 
 def _occluded_by_head(p_head: NDArray, cam_head: NDArray, act: NDArray,
-                      reach: float = 64.0, step: float = 2.0, start: float = 1.5
-                      ) -> NDArray[np.bool_]:
+                      reach: float = 64.0, step: float = 2.0, start: float = 1.5,
+                      scale: NDArray | None = None) -> NDArray[np.bool_]:
     """True where the segment from a surface point towards its camera enters the head.
 
     Parameters
     ----------
     p_head : (N, 3) points in the head frame; cam_head : (N, 3) camera centres in the
-    head frame; act : (N, K) activations (the head deforms with the expression).
+    head frame; act : (N, K) activations (the head deforms with the expression);
+    scale : (3,) head shape scale (the test runs in the unscaled head's frame).
     """
+    if scale is not None and not np.all(scale == 1.0):
+        p_head, cam_head = p_head / scale, cam_head / scale
     d = cam_head - p_head
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     s = np.arange(start, reach, step)
@@ -274,7 +334,8 @@ def _occluded_by_head(p_head: NDArray, cam_head: NDArray, act: NDArray,
 
 def _visibility(points: NDArray, normals: NDArray, R: NDArray, t: NDArray,
                 intr: CameraIntrinsics, size: tuple[int, int], head_R: NDArray, head_t: NDArray,
-                act: NDArray) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+                act: NDArray, scale: NDArray | None = None
+                ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """uv (F, N, C, 2) and visibility (F, N, C) of discs seen by each camera.
 
     ``points``/``normals`` are (F, C, N, 3) (what camera c sees at frame f) and the head
@@ -306,7 +367,7 @@ def _visibility(points: NDArray, normals: NDArray, R: NDArray, t: NDArray,
         ht = head_t[f_i, c_i]
         p_head = np.einsum("nji,nj->ni", hR, points[f_i, c_i, n_i] - ht)
         cam_head = np.einsum("nji,nj->ni", hR, centres[f_i, c_i] - ht)
-        occ = _occluded_by_head(p_head, cam_head, act[f_i, c_i])
+        occ = _occluded_by_head(p_head, cam_head, act[f_i, c_i], scale=scale)
         vis[f_i[occ], n_i[occ], c_i[occ]] = False
     return uv, vis
 
@@ -379,14 +440,24 @@ def build_scene(config: SynthConfig) -> SynthScene:
 
     rng_variant = (np.random.default_rng([int(config.variant), 7919]) if config.variant
                    else None)
-    intr, R0, t0 = rig.rig_cameras(C, size, rng_variant)
-    specs = face.marker_set(config.markers)
+    intr, R0, t0 = rig.rig_cameras(C, size, rng_variant,
+                                   baseline_mm=float(config.caddy_baseline_mm),
+                                   separation_mm=float(config.caddy_separation_mm))
+    # the marker layout, sizes and inks draw from their own stream, so that the options
+    # leave every other random choice of the take unchanged
+    rng_markers = np.random.default_rng([int(config.seed), int(config.variant), 4241])
+    if config.poisson_markers:
+        specs = face.poisson_marker_set(int(config.poisson_markers), rng_markers,
+                                        config.marker_radius_mm or (1.2, 2.0))
+    else:
+        specs = face.marker_set(config.markers)
+    head_scale = np.asarray(config.head_scale, dtype=np.float64)
     phi = np.array([m.phi for m in specs])
     psi = np.array([m.psi for m in specs])
     radii = np.array([m.radius for m in specs])
     brim3d, brim_labels = rig.brim_model(rng_variant)
     brim_dot_radius = rig.BRIM_DOT_RADIUS
-    if rng_variant is not None:
+    if rng_variant is not None and not config.poisson_markers:
         # eyelid markers stay on the lid (the blink model depends on their place)
         jitter = np.where(np.array([m.eyelid for m in specs]), 0.3, 1.0)
         phi_j = phi + rng_variant.normal(0.0, 1.0, len(phi)) * jitter
@@ -402,8 +473,10 @@ def build_scene(config: SynthConfig) -> SynthScene:
         phi, psi = phi_j, psi_j
         radii = np.clip(radii * rng_variant.uniform(0.75, 1.25), 1.0, 2.5)
         brim_dot_radius = float(rng_variant.uniform(2.0, 3.0))
+    if config.marker_radius_mm is not None and not config.poisson_markers:
+        radii = rng_markers.uniform(*config.marker_radius_mm, len(radii))
     labels = [m.label for m in specs]
-    eyelid = np.array([m.eyelid for m in specs])
+    eyelid = np.array([m.eyelid for m in specs], dtype=bool)
     merge = None
     if config.merge_pair:
         i, p2, s2 = _merge_partner(phi, psi, radii, R0, t0)
@@ -413,10 +486,14 @@ def build_scene(config: SynthConfig) -> SynthScene:
         eyelid = np.append(eyelid, False)
         merge = (int(i), len(labels) - 1)
 
+    ink = (None if config.marker_ink is None
+           else rng_markers.uniform(*config.marker_ink, len(labels)))
+
     duration = F / config.fps
     motion = ExpressionMotion(config.preset, duration, rng_motion)
-    slip = RigidJitter(rng_slip, 1, np.radians(0.35), 0.45, 0.05, 0.5)
-    flex = RigidJitter(rng_flex, C, np.radians(0.05), 0.12, 0.3, 2.5)
+    ss, fs = float(config.slip_scale), float(config.flex_scale)
+    slip = RigidJitter(rng_slip, 1, ss * np.radians(0.35), ss * 0.45, 0.05, 0.5)
+    flex = RigidJitter(rng_flex, C, fs * np.radians(0.05), fs * 0.12, 0.3, 2.5)
 
     lag = np.zeros(C, dtype=np.int64)
     if config.out_of_sync_camera is not None:
@@ -437,7 +514,7 @@ def build_scene(config: SynthConfig) -> SynthScene:
 
     def markers_at(tt: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
         act = motion(tt)
-        p, n = _marker_geometry(phi, psi, act)
+        p, n = _marker_geometry(phi, psi, act, None if (head_scale == 1).all() else head_scale)
         hR, ht = head_pose(tt)
         pts = np.einsum("...ij,...mj->...mi", hR, p) + ht[..., None, :]
         nrm = np.einsum("...ij,...mj->...mi", hR, n)
@@ -454,7 +531,7 @@ def build_scene(config: SynthConfig) -> SynthScene:
         seen_ht = np.broadcast_to(head_t[:, None], (F, C, 3))
 
     uv, visible = _visibility(seen_points, seen_normals, cam_R, cam_t, intr, size,
-                              seen_hR, seen_ht, act_seen)
+                              seen_hR, seen_ht, act_seen, head_scale)
     blink_closed = act_seen[..., face.MODES.index("blink")] > BLINK_HIDE  # (F, C)
     visible &= ~(eyelid[None, :, None] & blink_closed[:, None, :])
 
@@ -463,7 +540,7 @@ def build_scene(config: SynthConfig) -> SynthScene:
     bp = np.broadcast_to(brim3d, (F, C, B, 3))
     bn = np.broadcast_to(brim_n, (F, C, B, 3))
     brim_uv, brim_visible = _visibility(bp, bn, cam_R, cam_t, intr, size, seen_hR, seen_ht,
-                                        act_seen)
+                                        act_seen, head_scale)
 
     blur_points = blur_normals = None
     if config.motion_blur:
@@ -480,4 +557,5 @@ def build_scene(config: SynthConfig) -> SynthScene:
         seen_normals=np.ascontiguousarray(seen_normals),
         seen_head_R=np.ascontiguousarray(seen_hR), seen_head_t=np.ascontiguousarray(seen_ht),
         blur_points=blur_points, blur_normals=blur_normals, nominal_R=R0, nominal_t=t0,
+        marker_ink=ink, head_scale=head_scale,
     )

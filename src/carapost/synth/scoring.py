@@ -199,3 +199,90 @@ def track_quality(
     s = score_tracks(Y, truth, visible)
     coverage = np.nan if s.coverage is None else s.coverage
     return coverage, int(s.swaps.sum()), s.rmse, int(np.count_nonzero(s.match < 0))
+
+
+#: Names of the sample groups `group_quality` reports.
+GROUPS = ("all", "one_caddy", "two_caddies")
+
+
+def group_quality(truth: NDArray, visible: NDArray, positions: NDArray,
+                  caddies: list[list[int]] | tuple[tuple[int, ...], ...],
+                  sigma: NDArray | None = None, spurious_gate_mm: float = MATCH_GATE_MM
+                  ) -> dict[str, dict[str, float | int | None]]:
+    """Accuracy of tracked points by how the truth marker was seen: by the cameras of one
+    caddy only, by both caddies, and overall.
+
+    Points are matched to markers as in `score_tracks`. A sample (frame, matched point)
+    belongs to ``one_caddy`` when the marker is seen by >= 2 cameras at that frame and
+    all of them are on one caddy, to ``two_caddies`` when cameras of both caddies see
+    it; samples of markers seen by fewer than two cameras count in ``all`` only.
+
+    Parameters
+    ----------
+    truth : ndarray, shape (F, M, 3)
+    visible : ndarray, shape (F, M, C) bool
+    positions : ndarray, shape (F, P, 3)
+        Tracked positions (mm), NaN where none; points never present are ignored.
+    caddies : sequence of sequences of int
+        Camera indices of each caddy.
+    sigma : ndarray, shape (F, P), optional
+        Estimated standard deviation (mm) of each sample's error along its worst
+        direction; gives ``within_1sigma`` / ``within_2sigma``: the fraction of samples
+        with a finite sigma whose error is within 1 / 2 sigma.
+    spurious_gate_mm : float
+        A point whose mean distance to every marker exceeds this is spurious.
+
+    Returns
+    -------
+    dict
+        Per group: ``samples``, ``rmse_mm``, ``median_mm``, ``p95_mm``, ``p99_mm``,
+        ``max_mm``, ``over_0_5mm`` (fraction), ``coverage`` (of the group's seen
+        marker-frames, within `HIT_MM`), ``within_1sigma``, ``within_2sigma`` (None
+        without sigma); ``all`` also has ``swaps``, ``spurious`` and ``points``.
+    """
+    Y = np.asarray(positions, dtype=np.float64)
+    present = np.isfinite(Y[..., 0]).any(0)
+    Y = Y[:, present]
+    sig = None if sigma is None else np.asarray(sigma, dtype=np.float64)[:, present]
+    vis = np.asarray(visible).astype(bool)
+    X = np.asarray(truth, dtype=np.float64)
+    s = score_tracks(Y, X, vis)
+    F, M = X.shape[:2]
+    n_cad = np.stack([vis[..., list(cams)].any(-1) for cams in caddies], axis=-1)
+    seen = (vis.sum(-1) >= 2) & np.isfinite(X[..., 0])
+    one = seen & (n_cad.sum(-1) == 1)
+    two = seen & (n_cad.sum(-1) >= 2)
+    err = np.full((F, M), np.nan)
+    sg = np.full((F, M), np.nan)
+    for i in np.flatnonzero(s.match >= 0):
+        m = int(s.match[i])
+        err[:, m] = np.linalg.norm(Y[:, i] - X[:, m], axis=-1)
+        if sig is not None:
+            sg[:, m] = sig[:, i]
+    out: dict[str, dict[str, float | int | None]] = {}
+    for name, mask in (("all", np.isfinite(X[..., 0])), ("one_caddy", one),
+                       ("two_caddies", two)):
+        e = err[mask & np.isfinite(err)]
+        row: dict[str, float | int | None] = {"samples": int(e.size)}
+        if e.size:
+            row.update(rmse_mm=float(np.sqrt(np.mean(e ** 2))), median_mm=float(np.median(e)),
+                       p95_mm=float(np.percentile(e, 95)), p99_mm=float(np.percentile(e, 99)),
+                       max_mm=float(e.max()), over_0_5mm=float(np.mean(e > 0.5)))
+        else:
+            row.update(rmse_mm=None, median_mm=None, p95_mm=None, p99_mm=None, max_mm=None,
+                       over_0_5mm=None)
+        grp_seen = seen & mask
+        hit = np.nan_to_num(err, nan=np.inf) <= HIT_MM
+        row["coverage"] = float(hit[grp_seen].mean()) if grp_seen.any() else None
+        within = mask & np.isfinite(err) & np.isfinite(sg) & (sg > 0)
+        if within.any():
+            ratio = err[within] / sg[within]
+            row["within_1sigma"] = float(np.mean(ratio <= 1.0))
+            row["within_2sigma"] = float(np.mean(ratio <= 2.0))
+        else:
+            row["within_1sigma"] = row["within_2sigma"] = None
+        out[name] = row
+    out["all"]["swaps"] = int(s.swaps.sum())
+    out["all"]["spurious"] = int(np.count_nonzero(s.match < 0))
+    out["all"]["points"] = int(Y.shape[1])
+    return out

@@ -190,7 +190,7 @@ ACTIONS: tuple[ActionSpec, ...] = (
     _A("view.blob_preview", "View", "Toggle Blob Preview", "Ctrl+B",
        view_menu.toggle_blob_preview, checkable=True),
     _A("view.show_stabilized", "View", "Toggle Show Stabilized", "Ctrl+Shift+S",
-       checkable=True),  # waits for Stabilize Data
+       view_menu.toggle_show_stabilized, checkable=True),
     _A("view.go_to_frame", "View", "Go To Frame...", "Ctrl+G", navigation.go_to_frame,
        separator=True),
     _A("view.start", "View", "Go to Start Frame", "Home", navigation.go_start),
@@ -257,10 +257,14 @@ ACTIONS: tuple[ActionSpec, ...] = (
           shortcut="Ctrl+W", images=True, direction="forwards", single_frame=True),
     _proc("process.track_bwd_one", "Track Backwards [Single Frame]", "track", images=True,
           direction="backwards", single_frame=True),
-    # Stabilize, Align and Interpolate wait for their algorithms
-    _proc("process.stab_manual", "Stabilize Data [Manual]", None, separator=True),
-    _proc("process.stab_assisted", "Stabilize Data [Assisted]", None),
-    _proc("process.align", "Align Data", None),
+    _proc("process.stab_manual", "Stabilize Data [Manual]", "stabilize", separator=True,
+          mode="manual"),
+    _proc("process.stab_assisted", "Stabilize Data [Assisted]", "stabilize", mode="assisted"),
+    _proc("process.stab_auto", "Stabilize Data [Automatic]", "stabilize", mode="auto"),
+    _A("process.align", "Process", "Align Data", "", process_menu.align_data),
+    _A("process.remove_stab", "Process", "Remove Stabilization", "",
+       process_menu.remove_stabilization),
+    # Interpolate waits for its algorithm
     _proc("process.interpolate", "Interpolate Gaps", None, separator=True),
     # --- Help ------------------------------------------------------------------------------
     _A("help.online", "Help", "View Latest Help Online", "", help_menu.open_help,

@@ -96,4 +96,8 @@ def run_gui(path: str | None = None) -> int:
             window.report_error("Open", f"{path}: no such file")
         else:
             open_path(window, path)
+    else:
+        from carapost.ui.handlers.file import offer_untitled_recovery
+
+        offer_untitled_recovery(window.context)
     return int(app.exec())

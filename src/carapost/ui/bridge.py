@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 from PySide6.QtCore import QObject, QTimer, Signal
 
 from carapost.commands.stack import CommandError
+from carapost.io.errors import CaraFileError
 from carapost.model.events import Change, merge_changes
 from carapost.model.project import Project
 
@@ -257,7 +258,11 @@ class JobRunner(QObject):
         self._done = None
         if kind == "error":
             exc, tb = value
-            logging.getLogger("carapost.process").error("%s failed: %s\n%s", title, exc, tb)
+            if isinstance(exc, CaraFileError):  # the message names the file: no traceback
+                logging.getLogger("carapost.process").error("%s failed: %s", title, exc)
+            else:
+                logging.getLogger("carapost.process").error("%s failed: %s\n%s", title, exc,
+                                                            tb)
             self.outcome = "failed"
             self.failed.emit(title, f"{title} failed: {exc}")
             self.finished.emit(title, cancelled)

@@ -217,6 +217,8 @@ class MainWindow(QMainWindow):
     def _changed(self, change: Change) -> None:
         self.timebar.refresh()
         self._update_actions()
+        if change.parts & {"stabilization", "file"}:  # Stabilize Data switches it on
+            self.action("view.show_stabilized").setChecked(self.project.show_stabilized)
 
     def _project_replaced(self) -> None:
         self.timebar.set_project(self.project)

@@ -426,7 +426,8 @@ class TrackerPane(QWidget):
 
 
 class SelectedPointPane(QWidget):
-    """Continuity of the one selected point, overall and per camera."""
+    """Continuity of the one selected point, overall and per camera, and the estimated
+    uncertainty (sigma) of its sample at the current frame."""
 
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__()
@@ -434,7 +435,25 @@ class SelectedPointPane(QWidget):
         self.chart = ContinuityView(ctx.view, single=True)
         self.chart.setMinimumHeight(90)
         layout.addWidget(self.chart)
+        self.sigma_label = QLabel("")
+        self.sigma_label.setToolTip("Estimated standard deviation of the 3D sample's error "
+                                    "at the current frame (from the cameras that see it)")
+        layout.addWidget(self.sigma_label)
+        self._view = ctx.view
         ctx.view.changed.connect(self.refresh)
+        self._show_sigma()
+
+    def _show_sigma(self) -> None:
+        p = self._view.project
+        cols = p.selected_columns()
+        text = ""
+        if len(cols) == 1 and 0 <= p.current_frame < p.n_frames:
+            f, col = p.current_frame, int(cols[0])
+            s = float(p.points.arrays["sigma"][f, col])
+            n = int(np.isfinite(p.points.obs[f, col, :, 0]).sum())
+            text = (f"Frame {f}: sigma {s:.3f} mm, {n} camera{'s' if n != 1 else ''}"
+                    if np.isfinite(s) else f"Frame {f}: sigma unknown")
+        self.sigma_label.setText(text)
 
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
@@ -442,3 +461,4 @@ class SelectedPointPane(QWidget):
             self.chart.refresh(None)
         else:
             self.chart.refresh(change)
+        self._show_sigma()

@@ -129,6 +129,9 @@ class TrackingParameters:
     max_patch_frames: int = 5
     elastic_passes: int = param(5, min=1)
     consensus_radius_factor: float = param(2.0, min=1.0)
+    #: Frames of the camera pose fit after tracking a take (`track_take`; below 5: off),
+    #: see :func:`carapost.algorithms.uncertainty.smooth_camera_poses`.
+    pose_smoothing_frames: int = param(11, min=0)
 
     def __post_init__(self) -> None:
         validate(self)

@@ -31,6 +31,13 @@ from carapost.algorithms.tracking.identity import (
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
+from carapost.algorithms.uncertainty import (
+    noise_from_residuals,
+    pair_holdout_scale,
+    retriangulate,
+    sample_sigma,
+    smooth_camera_poses,
+)
 
 
 def make_spawner(
@@ -238,7 +245,7 @@ def track_take(
     lo, hi = min(start, last), max(start, last)
     if cancelled or last == end2:
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
-                            merge_mm)
+                            merge_mm, intr, start, params.pose_smoothing_frames)
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -273,12 +280,13 @@ def track_take(
         lo, hi = min(lo, bwd.first), max(hi, bwd.last)
     kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
-                        merge_mm)
+                        merge_mm, intr, start, params.pose_smoothing_frames)
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
-                 merge_mm: float) -> TrackResult:
+                 merge_mm: float, intr: CameraIntrinsics, start: int,
+                 pose_window: int) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -288,6 +296,9 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        coexist (:func:`stitch`).
     3. Clear what still hops, drop found points triangulated in fewer than ``min_frames``
        frames and found points far from every other point (:func:`drop_isolated`).
+    4. Fit the cameras' poses over time (:func:`smooth_camera_poses`, the start frame's
+       kept), triangulate the face samples again with them and estimate each
+       triangulated sample's sigma (:func:`sample_sigma`).
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -299,9 +310,35 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     drop_isolated(A, kind, keep, P)
     sl = slice(first, last + 1)
     o = {k: v[sl][:, keep] for k, v in A.items()}
+    Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
+                                    np.arange(first, last + 1) == start, pose_window)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
-                       o["detection"], o["quality"], R[sl], t[sl], first=first, last=last,
-                       frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()))
+                       o["detection"], o["quality"], Rs, ts, first=first, last=last,
+                       frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
+                       sigma=sigma)
+
+
+def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
+                    kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
+                    window: int) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
+    """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
+    place, the ``fixed`` frame left alone) and estimate each sample's sigma."""
+    face = kind != KIND_BRIM
+    tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+    obs = o["obs"].astype(np.float64)
+    if window >= 5 and len(R) >= 5 and tri.any():
+        R, t = smooth_camera_poses(R, t, window, keep=fixed)
+        redo = tri & ~fixed[:, None]
+        X, res = retriangulate(obs, R, t, intr, redo)
+        ok = redo & np.isfinite(X).all(-1)
+        o["positions"][ok] = X[ok].astype(o["positions"].dtype)
+        o["residual"][ok] = res[ok].astype(o["residual"].dtype)
+    X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+    obs_t = np.where(tri[..., None, None], obs, np.nan)
+    noise = noise_from_residuals(obs_t, X, R, t, intr)
+    noise = noise * pair_holdout_scale(obs_t, X, R, t, intr, noise)
+    sigma = sample_sigma(X, obs, R, t, intr, noise)
+    return R, t, sigma
 
 
 def _merge_doubles(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],

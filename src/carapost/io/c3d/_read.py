@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 from collections.abc import Mapping
@@ -10,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from carapost.io.atomic import check_input_file
 from carapost.io.c3d._format import BLOCK, BYTE, CHAR, DEC, FLOAT, INT, INTEL, MIPS, C3DData
-from carapost.io.errors import CaraFileError
+from carapost.io.errors import CaraFileError, unexpected_error
 
 __all__ = ["read_c3d"]
 
@@ -53,7 +55,10 @@ def _decode_value(ptype: int, dims: tuple[int, ...], raw: bytes, proc: int) -> A
         if len(dims) <= 1:
             return _text(raw)
         width = dims[0]
-        n = int(np.prod(dims[1:])) if width else 0
+        # Python integers: np.prod wraps around in int64 for 255-dimension garbage
+        n = math.prod(dims[1:]) if width else 0
+        if n * width > len(raw):
+            raise ValueError("a text parameter is longer than its data")
         return [_text(raw[i * width : (i + 1) * width]) for i in range(n)]
     big = proc == MIPS
     if ptype == BYTE:
@@ -94,7 +99,9 @@ def _parse_parameters(buf: _Bytes, start: int, end: int, proc: int) -> dict[str,
         else:
             ptype, ndims = buf.unpack("bB", body)
             dims = tuple(buf.data[body + 2 : body + 2 + ndims])
-            nbytes = abs(ptype) * int(np.prod(dims)) if dims else abs(ptype)
+            # math.prod: exact Python integers (np.prod overflowed int64 for many large
+            # dimensions, passed the bounds check and then looped ~1e18 times)
+            nbytes = abs(ptype) * math.prod(dims) if dims else abs(ptype)
             dstart = body + 2 + ndims
             if ptype not in (CHAR, BYTE, INT, FLOAT) or dstart + nbytes > len(buf.data):
                 raise ValueError(f"parameter {name} is malformed")
@@ -119,7 +126,12 @@ def _strings(group: Mapping[str, Any], name: str) -> list[str]:
         if key not in group:
             break
         v = group[key]
-        out.extend([v] if isinstance(v, str) else list(v))
+        if isinstance(v, str):
+            out.append(v)
+        elif isinstance(v, list):
+            out.extend(str(x) for x in v)
+        else:  # a number where text was expected: not labels
+            break
         k += 1
     return out
 
@@ -163,6 +175,7 @@ def read_c3d(path: str | os.PathLike[str]) -> C3DData:
         If the file is missing, unreadable or not a well-formed C3D file.
     """
     p = Path(path)
+    check_input_file(p)
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -175,6 +188,10 @@ def read_c3d(path: str | os.PathLike[str]) -> C3DData:
         raise CaraFileError(p, f"is not a readable C3D file ({exc})") from exc
     except _C3DProblem as exc:
         raise CaraFileError(p, str(exc)) from exc
+    except MemoryError:
+        raise CaraFileError(p, "is too large to read (out of memory)") from None
+    except Exception as exc:
+        raise unexpected_error(p, "is not a readable C3D file", exc) from exc
 
 
 class _C3DProblem(Exception):

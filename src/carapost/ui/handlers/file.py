@@ -9,7 +9,9 @@ Every item that changes the project calls the open project's
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from carapost.model.project import new_project
 from carapost.ui.context import ActionContext
@@ -23,14 +25,44 @@ EXPORT_FILTERS = {"c3d": "C3D (*.c3d)", "fbx": "FBX (*.fbx)", "xcp": "XCP (*.xcp
 
 
 def maybe_save(ctx: ActionContext) -> bool:
-    """Ask about unsaved changes; False if the user cancelled."""
+    """Ask about unsaved changes; False if the user cancelled.
+
+    When the project is left (saved or discarded), the autosave copy of a never-saved
+    project goes with it.
+    """
+    from carapost.io.cara import discard_untitled_autosave
+
     if not ctx.is_modified or ctx.project.n_frames == 0:
+        discard_untitled_autosave(ctx.project)
         return True
     answer = ctx.dialogs.ask_save(ctx.project_name())
     if answer == "cancel":
         return False
     if answer == "save":
         return save_project(ctx)
+    discard_untitled_autosave(ctx.project)
+    return True
+
+
+def offer_untitled_recovery(ctx: ActionContext) -> bool:
+    """At start: offer the newest autosave of a never-saved project that a session
+    which did not end normally left behind; opened unsaved, as it was."""
+    from carapost.io.cara import untitled_autosaves
+    from carapost.session import Session
+
+    found = untitled_autosaves()
+    if not found or not ctx.dialogs.confirm(
+            "Recover", f"carapost stopped before an unsaved project was saved. Open its "
+            f"autosaved copy ({found[0].name})?"):
+        return False
+    session = ctx.act("Recover", Session.open, found[0], recover=False)
+    if session is None:
+        return False
+    session.project.path = None
+    session.project.untitled_autosave = found[0]  # type: ignore[attr-defined]
+    session.stack.mark_unsaved()
+    ctx.set_session(session)
+    log.info("Recovered the unsaved project from %s", found[0])
     return True
 
 
@@ -55,7 +87,8 @@ def open_project(ctx: ActionContext, path: str | None = None) -> bool:
     def relocate(camera: str, missing: str) -> str | None:
         return ctx.dialogs.open_file(f"Find the video of camera {camera} ({missing})",
                                      VIDEO_FILTER)
-    session = ctx.act("Open", Session.open, path, relocate=relocate, source=source)
+    session = ctx.act("Open", Session.open, path, relocate=relocate, source=source,
+                      recover=False)  # the user was asked
     if session is None:
         return False
     ctx.set_session(session)
@@ -102,7 +135,8 @@ def autosave(ctx: ActionContext) -> None:
     """Write the autosave copy beside the project when there are unsaved changes."""
     from carapost.io.cara import autosave_project
 
-    if ctx.project.path and ctx.is_modified and not ctx.runner.busy:
+    # never-saved projects too (autosave_project puts them in the autosave folder)
+    if ctx.is_modified and ctx.project.n_frames and not ctx.runner.busy:
         try:
             autosave_project(ctx.project)
         except Exception as exc:  # autosave must never interrupt work
@@ -145,7 +179,25 @@ def import_brim(ctx: ActionContext) -> None:
     path = ctx.dialogs.open_file("Import Calibration Brim [svg]",
                                  "Brim models (*.svg *.csv);;All files (*)")
     if path:
-        ctx.act("Import Calibration Brim [svg]", ctx.session.import_brim, path)
+        ctx.act("Import Calibration Brim [svg]", file_errors_shown(ctx.session.import_brim),
+                path)
+
+
+def file_errors_shown(action: Callable[..., Any]) -> Callable[..., Any]:
+    """``action`` with a refusal caused by a damaged file re-raised as that file's
+    `CaraFileError`, which `ActionContext.act` shows in a box (refusals only go to the
+    log and the status bar)."""
+    from carapost.commands.stack import CommandError
+    from carapost.io.errors import CaraFileError
+
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return action(*args, **kwargs)
+        except CommandError as exc:
+            if isinstance(exc.__cause__, CaraFileError):
+                raise exc.__cause__ from None
+            raise
+    return run
 
 
 def import_xcp(ctx: ActionContext) -> None:

@@ -100,6 +100,43 @@ def default_brim(ctx: ActionContext, version: str) -> None:
 
 def load_rom(ctx: ActionContext) -> None:
     """Process > Load ROM (the ROM project is read and checked by ``session.load_rom``)."""
+    from carapost.commands.stack import CommandError
+    from carapost.io.errors import CaraFileError
+
+    def load(path: str) -> object:
+        try:
+            return ctx.session.load_rom(path)
+        except CommandError as exc:
+            if isinstance(exc.__cause__, CaraFileError):
+                raise exc.__cause__ from None  # a damaged file: shown in a box, as for Open
+            raise
+
     path = ctx.dialogs.open_file("Load ROM", CARA_FILTER)
     if path:
-        ctx.act("Load ROM", ctx.session.load_rom, path)
+        ctx.act("Load ROM", load, path)
+
+
+def align_data(ctx: ActionContext) -> bool:
+    """Process > Align Data: the three selected points (in id order: origin, direction,
+    plane) define the coordinate frame; the dialog asks which axes they give."""
+    p = ctx.project
+    cols = p.selected_columns()
+    if len(cols) != 3:
+        ctx.report_error("Align Data", f"Align Data: select exactly 3 points (got {len(cols)})",
+                         show=False)
+        return False
+    names = [p.point_label(int(c)) or f"point {int(p.points.ids[c])}" for c in cols]
+    axes = ctx.dialogs.get_text(
+        "Align Data",
+        f"Origin at {names[0]}; the first axis points towards {names[1]}; {names[2]} lies "
+        "in the plane of the two axes, on the positive side of the second.\n"
+        "Axes (two of x, y, z, '-' flips one; e.g. xy, zx, x-z):", "xy")
+    if axes is None:
+        return False
+    ids = [int(i) for i in p.points.ids[cols]]
+    return ctx.act("Align Data", ctx.session.align, ids, axes.strip() or "xy") is not None
+
+
+def remove_stabilization(ctx: ActionContext) -> bool:
+    """Process > Remove Stabilization: raw positions again (one History entry)."""
+    return ctx.act("Remove Stabilization", ctx.session.remove_stabilization) is not None

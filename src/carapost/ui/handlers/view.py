@@ -2,15 +2,30 @@
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from carapost.ui.context import ActionContext
+
+log = logging.getLogger("carapost.ui")
 
 
 def toggle_blob_preview(ctx: ActionContext, on: bool) -> None:
     """Toggle Blob Preview (Ctrl+B)."""
     ctx.view.options.blob_preview = on
     ctx.view.notify_options()
+
+
+def toggle_show_stabilized(ctx: ActionContext, on: bool) -> None:
+    """Toggle Show Stabilized (Ctrl+Shift+S): every view shows stabilised (and aligned)
+    or raw positions."""
+    from carapost.model.stabilization import has_processing
+
+    ctx.session.show_stabilized(on)
+    ctx.view.show_stabilized = on
+    if on and not has_processing(ctx.project):
+        log.info("Show Stabilized: the take is not stabilised yet (Process > Stabilize "
+                 "Data); the views show raw positions")
 
 
 def toggle_full_screen(ctx: ActionContext, on: bool) -> None:

@@ -1,5 +1,6 @@
 """Graph view: 3D x/y/z (mm) and 2D x/y (px, in the chosen sensor) of the selected points
-against frame; red = x, green = y, blue = z."""
+against frame; red = x, green = y, blue = z. With Uncertainty Band on, each 3D curve
+carries a translucent band of +-1 sigma (the sample's estimated error, where known)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMenu, QVBoxLayout
 
 from carapost.model.events import Change
+from carapost.model.stabilization import display_positions
 from carapost.ui.context import ViewContext
 from carapost.ui.views import BaseView
 
@@ -53,6 +55,7 @@ class GraphView(BaseView):
         self.camera = camera
         self.track_data = True
         self.recon_data = True
+        self.sigma_band = True
         self.layout_widget = pg.GraphicsLayoutWidget()
         self.layout_widget.setBackground((30, 30, 30))
         self.vb3 = _ViewBox(self)
@@ -71,6 +74,7 @@ class GraphView(BaseView):
         self.plot3.addItem(self.cursors[0], ignoreBounds=True)
         self.plot2.addItem(self.cursors[1], ignoreBounds=True)
         self.curves3: list[pg.PlotDataItem] = []
+        self.bands: list[pg.ErrorBarItem] = []
         self.curves2: list[pg.PlotDataItem] = []
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -90,6 +94,18 @@ class GraphView(BaseView):
             item.setData([], [])
         return store[:n]
 
+    def _bands(self, n: int) -> list:
+        """n +-sigma bands (vertical bars at every frame, translucent, no caps)."""
+        while len(self.bands) < n:
+            r, g, b = AXIS_COLOURS[len(self.bands) % 3]
+            item = pg.ErrorBarItem(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0), beam=0,
+                                   pen=pg.mkPen((r, g, b, 70), width=3))
+            self.plot3.addItem(item, ignoreBounds=True)
+            self.bands.append(item)
+        for item in self.bands[n:]:
+            item.setData(x=np.zeros(0), y=np.zeros(0), height=np.zeros(0))
+        return self.bands[:n]
+
     def refresh(self, change: Change | None) -> None:
         p = self.ctx.project
         for cur in self.cursors:
@@ -101,11 +117,18 @@ class GraphView(BaseView):
         x = np.arange(F, dtype=np.float64)
         c3 = self._curves(self.plot3, self.curves3, 3 * len(cols) if self.recon_data else 0)
         c2 = self._curves(self.plot2, self.curves2, 2 * len(cols) if self.track_data else 0)
+        n_band = 3 * len(cols) if self.recon_data and self.sigma_band else 0
+        bands = self._bands(n_band)
         for i, col in enumerate(cols):
             if self.recon_data:
-                pos = p.points.positions[:, col].astype(np.float64)
+                pos = display_positions(p, slice(None), [col])[:, 0].astype(np.float64)
                 for k in range(3):
                     c3[3 * i + k].setData(x, pos[:, k], connect="finite")
+                if n_band:
+                    sig = p.points.arrays["sigma"][:, col].astype(np.float64)
+                    ok = np.isfinite(sig) & np.isfinite(pos[:, 0])
+                    for k in range(3):
+                        bands[3 * i + k].setData(x=x[ok], y=pos[ok, k], height=2 * sig[ok])
             if self.track_data and self.camera < p.n_cameras:
                 obs = p.points.obs[:, col, self.camera].astype(np.float64)
                 for k in range(2):
@@ -130,7 +153,8 @@ class GraphView(BaseView):
 
     def add_menu_items(self, menu: QMenu) -> None:
         menu.addAction("Fit to data", self.fit)
-        for name, title in (("track_data", "Track Data"), ("recon_data", "Recon Data")):
+        for name, title in (("track_data", "Track Data"), ("recon_data", "Recon Data"),
+                            ("sigma_band", "Uncertainty Band")):
             act = menu.addAction(title)
             act.setCheckable(True)
             act.setChecked(getattr(self, name))

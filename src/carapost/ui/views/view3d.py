@@ -24,6 +24,11 @@ from carapost.model.project import (
     RECON_SINGLE_SENSOR,
     RECON_TRIANGULATED,
 )
+from carapost.model.stabilization import (
+    display_positions,
+    has_processing,
+    processed_transforms,
+)
 from carapost.ui.context import OPTION_TITLES_3D, ViewContext
 from carapost.ui.views import BaseView
 
@@ -93,8 +98,8 @@ class View3D(BaseView):
         if p.n_frames == 0 or p.n_points == 0:
             return np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, bool)
         f = p.current_frame
-        return (p.points.positions[f].astype(np.float64), p.points.recon[f],
-                ~np.isnan(p.points.positions[f, :, 0]))
+        X = display_positions(p, f).astype(np.float64)  # raw, or Show Stabilized
+        return X, p.points.recon[f], ~np.isnan(X[:, 0])
 
     def _camera_centres(self) -> NDArray:
         p = self.ctx.project
@@ -102,7 +107,11 @@ class View3D(BaseView):
         if p.n_cameras == 0 or p.n_frames == 0 or not cal.solved.any():
             return np.zeros((0, 3))
         f = p.current_frame if cal.solved[p.current_frame] else int(np.flatnonzero(cal.solved)[0])
-        return camera_centres(cal.R[f], cal.t[f])
+        centres = camera_centres(cal.R[f], cal.t[f])
+        if p.show_stabilized and has_processing(p):  # the cameras move with the helmet
+            T = processed_transforms(p, p.current_frame, p.current_frame)[0]
+            centres = centres @ T[:3, :3].T + T[:3, 3]
+        return centres
 
     def fit(self, selection: bool = True) -> None:
         """Fit to Points: the selected points, or every point when none is selected."""

@@ -1,0 +1,344 @@
+"""Per-frame camera poses over a take, and the uncertainty of each 3D sample.
+
+Tracking resects every camera in every frame from the brim dots alone. The brim is
+small and far above the jaw, so a few hundredths of a pixel of centroid error on its
+dots tilt a camera by ~0.02 deg, and that tilt moves the far end of the face: a point
+seen by the two cameras of one caddy (a 40 mm baseline at 100-150 mm) gets most of it
+as depth error. The frame-to-frame part of that error is white (sensor noise on each
+frame's brim dots) while real rig flex is smooth (it follows the head's motion), so
+:func:`smooth_camera_poses` fits every camera's pose over a short window of frames, and
+:func:`retriangulate` solves the points again from the same observations with the
+smoothed cameras.
+
+:func:`sample_sigma` gives each triangulated sample the standard deviation of its 3D
+error expected from its observation geometry (which cameras, at what angles and
+depths) and the 2D noise of each camera, estimated from the take itself by
+:func:`noise_from_residuals` (the reprojection residuals of points seen by three or
+more cameras, which also carry the remaining camera pose error).
+
+Units: mm in 3D, raw pixels in 2D. Shapes: ``F`` frames, ``P`` points, ``C`` cameras.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from carapost.algorithms.camera import CameraIntrinsics, project
+from carapost.algorithms.triangulation import TriangulationParameters, triangulate
+
+__all__ = [
+    "POSE_SMOOTHING_FRAMES",
+    "noise_from_residuals",
+    "pair_holdout_scale",
+    "retriangulate",
+    "sample_sigma",
+    "smooth_camera_poses",
+]
+
+#: Window (frames) of the pose fit. On rendered takes with rig flex up to 2.5 Hz at
+#: 60 fps, 9-11 frames removed most of the per-frame resection noise (camera tilt error
+#: 0.033 -> 0.020 deg RMS) and 15+ frames began to lag the flex (docs/benchmarks.md).
+POSE_SMOOTHING_FRAMES = 11
+
+#: Floor (px) of the per-camera 2D noise: a camera with too few redundant observations
+#: to measure its noise is not trusted more than this.
+MIN_NOISE_PX = 0.05
+
+
+def _rotvec(Rm: NDArray[np.float64]) -> NDArray[np.float64]:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(Rm.reshape(-1, 3, 3)).as_rotvec().reshape(Rm.shape[:-2] + (3,))
+
+
+def _matrix(rv: NDArray[np.float64]) -> NDArray[np.float64]:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
+
+
+def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING_FRAMES,
+                        keep: ArrayLike | None = None
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Fit every camera's per-frame pose by a local quadratic over ``window`` frames.
+
+    A Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`, order 2, polynomial fit
+    at the ends) on each camera's rotation (as a rotation vector relative to its middle
+    frame's) and centre. A quadratic follows smooth flex without lag; what it removes
+    is the frame-to-frame scatter of independent resections.
+
+    Parameters
+    ----------
+    R : array_like, shape (F, C, 3, 3)
+        World->camera rotations per frame.
+    t : array_like, shape (F, C, 3)
+        Translations (mm).
+    window : int
+        Frames of the fit (odd; shortened on short takes). Below 5 nothing changes.
+    keep : array_like of bool, shape (F,), optional
+        Frames whose poses stay as they are (an initialised frame).
+
+    Returns
+    -------
+    R, t : ndarray
+        Smoothed poses, same shapes.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> R = np.tile(np.eye(3), (30, 2, 1, 1)); t = np.zeros((30, 2, 3))
+    >>> t[:, :, 2] = 150 + np.random.default_rng(0).normal(0, 0.1, (30, 2))
+    >>> Rs, ts = smooth_camera_poses(R, t)
+    >>> bool(np.std(ts[..., 2]) < np.std(t[..., 2]))
+    True
+    """
+    from scipy.signal import savgol_filter
+
+    Rm = np.asarray(R, dtype=np.float64)
+    tm = np.asarray(t, dtype=np.float64)
+    F = Rm.shape[0]
+    w = min(int(window), F if F % 2 else F - 1)
+    if w < 5:
+        return Rm.copy(), tm.copy()
+    w += 1 - w % 2
+    ref = Rm[F // 2]  # (C, 3, 3)
+    rv = _rotvec(np.einsum("fcij,ckj->fcik", Rm, ref))  # R_f = exp(rv) ref
+    centre = -np.einsum("fcji,fcj->fci", Rm, tm)
+    rv_s = savgol_filter(rv, w, 2, axis=0, mode="interp")
+    cen_s = savgol_filter(centre, w, 2, axis=0, mode="interp")
+    Rs = np.einsum("fcij,cjk->fcik", _matrix(rv_s), ref)
+    ts = -np.einsum("fcij,fcj->fci", Rs, cen_s)
+    if keep is not None:
+        k = np.asarray(keep, dtype=bool)
+        Rs[k], ts[k] = Rm[k], tm[k]
+    return Rs, ts
+
+
+def retriangulate(obs: ArrayLike, R: ArrayLike, t: ArrayLike, intr: CameraIntrinsics,
+                  mask: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Triangulate the masked samples again from their observations (same cameras).
+
+    Parameters
+    ----------
+    obs : array_like, shape (F, P, C, 2)
+        Raw pixel observations (NaN where none).
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    mask : array_like of bool, shape (F, P)
+        Samples to solve (those with >= 2 observations are solved).
+
+    Returns
+    -------
+    X : ndarray, shape (F, P, 3)
+        New positions (mm); NaN outside ``mask`` or where fewer than two cameras see it.
+    residual : ndarray, shape (F, P)
+        RMS distance of each new position to its rays (mm).
+    """
+    o = np.asarray(obs, dtype=np.float64)
+    m = np.asarray(mask, dtype=bool)
+    sel = np.where(m[..., None, None], o, np.nan)
+    params = TriangulationParameters(minimum_cameras=2, use_outlier_rejection=False,
+                                     refine_iterations=1)
+    res = triangulate(sel, R, t, intr, params)
+    return res.points, res.residual
+
+
+def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
+                         intr: CameraIntrinsics) -> NDArray[np.float64]:
+    """Per-camera 2D noise (px) from the reprojection residuals of over-determined points.
+
+    A point seen by ``n >= 3`` cameras and solved by least squares leaves residuals with
+    ``2n - 3`` degrees of freedom, so ``sum r^2 / (2n - 3)`` estimates the per-axis
+    variance of one observation. Each camera's share is scaled by ``2n / (2n - 3)``; the
+    median (robust to a few wrong blobs) over samples, corrected to the mean of a
+    chi-square with 2 degrees of freedom (``/ ln 2``), gives the variance.
+
+    Parameters
+    ----------
+    obs : array_like, shape (F, P, C, 2)
+    X : array_like, shape (F, P, 3)
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+
+    Returns
+    -------
+    ndarray, shape (C,)
+        Per-axis standard deviation (px) of each camera's observations, at least
+        `MIN_NOISE_PX`; cameras without enough data get the median of the others.
+    """
+    o = np.asarray(obs, dtype=np.float64)
+    Xm = np.asarray(X, dtype=np.float64)
+    Rm = np.asarray(R, dtype=np.float64)
+    tm = np.asarray(t, dtype=np.float64)
+    F, P, C, _ = o.shape
+    has = np.isfinite(o).all(-1)
+    n = has.sum(-1)
+    use = (n >= 3) & np.isfinite(Xm).all(-1)
+    out = np.full(C, np.nan)
+    if use.any():
+        fi, pi = np.nonzero(use)
+        uv = _project_per_frame(Xm[fi, pi], Rm[fi], tm[fi], intr)
+        r2 = np.sum((uv - o[fi, pi]) ** 2, axis=-1)  # (N, C)
+        k = n[fi, pi].astype(np.float64)
+        r2 = r2 * (2 * k / (2 * k - 3))[:, None]
+        for c in range(C):
+            v = r2[has[fi, pi, c], c]
+            if v.size >= 20:
+                # r2 / sigma^2 ~ chi2(2): median 2 ln 2, per-axis variance = median / (2 ln 2)
+                out[c] = np.sqrt(np.median(v) / (2.0 * np.log(2.0)))
+    if np.isfinite(out).any():
+        out[~np.isfinite(out)] = np.nanmedian(out)
+    else:
+        out[:] = 0.15
+    return np.maximum(out, MIN_NOISE_PX)
+
+
+def pair_holdout_scale(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
+                       intr: CameraIntrinsics, noise_px: ArrayLike,
+                       max_samples: int = 4000) -> float:
+    """Scale of `sample_sigma` that the take's own camera pairs bear out (>= 1).
+
+    The 2D residuals see the centroid noise but only part of the camera pose error
+    (a pose error along a caddy's baseline leaves a two-camera point on both rays, only
+    at another depth). A hold-out test measures it: a sample seen by three or more
+    cameras is triangulated again from each pair of them alone; for a correct model the
+    difference ``X_pair - X_all`` has covariance ``Cov_pair - Cov_all`` (nested least
+    squares), so the mean of ``|X_pair - X_all|^2 / trace(Cov_pair - Cov_all)`` is the
+    square of the factor by which the sigmas must grow (1 when the model is right).
+    Pairs that see a point at less than 2 degrees are left out; the top 1 % of the
+    ratios (wrong blobs) is trimmed.
+
+    Parameters
+    ----------
+    obs : array_like, shape (F, P, C, 2)
+        Observations of the triangulated samples (NaN elsewhere).
+    X : array_like, shape (F, P, 3)
+        Their positions (mm).
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    noise_px : array_like, shape (C,)
+    max_samples : int
+        Samples used at most (spread evenly), to bound the cost.
+
+    Returns
+    -------
+    float
+        The factor (1.0 when there are too few redundant samples to tell).
+    """
+    o = np.asarray(obs, dtype=np.float64)
+    Xm = np.asarray(X, dtype=np.float64)
+    Rm = np.asarray(R, dtype=np.float64)
+    tm = np.asarray(t, dtype=np.float64)
+    has = np.isfinite(o).all(-1)
+    fi, pi = np.nonzero((has.sum(-1) >= 3) & np.isfinite(Xm).all(-1))
+    if fi.size < 50:
+        return 1.0
+    pick = np.unique(np.linspace(0, fi.size - 1, min(fi.size, max_samples)).astype(int))
+    fi, pi = fi[pick], pi[pick]
+    # sample_sigma and triangulate take per-frame cameras; one "frame" per sample
+    Rn, tn = Rm[fi], tm[fi]
+    ob, Xa = o[fi, pi][:, None], Xm[fi, pi][:, None]   # (N, 1, C, 2), (N, 1, 3)
+    s_all = sample_sigma(Xa, ob, Rn, tn, intr, noise_px).astype(np.float64)[:, 0]
+    C = o.shape[2]
+    params = TriangulationParameters(minimum_cameras=2, use_outlier_rejection=False,
+                                     refine_iterations=1, min_ray_angle_deg=2.0)
+    ratios = []
+    for a in range(C):
+        for b in range(a + 1, C):
+            sel = has[fi, pi][:, a] & has[fi, pi][:, b]
+            if sel.sum() < 20:
+                continue
+            keep = np.zeros(C, bool)
+            keep[[a, b]] = True
+            ob2 = np.where(keep[None, None, :, None], ob[sel], np.nan)
+            Xp = triangulate(ob2, Rn[sel], tn[sel], intr, params).points
+            s_pair = sample_sigma(Xp, ob2, Rn[sel], tn[sel], intr, noise_px)[:, 0]
+            den = s_pair.astype(np.float64) ** 2 - s_all[sel] ** 2
+            d2 = np.sum((Xp[:, 0] - Xa[sel, 0]) ** 2, axis=-1)
+            ok = np.isfinite(d2) & np.isfinite(den) & (den > 0)
+            ratios.append(d2[ok] / den[ok])
+    r = np.concatenate(ratios) if ratios else np.zeros(0)
+    if r.size < 50:
+        return 1.0
+    r = np.sort(r)[: max(1, int(0.99 * r.size))]
+    return float(max(1.0, np.sqrt(np.mean(r))))
+
+
+def _project_per_frame(X: NDArray[np.float64], R: NDArray[np.float64], t: NDArray[np.float64],
+                       intr: CameraIntrinsics) -> NDArray[np.float64]:
+    """Raw pixels (N, C, 2) of N points (N, 3), each with its own frame's cameras."""
+    return project(X[:, None, :], R, t, intr)[0][:, 0]
+
+
+def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
+                 intr: CameraIntrinsics, noise_px: ArrayLike) -> NDArray[np.float32]:
+    """Standard deviation (mm) of each triangulated sample's 3D error.
+
+    First-order propagation: with ``J_c`` the 2x3 Jacobian of camera ``c``'s pixel
+    projection at the point, the covariance is ``(sum_c J_c^T J_c / s_c^2)^-1`` over the
+    cameras that observe it (``s_c`` = ``noise_px[c]``). The value stored is the root of
+    its trace: the RMS length of the error vector, which is the standard deviation
+    along the worst direction when one direction dominates (depth along a short caddy
+    baseline) and never less than it.
+
+    Parameters
+    ----------
+    X : array_like, shape (F, P, 3)
+        Positions (mm).
+    obs : array_like, shape (F, P, C, 2)
+        The observations the positions were solved from (NaN where none).
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    noise_px : array_like, shape (C,)
+        Per-axis 2D noise of each camera (px).
+
+    Returns
+    -------
+    ndarray, shape (F, P), float32
+        NaN where fewer than two cameras observe the sample or the geometry is singular.
+
+    Examples
+    --------
+    Two cameras 40 mm apart, 150 mm from a point: the depth error dominates.
+
+    >>> import numpy as np
+    >>> from carapost.algorithms.camera import CameraIntrinsics
+    >>> intr = CameraIntrinsics(focal=np.array([600.0, 600.0]),
+    ...                         principal_point=np.array([[640.0, 360.0], [640.0, 360.0]]))
+    >>> R = np.tile(np.eye(3), (1, 2, 1, 1)); t = np.array([[[20.0, 0, 0], [-20.0, 0, 0]]])
+    >>> s = sample_sigma(np.zeros((1, 1, 3)) + [0, 0, 150.0], np.zeros((1, 1, 2, 2)),
+    ...                  R, t, intr, [0.1, 0.1])
+    >>> round(float(s[0, 0]), 2)
+    0.13
+    """
+    Xm = np.asarray(X, dtype=np.float64)
+    o = np.asarray(obs, dtype=np.float64)
+    Rm = np.asarray(R, dtype=np.float64)
+    tm = np.asarray(t, dtype=np.float64)
+    s = np.asarray(noise_px, dtype=np.float64)
+    has = np.isfinite(o).all(-1) & np.isfinite(Xm).all(-1)[..., None]  # (F, P, C)
+    Xc = np.einsum("fcij,fpj->fpci", Rm, np.nan_to_num(Xm)) + tm[:, None]  # (F, P, C, 3)
+    z = Xc[..., 2]
+    ok = has & (z > 1e-6)
+    zs = np.where(ok, z, 1.0)
+    x, y = Xc[..., 0] / zs, Xc[..., 1] / zs
+    # d(normalised)/d(camera coords), then through R: (F, P, C, 2, 3)
+    Jn = np.zeros(Xc.shape[:-1] + (2, 3))
+    Jn[..., 0, 0] = 1.0 / zs
+    Jn[..., 0, 2] = -x / zs
+    Jn[..., 1, 1] = 1.0 / zs
+    Jn[..., 1, 2] = -y / zs
+    J = np.einsum("fpcak,fckj->fpcaj", Jn, Rm)
+    wgt = np.where(ok, (intr.focal[None, None, :] / s[None, None, :]) ** 2, 0.0)
+    info = np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J)
+    out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
+    two = ok.sum(-1) >= 2
+    if two.any():
+        A = info[two]
+        det = np.linalg.det(A)
+        good = det > 1e-12 * np.einsum("nii->n", A) ** 3
+        cov = np.full_like(A, np.nan)
+        cov[good] = np.linalg.inv(A[good])
+        out[two] = np.sqrt(np.einsum("nii->n", cov)).astype(np.float32)
+    return out

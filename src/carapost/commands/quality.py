@@ -1,0 +1,57 @@
+"""Remove Spurious Points: delete tracked face points that are not markers.
+
+The points are judged by :func:`carapost.algorithms.spurious.find_spurious_points` when
+the command is created (so redo removes exactly the same points); each removed point's
+label and reason are kept on the command (``removed``) and logged.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from carapost.algorithms.spurious import SpuriousParameters, find_spurious_points
+from carapost.commands.stack import Command, CommandError, Journal
+from carapost.model.project import Project
+
+log = logging.getLogger("carapost.commands")
+
+__all__ = ["RemoveSpuriousPoints", "spurious_points"]
+
+
+def spurious_points(project: Project, params: SpuriousParameters | None = None
+                    ) -> list[tuple[int, str, str]]:
+    """``(point id, label, reason)`` of every face point judged not to be a marker."""
+    pts = project.points
+    found = find_spurious_points(pts.positions, pts.recon, pts.kind, params)
+    return [(int(pts.ids[s.index]), project.point_label(s.index), s.reason) for s in found]
+
+
+class RemoveSpuriousPoints(Command):
+    """Delete the face points :func:`spurious_points` finds (one undo entry).
+
+    Raises
+    ------
+    CommandError
+        When there is no such point (nothing to undo).
+    """
+
+    description = "Remove Spurious Points"
+
+    def __init__(self, project: Project, params: SpuriousParameters | None = None):
+        super().__init__()
+        self.found = spurious_points(project, params)
+        if not self.found:
+            raise CommandError("Remove Spurious Points: every point moves like a marker")
+
+    @property
+    def removed(self) -> list[tuple[str, str]]:
+        """``(label, reason)`` of each removed point."""
+        return [(label, reason) for _, label, reason in self.found]
+
+    def apply(self, project: Project, journal: Journal) -> None:
+        cols = np.sort(project.points.index_of([pid for pid, _, _ in self.found]))
+        for _, label, reason in self.found:
+            log.info("Remove Spurious Points: %s removed (%s)", label, reason)
+        journal.remove_points(cols.astype(np.intp))
