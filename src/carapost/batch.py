@@ -89,6 +89,8 @@ class BatchSettings:
         Also export ``<take>.c3d`` / ``<take>.fbx`` (face points, every frame).
     patch_tracking : bool
         Patch track point-cameras without a blob (see `carapost.pipeline.process_take`).
+    stabilize : {"auto", "assisted"} or None
+        Stabilise every tracked take; its exports are then stabilised coordinates.
     """
 
     rom: str | None = None
@@ -96,6 +98,7 @@ class BatchSettings:
     c3d: bool = False
     fbx: bool = False
     patch_tracking: bool = False
+    stabilize: str | None = None
 
     def output_suffixes(self) -> tuple[str, ...]:
         """The extensions each take writes, project first."""
@@ -388,7 +391,7 @@ def process_one(take: str, outputs: dict[str, str], settings: BatchSettings) -> 
         result = process_take(take, output=outputs["project"], rom=settings.rom,
                               brim=settings.brim, c3d=outputs.get("c3d"),
                               fbx=outputs.get("fbx"), patch_tracking=settings.patch_tracking,
-                              workers=1)
+                              stabilize=settings.stabilize, workers=1)
     except Exception as exc:  # every failure of a take is a report row
         row.update(status="failed", error=_message(exc))
         log.info("%s failed: %s", take, row["error"])
@@ -484,7 +487,8 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         out: str | os.PathLike[str], client: Any = None, *,
         rom: str | os.PathLike[str] | None = None, brim: str | os.PathLike[str] | None = None,
         c3d: bool = False, fbx: bool = False, patch_tracking: bool = False,
-        scheduler: str | None = None, workers: int | None = None, retries: int = 1,
+        stabilize: str | None = None, scheduler: str | None = None,
+        workers: int | None = None, retries: int = 1,
         force: bool = False, progress: BatchProgress | None = None,
         task: Callable[[str, dict[str, str], BatchSettings], dict[str, Any]] = process_one,
         connect_timeout: float = 10.0) -> dict[str, Any]:
@@ -499,7 +503,7 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         ``batch_manifest.json``, ``batch_report.json`` and ``batch_report.csv``.
     client : dask.distributed.Client, optional
         Run on this client's cluster (left open).
-    rom, brim, c3d, fbx, patch_tracking
+    rom, brim, c3d, fbx, patch_tracking, stabilize
         The settings of every take (`BatchSettings`).
     scheduler : str, optional
         Address of a running scheduler (``tcp://host:8786``) when no client is given.
@@ -540,9 +544,12 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         raise BatchError(f"retries must be >= 0, got {retries}")
     if workers is not None and int(workers) < 1:
         raise BatchError(f"workers must be >= 1, got {workers}")
+    if stabilize not in (None, "auto", "assisted"):
+        raise BatchError(f"stabilize must be 'auto' or 'assisted', got {stabilize!r}")
     settings = BatchSettings(rom=os.fspath(rom) if rom else None,
                              brim=os.fspath(brim) if brim else None, c3d=bool(c3d),
-                             fbx=bool(fbx), patch_tracking=bool(patch_tracking))
+                             fbx=bool(fbx), patch_tracking=bool(patch_tracking),
+                             stabilize=stabilize)
     started = time.perf_counter()
     tasks = plan(inputs, out, settings)
     outdir = Path(out).absolute()

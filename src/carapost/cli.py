@@ -121,7 +121,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from carapost.batch import run, terminal_progress
 
     report = run(args.inputs, args.output, rom=args.rom, brim=args.brim, c3d=args.c3d,
-                 fbx=args.fbx, patch_tracking=args.patch_tracking, scheduler=args.scheduler,
+                 fbx=args.fbx, patch_tracking=args.patch_tracking, stabilize=args.stabilize,
+                 scheduler=args.scheduler,
                  workers=args.workers, retries=args.retries, force=args.force,
                  progress=None if args.quiet else terminal_progress())
     s = report["summary"]
@@ -236,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--fbx", action="store_true", help="also export <take>.fbx")
     sp.add_argument("--patch-tracking", action="store_true",
                     help="patch track point-cameras without a blob (slower)")
+    sp.add_argument("--stabilize", choices=("auto", "assisted"),
+                    help="stabilise every tracked take (exports in stabilised coordinates)")
     sp.add_argument("--scheduler", metavar="ADDRESS",
                     help="use a running Dask scheduler (tcp://host:8786) instead of a "
                          "local cluster")
