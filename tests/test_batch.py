@@ -131,6 +131,8 @@ def test_changed_input_or_settings_make_a_take_stale(shoot, tmp_path):
     assert [t.digest for t in tasks] == [t.digest for t in again]
     other = plan([shoot / "day1"], tmp_path, BatchSettings(c3d=True))
     assert all(a.digest != b.digest for a, b in zip(tasks, other, strict=True))
+    stab = plan([shoot / "day1"], tmp_path, BatchSettings(stabilize="auto"))
+    assert all(a.digest != b.digest for a, b in zip(tasks, stab, strict=True))
     assert other[0].outputs["c3d"] == tmp_path.absolute() / "Take00.c3d"
     video = shoot / "day1/Take01/Take01_cam0.mkv"
     st = video.stat()
@@ -215,6 +217,8 @@ def test_bad_outdir_rom_and_scheduler_are_refused_before_any_work(shoot, tmp_pat
         run([take], tmp_path / "out", scheduler="tcp://127.0.0.1:9", connect_timeout=1)
     with pytest.raises(BatchError, match="retries must be >= 0"):
         run([take], tmp_path / "out", retries=-1)
+    with pytest.raises(BatchError, match="stabilize must be"):
+        run([take], tmp_path / "out", stabilize="sideways")
     assert not (tmp_path / "out").exists() and not list(shoot.rglob("*.cara"))
     # the same take twice under one name would overwrite itself: refused
     copy_take(take / "Take00.json", tmp_path / "dup", "Take00")
