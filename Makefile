@@ -31,7 +31,7 @@ test: $(TEST_STAMP)
 	QT_QPA_PLATFORM=offscreen $(VPY) -m pytest -q
 
 lint: $(TEST_STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff check src tests benchmarks examples
 
 screenshots: $(TEST_STAMP)
 	xvfb-run -a -s "-screen 0 1920x1080x24" $(VPY) -m carapost.ui.screenshots docs/screenshots

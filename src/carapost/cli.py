@@ -131,6 +131,50 @@ def _cmd_process(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from carapost.batch import run, terminal_progress
+
+    report = run(args.inputs, args.output, rom=args.rom, brim=args.brim, c3d=args.c3d,
+                 fbx=args.fbx, patch_tracking=args.patch_tracking, stabilize=args.stabilize,
+                 scheduler=args.scheduler,
+                 workers=args.workers, retries=args.retries, force=args.force,
+                 progress=None if args.quiet else terminal_progress())
+    s = report["summary"]
+    print(f"{s['done']} done, {s['failed']} failed, {s['skipped']} skipped of {s['total']} "
+          f"takes in {report['seconds']:.1f} s; report: {args.output}/batch_report.json")
+    for row in report["takes"]:
+        if row["status"] == "failed":
+            print(f"  failed: {row['take']}: {row['error']}", file=sys.stderr)
+    return 1 if s["failed"] else 0
+
+
+def _cmd_history(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from carapost.io.cara import load_project
+    from carapost.session.script import to_python
+
+    project = load_project(args.project)
+    if not args.python:
+        steps = project.script or []
+        for i, step in enumerate(s for s in steps if "import" not in s):
+            print(f"{i + 1:3d}. {step.get('call') or 'group ' + repr(step.get('group'))}")
+        return 0
+    if project.script is None:
+        raise CliError(f"{args.project}: the project holds no record of its History (it "
+                       "was not made by a Session of this version)")
+    print(to_python(project.script, name=Path(args.project).name), end="")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from carapost.session.script import replay
+
+    out = replay(args.script, args.take, args.output)
+    print(f"wrote {out}")
+    return 0
+
+
 RECOVER_HELP = ("when an autosave copy newer than the project exists (the program stopped "
                 "before saving), use the copy")
 
@@ -219,6 +263,42 @@ def build_parser() -> argparse.ArgumentParser:
                     help="stabilise the tracked take (Stabilize Data [Automatic], or "
                          "[Assisted] seeded with the automatically chosen stable points "
                          "and base frame 0); the exports are then stabilised")
+
+    sp = add("batch", _cmd_batch,
+             "process many takes on Dask (a local cluster, or --scheduler); resumable")
+    sp.add_argument("inputs", nargs="+", metavar="INPUT",
+                    help="take file, folder (searched recursively) or wildcard")
+    sp.add_argument("-o", "--output", required=True, metavar="OUTDIR",
+                    help="folder for <take>.cara (.c3d, .fbx), the manifest and the report")
+    sp.add_argument("--rom", help="ROM .cara project to initialise every take from")
+    sp.add_argument("--brim", help="brim model for every take (.csv or .svg)")
+    sp.add_argument("--c3d", action="store_true", help="also export <take>.c3d")
+    sp.add_argument("--fbx", action="store_true", help="also export <take>.fbx")
+    sp.add_argument("--patch-tracking", action="store_true",
+                    help="patch track point-cameras without a blob (slower)")
+    sp.add_argument("--stabilize", choices=("auto", "assisted"),
+                    help="stabilise every tracked take (exports in stabilised coordinates)")
+    sp.add_argument("--scheduler", metavar="ADDRESS",
+                    help="use a running Dask scheduler (tcp://host:8786) instead of a "
+                         "local cluster")
+    sp.add_argument("--workers", type=int, metavar="N",
+                    help="local cluster workers (default: one per core)")
+    sp.add_argument("--retries", type=int, default=1, metavar="K",
+                    help="times a take is rerun when its worker dies (default 1)")
+    sp.add_argument("--force", action="store_true",
+                    help="process every take, also those already up to date")
+    sp.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+    sp = add("history", _cmd_history,
+             "list the History a project was made with (--python: as a script)")
+    sp.add_argument("project", help=".cara project")
+    sp.add_argument("--python", action="store_true",
+                    help="print it as a Python script of Session calls (for replay)")
+
+    sp = add("replay", _cmd_replay, "run a history script on a take and save the project")
+    sp.add_argument("script", help="script written by carapost history --python")
+    sp.add_argument("take", help="one camera file of the take, or its folder")
+    sp.add_argument("-o", "--output", required=True, help="project file to write")
 
     sp = add("evaluate", _cmd_evaluate, "compare a project with a synthetic take's truth.npz")
     sp.add_argument("project", help=".cara project to evaluate")

@@ -198,8 +198,10 @@ def _stage(what: str, call: Callable[[], Any]) -> Any:
         raise ValueError(f"{what}: {exc}" if what else str(exc)) from None
 
 
-def detect_all(session: Session, progress: Callable[[int, int], bool] | None = None) -> None:
-    """Stage: Detect Blobs in every frame of every camera.
+def detect_all(session: Session, progress: Callable[[int, int], bool] | None = None, *,
+               workers: int = 2) -> None:
+    """Stage: Detect Blobs in every frame of every camera (on ``workers`` detector
+    processes; 1 detects in the calling process, as a batch worker does).
 
     Raises
     ------
@@ -210,7 +212,7 @@ def detect_all(session: Session, progress: Callable[[int, int], bool] | None = N
     """
     project = session.project
     cmd = _stage("Detect Blobs", lambda: session.detect_blobs(
-        "all", cameras=range(project.n_cameras), progress=progress))
+        "all", cameras=range(project.n_cameras), progress=progress, workers=workers))
     if cmd is None or cmd.cancelled:  # None: cancelled at once
         raise RuntimeError("cancelled during blob detection; nothing was written")
     if project.detections.total == 0:
@@ -390,6 +392,12 @@ def write_outputs(session: Session, inputs: TakeInputs, *, stabilized: bool = Fa
     return result
 
 
+def _mean_residual(residual: NDArray[np.float32]) -> float:
+    """Mean of the finite residuals (mm); NaN when there is none."""
+    r = residual[np.isfinite(residual)]
+    return float(r.mean()) if r.size else float("nan")
+
+
 def process_take(
     take_path: str | Path,
     *,
@@ -403,6 +411,7 @@ def process_take(
     stabilize: str | None = None,
     label_template: str | Path | None = None,
     stages: Callable[[str], Callable[[int, int], bool]] | None = None,
+    workers: int = 2,
 ) -> dict[str, Any]:
     """Process a take headlessly: import, detect, solve, initialise, track, (stabilise,)
     save, export.
@@ -443,6 +452,9 @@ def process_take(
     stabilize : {"auto", "assisted"}, optional
         Stabilise the tracked take (`stabilise_take`); the C3D/FBX exports are then
         stabilised coordinates.
+    workers : int
+        Blob detector processes (1: detect in this process; a batch worker, whose
+        parallelism is the takes, passes 1).
 
     Returns
     -------
@@ -451,6 +463,7 @@ def process_take(
         sidecar, `carapost.io.sigma_csv`) (paths written or None), ``frames``, ``cameras``,
         ``points`` (face points), ``brim_points``, ``initialised`` (face points at the
         first frame), ``tracked_fraction`` (face point-frames with 3D / point-frames),
+        ``mean_residual`` (mm, over the measured face samples; NaN when none),
         ``brim_source``, ``removed_points`` (``{"label", "reason"}`` of each point Remove
         Spurious Points deleted), ``seconds`` per stage, ``labelled`` (face points with
         3D and a label) and ``unassigned`` (template labels Label From Template left out).
@@ -506,7 +519,8 @@ def process_take(
     with session:  # closes the videos before anything is written
         t0 = time.perf_counter()
         detect_all(session, stage("Detect blobs",
-                                  None if progress is None else detect_progress))
+                                  None if progress is None else detect_progress),
+                   workers=workers)
         seconds["detect"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         brim_source = calibrate(session, inputs)
@@ -542,6 +556,7 @@ def process_take(
         "brim_points": int((project.points.kind == KIND_BRIM).sum()),
         "initialised": n_init,
         "tracked_fraction": float(has.mean()) if has.size else 0.0,
+        "mean_residual": _mean_residual(project.points.residual[:, face]),
         "brim_source": brim_source if inputs.rom is None else "ROM",
         "removed_points": removed,
         "labelled": int(sum(1 for j, c in enumerate(np.flatnonzero(face))

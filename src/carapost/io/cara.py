@@ -147,6 +147,8 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "selected_points": sorted(project.selection.points),
         "rom": project.rom.path if project.rom else None,
         "imported_blob_parameters": project.imported_blob_parameters,
+        # optional: the Session calls that made the project (`carapost history --python`)
+        **({"script": project.script} if project.script is not None else {}),
         "stabilization": None if project.stabilization is None
         else project.stabilization.to_manifest(),
         "alignment": None if project.alignment is None else project.alignment.to_manifest(),
@@ -759,6 +761,8 @@ def _build(
     if m.get("rom"):
         project.rom = RomReference(path=str(m["rom"]))
     project.imported_blob_parameters = m.get("imported_blob_parameters")
+    script = m.get("script")
+    project.script = list(script) if isinstance(script, list) else None
     _build_stabilization(project, members, m, path)
     project.path = str(path.absolute())
     project.modified = False

@@ -334,6 +334,7 @@ def write_fbx(
     up_axis: str = "y",
     cameras: Mapping[str, Any] | None = None,
     sticks: Sequence[tuple[int, int]] | None = None,
+    groups: Sequence[str] | None = None,
 ) -> None:
     """Write point trajectories (and optional cameras) as a binary FBX 7.4 file.
 
@@ -364,6 +365,10 @@ def write_fbx(
         ``<take>/sticks`` whose animated translation, rotation and uniform scale put its
         vertices on the two points at every frame where both are valid (held, and Visibility
         0, elsewhere).
+    groups : sequence of str, length P, optional
+        The node each point goes under, as a path of null nodes below the take node
+        (``"face/mouth"``: a ``mouth`` null under ``face``); default ``"face"`` for face
+        points and ``"brim"`` for brim points.
 
     Raises
     ------
@@ -401,6 +406,12 @@ def write_fbx(
     cams = _check_cameras(cameras, n_frames) if cameras is not None else None
     if not take_name.strip():
         raise ValueError("take_name must not be empty")
+    if groups is not None:
+        groups = [str(g).strip("/") for g in groups]
+        if len(groups) != n_points or any(
+                not part.strip() for g in groups for part in g.split("/")):
+            raise ValueError(f"groups must be {n_points} node paths like 'face' or "
+                             "'face/mouth' (no empty names)")
 
     axis = _TO_Y_UP if up_axis == "y" else np.eye(3)
     pts = pos @ axis.T if up_axis == "y" else pos
@@ -417,7 +428,19 @@ def write_fbx(
     _layer.block = True  # assimp needs the empty block
     sc.oo(layer_id, stack_id)
     take_id, _ = sc.null(take_name, 0)
-    group_ids = [sc.null("face", take_id)[0], sc.null("brim", take_id)[0]]
+    nulls: dict[str, int] = {"": take_id}
+
+    def node(path: str) -> int:  # the null at ``path`` under the take, made once
+        if path not in nulls:
+            parent, _, name = path.rpartition("/")
+            nulls[path] = sc.null(name, node(parent))[0]
+        return nulls[path]
+
+    if groups is None:  # both nulls, as always, also when one is empty
+        by_kind = [node("face"), node("brim")]
+        group_ids = [by_kind[k] for k in kinds_arr.tolist()]
+    else:
+        group_ids = [node(g) for g in groups]
 
     with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
         curves = _Curves(sc, layer_id, rate, pool)
@@ -465,6 +488,7 @@ def _add_points(
     kinds: np.ndarray,
     group_ids: list[int],
 ) -> None:
+    """One animated null per point, under ``group_ids[p]``."""
     n_frames, n_points, _ = pts.shape
     # Point-major copies: each point's track is then one contiguous block.
     pts = np.ascontiguousarray(pts.transpose(1, 0, 2), dtype=np.float32)
@@ -472,7 +496,7 @@ def _add_points(
     for p in range(n_points):
         frames = np.flatnonzero(ok[p])
         first = pts[p, frames[0]] if len(frames) else np.zeros(3)
-        mid, props = sc.null(labels[p], group_ids[int(kinds[p])], first)
+        mid, props = sc.null(labels[p], group_ids[p], first)
         if len(frames) == 0:
             _p(props, "Visibility", "Visibility", "", "A", _d(0.0))
             continue

@@ -436,6 +436,9 @@ class Project:
         self.rom: RomReference | None = None
         self.path: str | None = None
         self.imported_blob_parameters: dict[str, Any] | None = None
+        # the Session calls that made this project, oldest first (plain JSON values;
+        # carapost.session.script writes and replays them; None: not recorded)
+        self.script: list[dict[str, Any]] | None = None
         # Stabilize Data / Align Data (carapost.model.stabilization): never raw positions
         self.stabilization: Any = None
         self.alignment: Any = None

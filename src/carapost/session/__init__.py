@@ -60,6 +60,7 @@ from carapost.session.process import (
     one_of,
 )
 from carapost.session.quality import QualityActions
+from carapost.session.script import ScriptActions
 from carapost.session.stabilise import StabiliseActions
 from carapost.session.target import TargetActions
 
@@ -92,6 +93,7 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     from carapost.io.take_import import import_take, read_brim_csv
 
     project = import_take(path, relocate=relocate)
+    project.script = [{"import": {"take_brim": bool(take_brim)}}]  # session/script.py
     brim_file = project.take.metadata.get("brim_file")
     if brim_file and take_brim:
         labels, xyz = read_brim_csv(brim_file)
@@ -100,8 +102,8 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
     return project
 
 
-class Session(ProcessActions, QualityActions, StabiliseActions, TargetActions,
-              GapFillActions, LabellingActions):
+class Session(ScriptActions, ProcessActions, QualityActions, StabiliseActions,
+              TargetActions, GapFillActions, LabellingActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from

@@ -17,6 +17,7 @@ THIRD_PARTY = (
     ("opencv-python-headless", "Apache-2.0 (OpenCV), MIT"), ("pyqtgraph", "MIT"),
     ("lxml", "BSD-3-Clause"), ("av (PyAV)", "BSD-3-Clause; its bundled FFmpeg LGPL-2.1+"),
     ("threadpoolctl", "BSD-3-Clause"), ("rich", "MIT"),
+    ("dask (and distributed)", "BSD-3-Clause"),
 )
 
 

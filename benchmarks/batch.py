@@ -1,0 +1,140 @@
+"""Batch throughput on Dask: ``carapost batch`` with 1 and 2 workers against ``carapost
+process`` run on each take directly.
+
+Metrics (one JSON object per line):
+
+- ``batch_takes_per_min`` (with ``"workers": 1`` and ``2``): takes finished per minute
+  by `carapost.batch.run` on the same takes (``force``, a new LocalCluster each run, so
+  its start-up is included);
+- ``batch_scaling_2w``: the 2-worker rate over the 1-worker rate (target >= 1.7 on a
+  2-core machine);
+- ``batch_overhead_s``: (1-worker batch wall time - the sum of ``carapost process``
+  wall times on the same takes, each a fresh process) / takes (target <= 1 s);
+- ``batch_overhead_cpu_s``: the same difference in CPU seconds (driver, scheduler and
+  workers against the ``carapost process`` processes and their detector processes);
+- ``process_take_s``: median wall time of ``carapost process`` on one take (the
+  reference), and the CPU seconds of every configuration.
+
+Usage: ``python benchmarks/batch.py [--takes 6] [--frames 40] [--repeats 2]``.
+Medians over the repeats; the configurations are interleaved so that a change of the
+machine's load hits all of them alike.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _self_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def make_takes(root: Path, n: int, frames: int) -> list[Path]:
+    from carapost.synth import SynthConfig, generate_take
+
+    return [Path(generate_take(root / f"take{i}", SynthConfig(
+        frames=frames, seed=100 + i, size=(640, 360), take_name=f"Bench{i:02d}"),
+        workers=2)) for i in range(n)]
+
+
+def direct(takes: list[Path], out: Path) -> tuple[float, float, list[float]]:
+    """``carapost process`` on each take in turn: (wall s, CPU s, per-take wall s)."""
+    out.mkdir(exist_ok=True)
+    per = []
+    c0 = _children_cpu()
+    t0 = time.perf_counter()
+    for t in takes:
+        s = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "carapost.cli", "process", str(t), "-o",
+                        str(out / f"{t.stem}.cara")], check=True, capture_output=True)
+        per.append(time.perf_counter() - s)
+    return time.perf_counter() - t0, _children_cpu() - c0, per
+
+
+def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float]:
+    """`carapost.batch.run` in a fresh process (so its CPU time is measurable): wall s,
+    CPU s of the driver and its workers."""
+    code = ("import sys, json, time, resource\n"
+            "from carapost.batch import run\n"
+            "if __name__ == '__main__':\n"
+            "    t = time.perf_counter()\n"
+            f"    rep = run({[str(t) for t in takes]!r}, {str(out)!r}, workers={workers},"
+            " force=True)\n"
+            "    wall = time.perf_counter() - t\n"
+            "    assert rep['summary']['done'] == len(rep['takes']), rep['takes']\n"
+            "    print(json.dumps({'wall': wall}))\n")
+    c0 = _children_cpu()
+    res = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                         text=True)
+    wall = json.loads(res.stdout.strip().splitlines()[-1])["wall"]
+    return wall, _children_cpu() - c0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--takes", type=int, default=6)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=2)
+    args = ap.parse_args()
+    load = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        takes = make_takes(root / "takes", args.takes, args.frames)
+        # warm the compiled kernels' cache and the OS file cache once, untimed
+        direct(takes[:1], root / "warm")
+        walls: dict[str, list[float]] = {"direct": [], "1": [], "2": []}
+        cpus: dict[str, list[float]] = {"direct": [], "1": [], "2": []}
+        per_take: list[float] = []
+        for _ in range(args.repeats):
+            w, c, per = direct(takes, root / "direct")
+            walls["direct"].append(w)
+            cpus["direct"].append(c)
+            per_take.extend(per)
+            for n in (1, 2):
+                w, c = batch(takes, root / f"batch{n}", n)
+                walls[str(n)].append(w)
+                cpus[str(n)].append(c)
+    med = {k: statistics.median(v) for k, v in walls.items()}
+    cpu = {k: statistics.median(v) for k, v in cpus.items()}
+    n = args.takes
+    common = {"takes": n, "frames": args.frames, "size": "640x360", "repeats": args.repeats,
+              "loadavg_start": [round(v, 2) for v in load],
+              "loadavg_end": [round(v, 2) for v in os.getloadavg()]}
+    rows = [
+        {"metric": "process_take_s", "value": round(statistics.median(per_take), 3),
+         "unit": "s", "cpu_s_per_take": round(cpu["direct"] / n, 3), **common},
+        {"metric": "batch_takes_per_min", "value": round(60 * n / med["1"], 2),
+         "unit": "takes/min", "workers": 1, "wall_s": round(med["1"], 2),
+         "cpu_s": round(cpu["1"], 2), **common},
+        {"metric": "batch_takes_per_min", "value": round(60 * n / med["2"], 2),
+         "unit": "takes/min", "workers": 2, "wall_s": round(med["2"], 2),
+         "cpu_s": round(cpu["2"], 2), **common},
+        {"metric": "batch_scaling_2w", "value": round(med["1"] / med["2"], 3),
+         "unit": "ratio", "target": 1.7, **common},
+        {"metric": "batch_overhead_s", "value": round((med["1"] - med["direct"]) / n, 3),
+         "unit": "s", "target": 1.0, "direct_wall_s": round(med["direct"], 2), **common},
+        # the same in CPU seconds: what a loaded machine cannot blur
+        {"metric": "batch_overhead_cpu_s", "value": round((cpu["1"] - cpu["direct"]) / n, 3),
+         "unit": "s", "direct_cpu_s": round(cpu["direct"], 2), **common},
+    ]
+    for r in rows:
+        print(json.dumps(r))
+
+
+if __name__ == "__main__":
+    main()
