@@ -367,6 +367,8 @@ def main() -> None:
          by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()},
          note="including the scrub session and proxy playback")
     emit("cpu_s", time.process_time() - cpu0, "s")
+    b.w.context.stack.mark_clean()  # no "save changes?" box for the detections made
+    b.p.modified = False
     b.w.context.shutdown()
     b.w.close()
     tmp.cleanup()

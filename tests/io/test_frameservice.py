@@ -221,3 +221,18 @@ def test_a_changed_video_never_plays_a_stale_proxy(tmp_path, rng):
     assert existing_proxy(path) is not None
     _write(path, _frames(rng, 25, 0))
     assert existing_proxy(path) is None
+
+
+def test_idle_decoders_do_not_spin_on_missing_or_short_videos(videos, tmp_path):
+    data = videos[0].read_bytes()
+    cut = tmp_path / "short_cam1.mkv"
+    cut.write_bytes(data[: len(data) // 3])
+    with FrameService(_take([tmp_path / "gone_cam0.mkv", cut], N), read_ahead=40) as fs:
+        fs.request(N - 20, direction=1)
+        deadline = time.perf_counter() + 10
+        while fs.message(N - 20, 1) is None and time.perf_counter() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)
+        t0 = time.process_time()
+        time.sleep(1.0)
+        assert time.process_time() - t0 < 0.05  # the decoder threads wait, not spin

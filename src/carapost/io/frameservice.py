@@ -312,10 +312,16 @@ class FrameService(TakeFrames):
         limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
         step = self._direction
         key_cam = camera + _PROXY_KEY if self._use_proxy(camera) else camera
+        src = self._sources.get(camera, _UNOPENED)
+        if src is None:  # no video: nothing to read ahead (and no busy loop)
+            return None
+        offset = int(self.take.cameras[camera].frame_offset)
         for k in range(1, limit + 1):
             f = state.origin + step * k
             if not 0 <= f < self.take.n_frames:
                 return None
+            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
+                continue  # outside a short video: blank, nothing to decode
             if (self._cache_get((f, key_cam)) is None and self._cache_get((f, camera)) is None
                     and (f, camera) not in self._frame_errors):
                 return f
@@ -446,6 +452,8 @@ class FrameService(TakeFrames):
                 img = src.read(i)
             except CaraFileError as exc:
                 self._frame_errors[(f, camera)] = str(exc)
+                # the target cannot be reached either (read-ahead must not retry it)
+                self._frame_errors.setdefault((frame, camera), str(exc))
                 log.warning("Camera %s: %s", self.take.cameras[camera].name, exc)
                 self._notify(frame, camera)
                 raise

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -81,7 +82,8 @@ def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | Non
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f"{target.stem}.{os.getpid()}.partial.avi")
+    # unique per writer: two windows of one program may copy the same video at once
+    tmp = target.with_name(f"{target.stem}.{os.getpid()}-{threading.get_ident()}.partial.avi")
     reader = AVReader(video)
     done = False
     try:
@@ -109,6 +111,8 @@ def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | Non
         done = True
         return target
     except av.error.FFmpegError as exc:
+        raise CaraFileError(tmp, f"the proxy cannot be written ({exc})") from exc
+    except OSError as exc:  # disk full, cache folder removed meanwhile
         raise CaraFileError(tmp, f"the proxy cannot be written ({exc})") from exc
     finally:
         reader.close()

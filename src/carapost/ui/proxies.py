@@ -101,6 +101,9 @@ class ProxyBuilder(QObject):
             except CaraFileError as exc:
                 log.warning("No playback proxy for %s: %s", os.path.basename(path), exc)
                 continue
+            except Exception:  # a proxy is a convenience: never let it end the program
+                log.exception("No playback proxy for %s", os.path.basename(path))
+                continue
             if stop.is_set():
                 break
             self._landed.emit(False)
