@@ -53,6 +53,7 @@ READERS: dict[str, str] = {
     "take_import": "",  # the file name comes with the seed (one file of a take)
     "take_json": "take.json",
     "c3d": "points.c3d",
+    "c3d_import": "points.c3d",  # File > Import C3D: any vendor's points into a project
     "video": "",  # take_cam0.mkv or an image in a sequence folder
 }
 
@@ -250,6 +251,8 @@ def make_seeds(work: Path, fixtures: Path | None = None) -> dict[str, list[Seed]
     seeds: dict[str, list[Seed]] = {r: [] for r in READERS}
     for s in _writer_seeds_cached(work) + _fixture_seeds(fixtures):
         seeds[s.reader].append(s)
+    # Import C3D reads the same files as the C3D reader, through its own checks
+    seeds["c3d_import"] = [Seed("c3d_import", s.name, s.data, s.origin) for s in seeds["c3d"]]
     return seeds
 
 

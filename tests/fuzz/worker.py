@@ -45,6 +45,7 @@ def _video(path: Path) -> None:
 def _readers() -> dict[str, Callable[[Path], Any]]:
     from carapost.io.brim_svg import read_brim_svg
     from carapost.io.c3d import read_c3d
+    from carapost.io.c3d_points import project_from_c3d
     from carapost.io.labels import read_label_file, read_labels_from_cara
     from carapost.io.take_import import import_take, read_brim_csv, read_take_metadata
     from carapost.io.xcp import read_xcp
@@ -59,6 +60,7 @@ def _readers() -> dict[str, Callable[[Path], Any]]:
         "take_import": import_take,
         "take_json": read_take_metadata,
         "c3d": read_c3d,
+        "c3d_import": project_from_c3d,
         "video": _video,
     }
 
