@@ -18,6 +18,7 @@ from pathlib import Path
 
 from carapost.algorithms.params import format_value
 from carapost.model.properties import SECTIONS, PropertySpec, specs_in_section
+from carapost.ui.settings import PREFERENCES
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "properties.md"
@@ -57,9 +58,11 @@ def properties_markdown() -> str:
         "them. The guide's Shortcut section only lists shortcuts and has no parameters.",
         "The Triangulation Parameters section and the contents of the Export section are",
         "ours (the guide names the Export section without listing its options). Target",
-        "Tracker holds the settings of the Tracker pane. The Show Again Flags and the",
-        "Tracker pane's Update Timeline / 2D View Every Frame are user settings",
-        "(`carapost.ui.settings.PREFERENCES`), not project properties.",
+        "Tracker holds the settings of the Tracker pane. The guide's Display section",
+        "(point labels and their font size), the Show Again Flags and the Tracker pane's",
+        "Update Timeline / 2D View Every Frame are user settings",
+        "(`carapost.ui.settings.PREFERENCES`), not project properties: they are listed",
+        "last, are kept per user on this computer and are not saved in the `.cara`.",
         "",
     ]
     for name in SECTIONS:
@@ -74,6 +77,19 @@ def properties_markdown() -> str:
                      s.unit, s.help]
             lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
         lines.append("")
+    lines += [
+        "## User settings (this computer)",
+        "",
+        "| Label | Key | Type | Default | Range | Unit | Help |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for pref in PREFERENCES:
+        allowed = (f"{pref.minimum} – {pref.maximum}" if pref.minimum is not None
+                   and pref.maximum is not None else "")
+        cells = [pref.label, f"`{pref.key}`", pref.kind, format_value(pref.default),
+                 allowed, pref.unit, pref.help]
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    lines.append("")
     return "\n".join(lines)
 
 

@@ -235,7 +235,7 @@ def test_journal_helpers_properties_and_whole_calibration(rng):
     p = make_project(rng)
     stack = CommandStack(p)
     before = snapshot(p)
-    stack.push(edit.SetProperties(p, {"point_labels_all": True}))
+    stack.push(edit.SetProperties(p, {"select_sensors": False}))
     stack.push(edit.RestorePropertiesToDefaults(p))
     assert stack.undo() and stack.undo() and snapshot(p) == before
     old = p.calibration

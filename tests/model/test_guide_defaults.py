@@ -24,7 +24,11 @@ NOT_OURS = {
     "Shortcut": "lists keyboard shortcuts only (they are in carapost.ui.actions)",
     "Show Again Flags": "GUI preferences: user settings (carapost.ui.settings), not project "
                         "properties; tests/ui/test_settings.py checks their defaults",
+    "Display": "point label visibility and font size are about the user, not the take: "
+               "user settings (carapost.ui.settings); checked below against PREFERENCES",
 }
+#: Guide sections that are user settings (carapost.ui.settings.PREFERENCES), by label.
+USER_SETTINGS = ("Display", "Show Again Flags")
 #: Where a guide table lands in the registry when the name differs.
 SECTION_OF = {"Tracker pane": "Target Tracker"}
 #: Our sections the guide does not have, and why.
@@ -74,6 +78,16 @@ def test_guide_parameter_has_our_default_and_unit(section, name, entry):
     if section in NOT_OURS:
         ours = [s for sec in SECTIONS for s in specs_in_section(sec) if s.label == name]
         assert ours == [], f"{name} should not be a project property: {NOT_OURS[section]}"
+        if section in USER_SETTINGS:  # a preference now: still the guide's default
+            from carapost.ui.settings import PREFERENCES
+
+            prefs = {p.label: p for p in PREFERENCES}
+            assert name in prefs, f"{section}: no user setting labelled {name!r}"
+            default = prefs[name].default
+            assert default == entry["default"]
+            assert isinstance(default, bool) == isinstance(entry["default"], bool), name
+            if "unit" in entry:
+                assert prefs[name].unit == entry["unit"], name
         return
     specs = {s.label: s for s in specs_in_section(SECTION_OF.get(section, section))}
     labels = LABELS_OF.get((section, name), (name,))

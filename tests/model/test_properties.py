@@ -43,7 +43,6 @@ def _doc_script():
 # ---- the table itself --------------------------------------------------------------------
 def test_every_section_present_and_in_display_order():
     expected = (
-        "Display",
         "Selection",
         "Blob Parameters",
         "Initialize 3D Parameters",
@@ -299,7 +298,9 @@ def test_one_range_for_the_registry_and_the_algorithm():
 
 def test_gui_preferences_of_old_project_files_are_ignored_quietly(caplog):
     old = {"show_version_check_dialog": False, "tracker_update_2d_view_every_frame": True,
-           "tracker_update_timeline_every_frame": False, "black_threshold": 0.5}
+           "tracker_update_timeline_every_frame": False, "point_labels_all": True,
+           "point_labels_selected": False, "point_labels_preselected": False,
+           "label_font_size": 30, "black_threshold": 0.5}
     with caplog.at_level(logging.WARNING, logger=mod.__name__):
         props = Properties.from_dict(old)
     assert props["black_threshold"] == 0.5
@@ -308,17 +309,17 @@ def test_gui_preferences_of_old_project_files_are_ignored_quietly(caplog):
 
 
 def test_copy_is_independent_and_eq():
-    props = Properties({"label_font_size": 14}, on_change=lambda keys: None)
+    props = Properties({"black_threshold": 0.3}, on_change=lambda keys: None)
     other = props.copy()
     assert other == props and other.on_change is None
-    other.set("label_font_size", 12)
-    assert other != props and props["label_font_size"] == 14
-    assert props != {"label_font_size": 14}
+    other.set("black_threshold", 0.2)
+    assert other != props and props["black_threshold"] == 0.3
+    assert props != {"black_threshold": 0.3}
 
 
 def test_constructor_rejects_invalid_values():
-    with pytest.raises(PropertyError, match="Font Size"):
-        Properties({"label_font_size": 1000})
+    with pytest.raises(PropertyError, match="Black Threshold"):
+        Properties({"black_threshold": 1000})
     with pytest.raises(UnknownPropertyError):
         Properties({"font": 10})
 

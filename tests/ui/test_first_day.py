@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from PySide6.QtCore import QPointF, Qt
 
+from carapost.ui.settings import set_preference
 from tests.ui.test_window import activate, settle
 
 
@@ -268,7 +269,7 @@ def test_camera_view_draws_the_rom_and_declutters_labels(make_window, demo, qtbo
     # every point labelled and Point Labels: All: labels never pile up
     p.points.labels = [f"Marker_Long_Name_{i:02d}" for i in range(p.n_points)]
     p.labels = list(p.points.labels)
-    w.context.session.set_property("Display", "point_labels_all", True)
+    set_preference(w.context.settings, "point_labels_all", True)
     w.set_frame(5)
     settle(qtbot, w)
     shown = [item for item in view._labels if item.isVisible()]

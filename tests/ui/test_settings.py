@@ -11,7 +11,7 @@ from carapost.ui import settings as mod
 def test_preferences_default_and_persist(private_settings):
     store = mod.make_settings()
     for pref in mod.PREFERENCES:
-        assert mod.preference(store, pref.key) is pref.default
+        assert mod.preference(store, pref.key) == pref.default
     mod.set_preference(store, "show_version_check_dialog", False)
     store.sync()
     again = mod.make_settings()  # a new store reads the INI file back
@@ -50,7 +50,8 @@ def test_preferences_are_shown_per_computer_and_are_no_history_entry(make_window
     p, frames = demo
     w = make_window(p, frames)
     props = w.pane("Properties")
-    assert set(props.preference_editors) == {"show_version_check_dialog"}
+    assert set(props.preference_editors) == {"show_version_check_dialog",
+                                             *mod.DISPLAY_PREFERENCES}
     tracker = w.pane("Tracker").settings
     assert set(tracker.preference_editors) == {"tracker_update_timeline_every_frame",
                                                "tracker_update_2d_view_every_frame"}
@@ -93,3 +94,85 @@ def test_update_2d_view_every_frame_makes_the_views_follow_tracking(make_window,
         assert p.current_frame == p.n_frames - 1
     else:
         assert shown == [] and p.current_frame == 0
+
+
+def test_font_size_preference_is_a_clamped_whole_number(private_settings):
+    store = mod.make_settings()
+    assert mod.preference(store, "label_font_size") == 10  # the guide's default
+    mod.set_preference(store, "label_font_size", 500)
+    assert mod.preference(store, "label_font_size") == 72  # the top of its range
+    store.setValue("preferences/label_font_size", "not a number")  # hand-edited file
+    assert mod.preference(store, "label_font_size") == 10
+
+
+def _with_old_display_properties(path, values):
+    """Rewrite a saved .cara as an older version wrote it: Display in the properties."""
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        members = {info: zf.read(info.filename) for info in zf.infolist()}
+    with zipfile.ZipFile(path, "w") as zf:
+        for info, data in members.items():
+            if info.filename == "manifest.json":
+                manifest = json.loads(data)
+                manifest["properties"].update(values)
+                data = json.dumps(manifest).encode()
+            zf.writestr(info, data)
+
+
+def _manifest(path):
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        return json.loads(zf.read("manifest.json"))
+
+
+def test_display_preferences_persist_redraw_and_stay_out_of_the_cara(
+        make_window, demo, qtbot, tmp_path):
+    """Point label visibility and font size are this user's: set in one window's
+    Properties pane they redraw the views, are no History entry, persist for the next
+    window, and are not written to the .cara; an older .cara holding them opens without
+    error and does not change the user's settings."""
+    from tests.ui.test_window import settle
+
+    p, frames = demo
+    p.points.labels = [f"M{i:02d}" for i in range(p.n_points)]
+    p.labels = list(p.points.labels)
+    w = make_window(p, frames)
+    w.show()
+    w.workspace.set_layout(1)
+    w.workspace.containers[0].set_spec("sensor:0")
+    w.set_frame(5)
+    settle(qtbot, w)
+    view = w.workspace.containers[0].view
+    assert not [item for item in view._labels if item.isVisible()]  # nothing selected
+    pane = w.pane("Properties")
+    titles = [pane.tree.topLevelItem(i).text(0) for i in range(pane.tree.topLevelItemCount())]
+    assert titles[0] == "Display (this computer)" and "Display" not in titles
+    pane.preference_editors["label_font_size"].setValue(18)
+    pane.preference_editors["point_labels_all"].setChecked(True)
+    settle(qtbot, w)
+    shown = [item for item in view._labels if item.isVisible()]
+    assert shown and {item.textItem.font().pointSize() for item in shown} == {18}
+    assert len(w.stack) == 0 and not w.context.is_modified
+    # saved: the take has no Display key
+    target = tmp_path / "take.cara"
+    w.context.session.save(target)
+    saved = _manifest(target)["properties"]
+    assert not set(mod.DISPLAY_PREFERENCES) & set(saved)
+    assert saved["black_threshold"] == p.properties["black_threshold"]
+    # an older file with its own Display values: opens, and the user's values stay
+    _with_old_display_properties(target, {"point_labels_all": False,
+                                          "label_font_size": 30,
+                                          "point_labels_selected": False})
+    other = make_window()
+    assert other.open_project(str(target)) and other.last_error == ""
+    assert other.context.view.label_mode() == (True, True, True, 18)
+    editors = other.pane("Properties").preference_editors
+    assert editors["label_font_size"].value() == 18 and editors["point_labels_all"].isChecked()
+    assert mod.preference(mod.make_settings(), "label_font_size") == 18  # on disk too
+    # saving the older file drops the keys it held
+    other.context.session.save(target)
+    assert not set(mod.DISPLAY_PREFERENCES) & set(_manifest(target)["properties"])

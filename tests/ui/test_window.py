@@ -558,7 +558,9 @@ def test_context_menu_switches_view_type(make_window, demo, qtbot):
                                                  ("3d", "rays", "Rays")])
 def test_context_menu_display_options(make_window, demo, qtbot, spec, option, title):
     """The 2D and 3D views' right-click options toggle the shared display options, and
-    Point Labels: All sets the project property through the undoable command path."""
+    Point Labels: All sets the user's Display preference (no History entry, not the
+    project's); the Properties pane and the next menu show it."""
+    from carapost.ui.settings import preference
     p, frames = demo
     w = make_window(p, frames)
     box = w.workspace.containers[0]
@@ -570,11 +572,16 @@ def test_context_menu_display_options(make_window, demo, qtbot, spec, option, ti
     assert acts[title].isChecked() == before
     acts[title].trigger()
     assert getattr(opts, option) == (not before)
-    assert not p.properties["point_labels_all"]
+    assert "point_labels_all" not in p.properties
     assert not acts["Point Labels: All"].isChecked()
+    depth = len(w.stack)
     acts["Point Labels: All"].trigger()
-    assert p.properties["point_labels_all"]
-    w.stack.undo()
-    assert not p.properties["point_labels_all"]
+    assert preference(w.context.settings, "point_labels_all") is True
+    assert len(w.stack) == depth  # a user setting: nothing to undo in the take
+    assert w.pane("Properties").preference_editors["point_labels_all"].isChecked()
+    again = {a.text(): a for a in box.build_menu().actions()}
+    assert again["Point Labels: All"].isChecked()
+    again["Point Labels: All"].trigger()
+    assert preference(w.context.settings, "point_labels_all") is False
     menu.deleteLater()
     QApplication.processEvents()

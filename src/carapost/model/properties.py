@@ -1,7 +1,7 @@
 """The properties registry: every user-adjustable parameter with its default and range.
 
 One typed table (:data:`SPECS`) describes each parameter of the Properties pane
-(Display, Selection, Blob Parameters, Initialize 3D Parameters, Initialize From ROM
+(Selection, Blob Parameters, Initialize 3D Parameters, Initialize From ROM
 Parameters, Tracking Parameters, Gap-Filling Parameters, Stabilization Parameters,
 Export), the Target Tracker settings of the Tracker pane, and our own Triangulation
 Parameters section. The property pane, the command line, the scripting API and the
@@ -11,14 +11,15 @@ The algorithm sections are not written here: they are generated from the fields 
 algorithm parameter dataclasses (``BlobParameters``, ``Init3DParameters``,
 ``RomParameters``, ``TrackingParameters``, ``TriangulationParameters``,
 ``StabilizationParameters``, ``TargetTrackerParameters``), which declare label, unit,
-range and help once with :func:`carapost.algorithms.params.param`. Display, Selection,
+range and help once with :func:`carapost.algorithms.params.param`. Selection,
 Gap-Filling and Export have no parameter class yet and are declared below by hand.
 
 Names, defaults and documented ranges follow the reference guide. Where the guide gives
 no range (or no default), the value is our choice and the help text says so. The guide's
 Shortcut section only lists keyboard shortcuts, so it holds no parameter. Purely GUI
-preferences (the Show Again Flags, the Tracker pane's "Update ... Every Frame") are user
-settings (:mod:`carapost.ui.settings`), not project properties.
+preferences (the Display section's point label switches and font size, the Show Again
+Flags, the Tracker pane's "Update ... Every Frame") are user settings
+(:mod:`carapost.ui.settings`), not project properties.
 
 Examples
 --------
@@ -89,8 +90,16 @@ EXPORT = "Export"
 
 #: Keys that older project files may hold but that are now user settings
 #: (carapost.ui.settings.PREFERENCES): purely GUI preferences do not belong to a take.
-#: Loading ignores them without a warning; the user's own setting applies instead.
+#: Loading ignores them without a warning; the user's own setting applies instead. They
+#: are not migrated into the user settings: the file may come from a colleague, and
+#: opening it must not change how this user's views look. The Display section's rows
+#: (point label visibility and font size) are all about the person looking, not the
+#: take (see carapost.ui.settings.DISPLAY_PREFERENCES); the next save drops them.
 MOVED_TO_USER_SETTINGS = frozenset({
+    "point_labels_all",
+    "point_labels_selected",
+    "point_labels_preselected",
+    "label_font_size",
     "show_version_check_dialog",
     "tracker_update_timeline_every_frame",
     "tracker_update_2d_view_every_frame",
@@ -322,21 +331,12 @@ _ALGORITHM_SPECS: tuple[PropertySpec, ...] = tuple(
 # the Stabilization section comes after Gap-Filling, as in the guide
 _STABILIZATION_SPECS = specs_from_parameters(StabilizationParameters)
 
-_OURS_RANGE = " Range is our choice."
 _OURS_DEFAULT = " Default is our choice (the guide gives none)."
 
 #: Every property, in display order within each section.
 # fmt: off
 SPECS: tuple[PropertySpec, ...] = (
-    # --- Display ----------------------------------------------------------------------
-    _p(DISPLAY, "point_labels_all", "Point Labels : All", bool, False,
-       help="Draw the label of every labelled point in the 2D and 3D views."),
-    _p(DISPLAY, "point_labels_selected", "Point Labels : Selected", bool, True,
-       help="Draw labels of the selected points."),
-    _p(DISPLAY, "point_labels_preselected", "Point Labels : Pre-Selected", bool, True,
-       help="Draw the label of the point under the mouse cursor (the pre-selection)."),
-    _p(DISPLAY, "label_font_size", "Font Size", int, 10, 4, 72, unit="pt",
-       help="Text size of point labels in the views." + _OURS_RANGE),
+    # --- Display: every row is a user setting now (MOVED_TO_USER_SETTINGS) -------------
     # --- Selection --------------------------------------------------------------------
     _p(SELECTION, "select_points", "Points", bool, True,
        help="Points can be picked in the 2D and 3D views."),
@@ -373,7 +373,6 @@ SPECS: tuple[PropertySpec, ...] = (
 
 #: Section names in display order.
 SECTIONS: tuple[str, ...] = (
-    DISPLAY,
     SELECTION,
     BLOB,
     INITIALIZE_3D,

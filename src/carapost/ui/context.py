@@ -34,7 +34,14 @@ from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.playback import Playback
 from carapost.ui.proxies import ProxyBuilder
-from carapost.ui.settings import build_proxies, frame_cache_mb
+from carapost.ui.settings import (
+    DISPLAY_PREFERENCES,
+    build_proxies,
+    frame_cache_mb,
+    make_settings,
+    preference,
+    preference_signals,
+)
 
 log = logging.getLogger("carapost.ui")
 
@@ -96,7 +103,8 @@ class ViewContext(QObject):
     changed(Change)
         The model changed (coalesced, GUI thread).
     options_changed()
-        Display options, pre-selection, active camera or lock changed.
+        Display options, pre-selection, active camera or lock changed, or a Display
+        preference of the user settings (point labels, font size).
 
     properties_requested(dict)
         A view asks for project properties to change (the owner pushes the undoable
@@ -135,7 +143,16 @@ class ViewContext(QObject):
         self.show_stabilized = False
         self._proj_cache: dict[int, NDArray[np.float64] | None] = {}
         self._preview_cache: dict[tuple[int, int], Any] = {}
+        #: the user settings the Display preferences are read from (the owner's, when
+        #: it has one; a store of its own otherwise)
+        self.settings: QSettings | None = None
         self.changed.connect(self._invalidate)
+        # a Display preference changed here or in another window: redraw the labels
+        preference_signals().changed.connect(self._preference_changed)
+
+    def _preference_changed(self, key: str) -> None:
+        if key in DISPLAY_PREFERENCES:
+            self.options_changed.emit()
 
     # -- caches ------------------------------------------------------------------------------
     def set_project(self, project: Project, frames: FrameSource) -> None:
@@ -207,11 +224,20 @@ class ViewContext(QObject):
         hit = np.flatnonzero(self.project.points.ids == point_id)
         return int(hit[0]) if len(hit) else None
 
+    def user_settings(self) -> QSettings:
+        """The user settings the Display preferences are read from and written to."""
+        if self.settings is None:
+            self.settings = make_settings()
+        return self.settings
+
     def label_mode(self) -> tuple[bool, bool, bool, int]:
-        """(all, selected, pre-selected, font size) from the Display properties."""
-        props = self.project.properties
-        return (bool(props["point_labels_all"]), bool(props["point_labels_selected"]),
-                bool(props["point_labels_preselected"]), int(props["label_font_size"]))
+        """(all, selected, pre-selected, font size) from the Display preferences of the
+        user settings (they are about the user, not the take)."""
+        s = self.user_settings()
+        return (bool(preference(s, "point_labels_all")),
+                bool(preference(s, "point_labels_selected")),
+                bool(preference(s, "point_labels_preselected")),
+                int(preference(s, "label_font_size")))
 
     def labelled_columns(self) -> NDArray[np.intp]:
         """Columns whose label should be drawn now."""
@@ -309,6 +335,7 @@ class ActionContext(QObject):
                  parent: QObject | None = None) -> None:
         super().__init__(parent)
         self.view = ViewContext(self)
+        self.view.settings = settings
         self.dialogs = dialogs
         self.settings = settings
         self.shell: Shell | None = None

@@ -44,7 +44,13 @@ from carapost.ui.bridge import LogEntry
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import HistoryModel, LogModel
-from carapost.ui.settings import PREFERENCES, preference, set_preference
+from carapost.ui.settings import (
+    DISPLAY_PREFERENCES,
+    PREFERENCES,
+    preference,
+    preference_signals,
+    set_preference,
+)
 from carapost.ui.views.continuity import ContinuityView
 
 
@@ -145,6 +151,8 @@ class PropertiesPane(QWidget):
 
     #: the per-computer group of the main Properties pane (the guide's Show Again Flags)
     PREFERENCES_TITLE = "Show Again Flags (this computer)"
+    #: the per-computer group of the guide's Display section, shown first
+    DISPLAY_TITLE = "Display (this computer)"
 
     def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None,
                  preferences: tuple[str, ...] | None = None,
@@ -183,9 +191,15 @@ class PropertiesPane(QWidget):
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
         main_pane = preferences is None and sections is None
+        self.preference_editors: dict[str, QWidget] = {}
         if main_pane:
             preferences = ("show_version_check_dialog",)
-        self.preference_editors = self._add_preferences(preferences or (), preferences_title)
+            self.preference_editors.update(
+                self._add_preferences(DISPLAY_PREFERENCES, self.DISPLAY_TITLE, index=0))
+        self.preference_editors.update(
+            self._add_preferences(preferences or (), preferences_title))
+        # a preference set elsewhere (a view's right-click menu, another window)
+        preference_signals().changed.connect(self._show_preference)
         if main_pane:
             from carapost.ui.frame_settings import add_frame_settings
 
@@ -202,32 +216,66 @@ class PropertiesPane(QWidget):
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 
-    def _add_preferences(self, keys: tuple[str, ...], title: str) -> dict[str, QCheckBox]:
+    def _add_preferences(self, keys: tuple[str, ...], title: str,
+                         index: int | None = None) -> dict[str, QWidget]:
         """A group of GUI preferences, kept in the user settings (QSettings) of this
-        computer, not in the project: editing them is not a History entry."""
-        editors: dict[str, QCheckBox] = {}
+        computer, not in the project: editing them is not a History entry. The group
+        goes at top-level position ``index`` (last when None)."""
+        editors: dict[str, QWidget] = {}
         if not keys:
             return editors
         top = QTreeWidgetItem([title])
         top.setFirstColumnSpanned(True)
         top.setToolTip(0, "Kept for you on this computer (not saved in the project).")
-        self.tree.addTopLevelItem(top)
+        if index is None:
+            self.tree.addTopLevelItem(top)
+        else:
+            self.tree.insertTopLevelItem(index, top)
         by_key = {pref.key: pref for pref in PREFERENCES}
         settings = self.ctx.settings
         for key in keys:
             pref = by_key[key]
-            item = QTreeWidgetItem([pref.label, "", ""])
-            tip = f"{pref.help} Default: {pref.default}. Kept for you on this computer."
+            item = QTreeWidgetItem([pref.label, "", pref.unit])
+            allowed = (f" Allowed: from {pref.minimum} to {pref.maximum}."
+                       if pref.kind == "int" else "")
+            tip = (f"{pref.help}{allowed} Default: {pref.default}. Kept for you on this "
+                   "computer.")
             item.setToolTip(0, tip)
             top.addChild(item)
-            box = QCheckBox()
-            box.setToolTip(tip)
-            box.setChecked(preference(settings, key))
-            box.toggled.connect(lambda v, k=key: set_preference(settings, k, bool(v)))
-            self.tree.setItemWidget(item, 1, box)
-            editors[key] = box
+            editor: QWidget
+            if pref.kind == "int":
+                spin = QSpinBox()
+                spin.setRange(int(pref.minimum if pref.minimum is not None else -10**9),
+                              int(pref.maximum if pref.maximum is not None else 10**9))
+                spin.setKeyboardTracking(False)
+                spin.setValue(int(preference(settings, key)))
+                spin.valueChanged.connect(
+                    lambda v, k=key: set_preference(settings, k, int(v)))
+                editor = spin
+            else:
+                box = QCheckBox()
+                box.setChecked(bool(preference(settings, key)))
+                box.toggled.connect(lambda v, k=key: set_preference(settings, k, bool(v)))
+                editor = box
+            editor.setToolTip(tip)
+            self.tree.setItemWidget(item, 1, editor)
+            editors[key] = editor
         top.setExpanded(True)
         return editors
+
+    def _show_preference(self, key: str) -> None:
+        editor = self.preference_editors.get(key)
+        if editor is None:
+            return
+        value = preference(self.ctx.settings, key)
+        editor.blockSignals(True)
+        try:
+            if isinstance(editor, QSpinBox):
+                editor.setValue(int(value))
+            elif isinstance(editor, QCheckBox):
+                editor.setChecked(bool(value))
+        finally:
+            editor.blockSignals(False)
 
     def _editor(self, spec: Any) -> QWidget:
         key = spec.key

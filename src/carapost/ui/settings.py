@@ -1,7 +1,8 @@
 """Persistent user settings (window layout, recent files, GUI preferences): QSettings.
 
-GUI preferences that do not belong to a take (the guide's Show Again Flags and the
-Tracker pane's "Update ... Every Frame" switches) are user settings, declared in
+GUI preferences that do not belong to a take (the guide's Display section: point label
+visibility and font size; its Show Again Flags; the Tracker pane's "Update ... Every
+Frame" switches) are user settings, declared in
 :data:`PREFERENCES`; project files written before they moved may still hold them and
 are read without them (:data:`carapost.model.properties.MOVED_TO_USER_SETTINGS`).
 
@@ -16,7 +17,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from PySide6.QtCore import QSettings
+from PySide6.QtCore import QObject, QSettings, Signal
 
 ORGANISATION = "carapost"
 APPLICATION = "carapost"
@@ -27,7 +28,7 @@ _PREFERENCES_GROUP = "preferences"
 
 @dataclass(frozen=True)
 class Preference:
-    """A yes/no GUI preference kept in the user settings.
+    """A GUI preference kept in the user settings: yes/no, or a whole number in a range.
 
     Attributes
     ----------
@@ -35,19 +36,50 @@ class Preference:
         Settings key (the property key it had in project files).
     label : str
         Name as displayed (the reference guide's name).
-    default : bool
+    default : bool or int
+        Its type is the preference's type.
     help : str
+    minimum, maximum : int or None
+        Inclusive bounds of a whole-number preference (values outside are clamped).
+    unit : str
+        Unit shown beside a whole-number value.
     """
 
     key: str
     label: str
-    default: bool
+    default: bool | int
     help: str
+    minimum: int | None = None
+    maximum: int | None = None
+    unit: str = ""
+
+    @property
+    def kind(self) -> str:
+        """``"bool"`` or ``"int"``."""
+        return "bool" if isinstance(self.default, bool) else "int"
 
 
-#: Every GUI preference (the guide's Show Again Flags section and the Tracker pane's
-#: display switches), in display order.
+#: Keys of the guide's Display section. Each of its rows is about the person looking at
+#: the take, not about the take: which labels to draw and how large is a matter of
+#: eyesight, screen and habit, the same for every take, and two artists opening the same
+#: .cara should each see labels their way (nor should opening a colleague's take change
+#: one's own). None changes what is tracked, filled or exported. So all of them are user
+#: settings, shown in the Properties pane as "Display (this computer)".
+DISPLAY_PREFERENCES = ("point_labels_all", "point_labels_selected",
+                       "point_labels_preselected", "label_font_size")
+
+#: Every GUI preference (the guide's Display and Show Again Flags sections and the
+#: Tracker pane's display switches), in display order.
 PREFERENCES: tuple[Preference, ...] = (
+    Preference("point_labels_all", "Point Labels : All", False,
+               "Draw the label of every labelled point in the 2D and 3D views."),
+    Preference("point_labels_selected", "Point Labels : Selected", True,
+               "Draw labels of the selected points."),
+    Preference("point_labels_preselected", "Point Labels : Pre-Selected", True,
+               "Draw the label of the point under the mouse cursor (the pre-selection)."),
+    Preference("label_font_size", "Font Size", 10,
+               "Text size of point labels in the views. Range is our choice.",
+               minimum=4, maximum=72, unit="pt"),
     Preference("show_version_check_dialog", "Show Version Check Dialog On Startup", True,
                "At start-up, say when a newer release is available. Kept for Help > Check For "
                "Updates, which carapost does not have yet: nothing reads it today."),
@@ -139,8 +171,35 @@ def clear_recent_files(settings: QSettings) -> None:
     settings.setValue("recent_files", [])
 
 
-def preference(settings: QSettings, key: str) -> bool:
-    """The user's value of a GUI preference (its default when never set).
+class _PreferenceSignals(QObject):
+    """Tells every window of this process that a preference changed (key)."""
+
+    changed = Signal(str)
+
+
+_SIGNALS: _PreferenceSignals | None = None
+
+
+def preference_signals() -> _PreferenceSignals:
+    """The process-wide notifier: ``changed(key)`` after :func:`set_preference` stored
+    a new value, so every view of every window redraws with it."""
+    global _SIGNALS
+    if _SIGNALS is None:
+        _SIGNALS = _PreferenceSignals()
+    return _SIGNALS
+
+
+def _clamp(pref: Preference, value: int) -> int:
+    if pref.minimum is not None:
+        value = max(value, pref.minimum)
+    if pref.maximum is not None:
+        value = min(value, pref.maximum)
+    return value
+
+
+def preference(settings: QSettings, key: str) -> bool | int:
+    """The user's value of a GUI preference (its default when never set or unreadable;
+    a whole number is clamped to its range).
 
     Raises
     ------
@@ -149,19 +208,30 @@ def preference(settings: QSettings, key: str) -> bool:
     """
     pref = _PREFERENCE_BY_KEY[key]
     value = settings.value(f"{_PREFERENCES_GROUP}/{key}", pref.default)
+    if pref.kind == "int":
+        try:
+            return _clamp(pref, int(float(value)))
+        except (TypeError, ValueError):  # a hand-edited or foreign settings file
+            return int(pref.default)
     if isinstance(value, str):  # INI files give text back
         return value.strip().lower() in ("true", "1", "yes", "on")
     return bool(value)
 
 
-def set_preference(settings: QSettings, key: str, value: bool) -> None:
-    """Store a GUI preference for this user.
+def set_preference(settings: QSettings, key: str, value: bool | int) -> None:
+    """Store a GUI preference for this user (a whole number clamped to its range) and
+    emit :func:`preference_signals` ``changed(key)`` if the value changed.
 
     Raises
     ------
     KeyError
         If ``key`` is not one of :data:`PREFERENCES`.
     """
-    if key not in _PREFERENCE_BY_KEY:
+    pref = _PREFERENCE_BY_KEY.get(key)
+    if pref is None:
         raise KeyError(f"unknown preference {key!r}")
-    settings.setValue(f"{_PREFERENCES_GROUP}/{key}", bool(value))
+    new: bool | int = _clamp(pref, int(value)) if pref.kind == "int" else bool(value)
+    if preference(settings, key) == new and settings.contains(f"{_PREFERENCES_GROUP}/{key}"):
+        return
+    settings.setValue(f"{_PREFERENCES_GROUP}/{key}", new)
+    preference_signals().changed.emit(key)

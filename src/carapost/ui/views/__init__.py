@@ -7,6 +7,7 @@ from PySide6.QtWidgets import QMenu, QWidget
 
 from carapost.model.events import Change
 from carapost.ui.context import ViewContext
+from carapost.ui.settings import set_preference
 
 
 class BaseView(QWidget):
@@ -67,7 +68,7 @@ class BaseView(QWidget):
             act.toggled.connect(lambda on, k=key: self._set_option(k, on))
         act = menu.addAction("Point Labels: All")
         act.setCheckable(True)
-        act.setChecked(bool(self.ctx.project.properties["point_labels_all"]))
+        act.setChecked(self.ctx.label_mode()[0])
         act.toggled.connect(self._set_labels_all)
 
     def _set_option(self, key: str, on: bool) -> None:
@@ -75,8 +76,9 @@ class BaseView(QWidget):
         self.ctx.notify_options()
 
     def _set_labels_all(self, on: bool) -> None:
-        # a property of the project: through the owner's command path (undoable)
-        self.ctx.edit_properties({"point_labels_all": on})
+        # a user setting (not the take's, so no History entry): every view redraws
+        # through the preference's changed signal
+        set_preference(self.ctx.user_settings(), "point_labels_all", on)
 
     def center_selection(self, frame: bool = False) -> None:
         """Center (or frame, when ``frame``) the selected points in this view."""
