@@ -124,13 +124,15 @@ def test_proxies_are_written_after_import_and_shown_while_playing(make_window, t
 
 
 def test_cache_size_and_proxy_settings_are_user_settings(make_window):
+    from carapost.io.frameservice import DEFAULT_CACHE_MB
     from carapost.ui.panes import PropertiesPane
     from carapost.ui.settings import build_proxies, frame_cache_mb
 
     w = make_window()
+    assert frame_cache_mb(w.context.settings) == DEFAULT_CACHE_MB  # one default
     pane = next(p for p in w.findChildren(PropertiesPane) if hasattr(p, "frame_editors"))
-    pane.frame_editors["cache_mb"].setValue(800)
-    pane.frame_editors["build_proxies"].setChecked(False)
+    pane.frame_editors["frame_cache_mb"].setValue(800)
+    pane.frame_editors["build_proxies_after_import"].setChecked(False)
     assert frame_cache_mb(w.context.settings) == 800
     assert build_proxies(w.context.settings) is False
     p = new_project(4, 1, image_size=(W, H))

@@ -46,6 +46,7 @@ from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import HistoryModel, LogModel
 from carapost.ui.settings import (
     DISPLAY_PREFERENCES,
+    FRAME_PREFERENCES,
     PREFERENCES,
     preference,
     preference_signals,
@@ -153,6 +154,7 @@ class PropertiesPane(QWidget):
     PREFERENCES_TITLE = "Show Again Flags (this computer)"
     #: the per-computer group of the guide's Display section, shown first
     DISPLAY_TITLE = "Display (this computer)"
+    FRAMES_TITLE = "Frames (this computer)"
 
     def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None,
                  preferences: tuple[str, ...] | None = None,
@@ -201,9 +203,8 @@ class PropertiesPane(QWidget):
         # a preference set elsewhere (a view's right-click menu, another window)
         preference_signals().changed.connect(self._show_preference)
         if main_pane:
-            from carapost.ui.frame_settings import add_frame_settings
-
-            self.frame_editors = add_frame_settings(self.tree, ctx)
+            self.frame_editors = self._add_preferences(
+                tuple(p.key for p in FRAME_PREFERENCES), self.FRAMES_TITLE)
         # the names take the room the values and units leave: a wider pane shows them
         # whole, a narrow one elides them (the tooltip has the whole name and its help)
         header = self.tree.header()
@@ -231,7 +232,7 @@ class PropertiesPane(QWidget):
             self.tree.addTopLevelItem(top)
         else:
             self.tree.insertTopLevelItem(index, top)
-        by_key = {pref.key: pref for pref in PREFERENCES}
+        by_key = {pref.key: pref for pref in PREFERENCES + FRAME_PREFERENCES}
         settings = self.ctx.settings
         for key in keys:
             pref = by_key[key]
@@ -247,6 +248,7 @@ class PropertiesPane(QWidget):
                 spin = QSpinBox()
                 spin.setRange(int(pref.minimum if pref.minimum is not None else -10**9),
                               int(pref.maximum if pref.maximum is not None else 10**9))
+                spin.setSingleStep(pref.step)
                 spin.setKeyboardTracking(False)
                 spin.setValue(int(preference(settings, key)))
                 spin.valueChanged.connect(

@@ -43,6 +43,8 @@ class Preference:
         Inclusive bounds of a whole-number preference (values outside are clamped).
     unit : str
         Unit shown beside a whole-number value.
+    step : int
+        Step of the spin box of a whole-number value.
     """
 
     key: str
@@ -52,6 +54,7 @@ class Preference:
     minimum: int | None = None
     maximum: int | None = None
     unit: str = ""
+    step: int = 1
 
     @property
     def kind(self) -> str:
@@ -91,9 +94,23 @@ PREFERENCES: tuple[Preference, ...] = (
                "Show each tracked frame in the views while target tracking (slower)."
                " Default is our choice (the guide gives none)."),
 )
-#: Settings key: write playback proxies in the background when a take opens.
-BUILD_PROXIES_KEY = "frames/build_proxies"
-_PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES}
+#: Frame-access preferences (ours: the guide has no such settings), shown in the
+#: Properties pane as "Frames (this computer)". The cache size applies to the next take
+#: opened; its default is `carapost.io.frameservice.DEFAULT_CACHE_MB` (not imported
+#: here, so that reading a setting never loads the decoders).
+FRAME_PREFERENCES: tuple[Preference, ...] = (
+    Preference("frame_cache_mb", "Image Cache", 1500,
+               "Memory for decoded camera images (8-bit grey, shared by the views, playback "
+               "and the processing that reads images). 1500 MB holds about 500 frames of "
+               "four 1280x720 cameras. Applies to the next take opened.",
+               minimum=64, maximum=65536, unit="MB", step=250),
+    Preference("build_proxies_after_import", "Build Playback Proxies After Import", True,
+               "Write fast-decoding copies of the camera videos in the background when a "
+               "take opens, so playback runs at the take's frame rate (View > Build "
+               "Playback Proxies writes them on request). Display only; deleting them "
+               "loses nothing."),
+)
+_PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES + FRAME_PREFERENCES}
 
 
 def make_settings() -> QSettings:
@@ -106,46 +123,23 @@ def make_settings() -> QSettings:
                      APPLICATION)
 
 
-#: Settings key of the decoded-image cache size (megabytes).
-FRAME_CACHE_KEY = "frames/cache_mb"
-#: Bounds of the cache size a user may set (megabytes).
-FRAME_CACHE_RANGE = (64.0, 65536.0)
-
-
 def frame_cache_mb(settings: QSettings) -> float:
-    """Size of the decoded-image cache in megabytes (default 1500: ~500 frames of four
-    1280x720 cameras). It holds 8-bit gray images of the open take, shared by the
-    views, playback and the jobs that read images."""
-    from carapost.io.frameservice import DEFAULT_CACHE_MB
-
-    try:
-        value = float(settings.value(FRAME_CACHE_KEY, DEFAULT_CACHE_MB))
-    except (TypeError, ValueError):
-        value = DEFAULT_CACHE_MB
-    lo, hi = FRAME_CACHE_RANGE
-    return min(max(value, lo), hi)
-
-
-def set_frame_cache_mb(settings: QSettings, value: float) -> None:
-    """Store the decoded-image cache size (clamped to `FRAME_CACHE_RANGE`); it applies
-    to the next take opened."""
-    lo, hi = FRAME_CACHE_RANGE
-    settings.setValue(FRAME_CACHE_KEY, min(max(float(value), lo), hi))
+    """Size of the decoded-image cache in megabytes (the ``frame_cache_mb``
+    preference). It holds 8-bit grey images of the open take, shared by the views,
+    playback and the jobs that read images."""
+    return float(preference(settings, "frame_cache_mb"))
 
 
 def build_proxies(settings: QSettings) -> bool:
     """Whether playback proxies (fast-decoding copies of the camera videos, in the user
-    cache, for display only) are written in the background when a take opens (default
-    yes; View > Build Playback Proxies writes them on request)."""
-    value = settings.value(BUILD_PROXIES_KEY, True)
-    if isinstance(value, str):
-        return value.strip().lower() in ("true", "1", "yes", "on")
-    return bool(value)
+    cache, for display only) are written in the background when a take opens (the
+    ``build_proxies_after_import`` preference)."""
+    return bool(preference(settings, "build_proxies_after_import"))
 
 
 def set_build_proxies(settings: QSettings, on: bool) -> None:
     """Store whether proxies are written after a take opens."""
-    settings.setValue(BUILD_PROXIES_KEY, bool(on))
+    set_preference(settings, "build_proxies_after_import", bool(on))
 
 
 def recent_files(settings: QSettings) -> list[str]:
