@@ -185,6 +185,33 @@ def test_keyframe_index_is_cached_and_invalidated(tmp_path, rng):
     assert AVReader(path).n_frames == 20
 
 
+def test_opening_decodes_only_the_frame_wanted(tmp_path, rng):
+    """A jump right after opening decodes from the keyframe before the target only: no
+    probe of frame 0, and the check that the last frame decodes is done once per file
+    (the stored index keeps it), not on every opening."""
+    frames = _frames(rng, 60, 0)
+    path = _write(tmp_path / "o_cam0.mkv", frames)
+    from carapost.io.video import VideoSource
+
+    assert VideoSource(path).verify_frame_count() == 60  # as importing the take does
+    assert KeyframeIndex.load(path).decodable == 60
+    target = 41
+    with FrameService(_take([path], 60)) as fs:
+        np.testing.assert_array_equal(fs.get(target, 0), frames[target])
+        reader = fs.source(0)._reader
+        assert reader.decoded == target - reader.index.keyframe_before(target) + 1
+    # A file never checked: the check runs while the decoder is idle, and is stored.
+    fresh = _write(tmp_path / "p_cam0.mkv", frames)
+    with FrameService(_take([fresh], 60)) as fs:
+        fs.request(5)
+        _wait_for(fs, 5, 0)
+        deadline = time.perf_counter() + 10
+        while KeyframeIndex.load(fresh) is None or KeyframeIndex.load(fresh).decodable is None:
+            assert time.perf_counter() < deadline, "the last frame was never checked"
+            time.sleep(0.01)
+        assert KeyframeIndex.load(fresh).decodable == 60
+
+
 def test_proxies_stand_in_while_playing_and_never_for_processing(videos):
     from carapost.io.proxy import existing_proxy, proxy_path, write_proxy
 

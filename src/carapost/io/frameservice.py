@@ -97,6 +97,8 @@ class FrameService(TakeFrames):
         self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
         self._playing = False
         self._proxies: dict[int, VideoSource] = {}
+        # cameras whose last frame was never checked to decode (see `_verify`)
+        self._unverified: set[int] = set()
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -117,8 +119,15 @@ class FrameService(TakeFrames):
             try:
                 if not cam.video_path:
                     raise CaraFileError(f"<{cam.name}>", "the camera has no video file")
-                src = VideoSource(cam.video_path)
-                src.verify_frame_count()
+                # Opened without decoding: the first frame wanted is decoded next.
+                src = VideoSource(cam.video_path, probe=False)
+                reader = src._reader
+                if reader is not None and reader.index.decodable is None:
+                    # checked when the decoder is idle or nears the end (`_verify`):
+                    # it costs up to a keyframe interval of decodes
+                    self._unverified.add(camera)
+                else:
+                    src.verify_frame_count()  # known from the stored index: free
             except CaraFileError as exc:
                 self._errors[camera] = str(exc)
                 log.warning("Camera %s shows no images: %s", cam.name, exc)
@@ -345,11 +354,17 @@ class FrameService(TakeFrames):
                         frame, fut = state.jobs.popleft()
                         kind = "job"
                         break
+                    if camera in self._unverified:
+                        frame, kind, fut = -1, "verify", None
+                        break
                     ahead = self._ahead_frame(camera)
                     if ahead is not None:
                         frame, kind, fut = ahead, "ahead", None
                         break
                     self._cond.wait()
+            if kind == "verify":
+                self._verify(camera)
+                continue
             if kind != "job" and self._use_proxy(camera):
                 state.target = None
                 self._decode_proxy(frame, camera)
@@ -404,10 +419,28 @@ class FrameService(TakeFrames):
                 return "stop"
             return "go"
 
+    def _verify(self, camera: int) -> None:
+        """Check once that the camera's last frame decodes (its own thread only; the
+        stored index keeps the answer, so a file is checked once, not per opening)."""
+        self._unverified.discard(camera)
+        src = self._sources.get(camera)
+        if src is None:
+            return
+        try:
+            src.verify_frame_count()
+        except CaraFileError as exc:
+            log.warning("Camera %s: %s", self.take.cameras[camera].name, exc)
+
     def _decode_to(self, frame: int, camera: int, kind: str) -> NDArray[np.uint8] | None:
         """Decode ``frame`` of ``camera`` into the cache, with every frame decoded on
         the way (from the keyframe before it, or from the decoder's position)."""
         index = self._video_index(frame, camera)
+        if camera in self._unverified and index is not None:
+            reader = getattr(self._sources.get(camera), "_reader", None)
+            if reader is not None and index >= reader.index.keyframe_before(
+                    reader.n_frames - 1):
+                self._verify(camera)  # near the end: the frame count must be right
+                index = self._video_index(frame, camera)
         if index is None:
             self._notify(frame, camera)
             return self._blank_image(camera) if camera not in self._errors else None
