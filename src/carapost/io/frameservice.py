@@ -14,7 +14,8 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
 - **Read-ahead** in the direction of travel while a thread is idle: forward in decode
   order, backward a keyframe interval at a time (the frames from the keyframe before the
   wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
-  current one and never more than half the cache.
+  current one and never more than half the cache; then, unless playing, a third of that
+  the other way (a step back after a jump or a change of direction is a cache hit).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
@@ -325,15 +326,21 @@ class FrameService(TakeFrames):
         if src is None:  # no video: nothing to read ahead (and no busy loop)
             return None
         offset = int(self.take.cameras[camera].frame_offset)
-        for k in range(1, limit + 1):
-            f = state.origin + step * k
-            if not 0 <= f < self.take.n_frames:
-                return None
-            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
-                continue  # outside a short video: blank, nothing to decode
-            if (self._cache_get((f, key_cam)) is None and self._cache_get((f, camera)) is None
-                    and (f, camera) not in self._frame_errors):
-                return f
+        # The direction of travel first; then, unless playing, a third as far the other
+        # way, so that a step back after a jump (or after stepping forwards) is a cache
+        # hit too (with a keyframe on every frame, a jump decodes no frame before it).
+        runs = [(step, limit)] if self._playing else [(step, limit), (-step, limit // 3)]
+        for sign, count in runs:
+            for k in range(1, count + 1):
+                f = state.origin + sign * k
+                if not 0 <= f < self.take.n_frames:
+                    break
+                if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
+                    continue  # outside a short video: blank, nothing to decode
+                if (self._cache_get((f, key_cam)) is None
+                        and self._cache_get((f, camera)) is None
+                        and (f, camera) not in self._frame_errors):
+                    return f
         return None
 
     def _run(self, camera: int) -> None:
