@@ -165,7 +165,7 @@ class FrameService(TakeFrames):
             if path is None:
                 continue
             try:
-                proxy = VideoSource(path)
+                proxy = VideoSource(path, probe=False)  # no decode on the GUI thread
             except CaraFileError as exc:
                 log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
                 continue
