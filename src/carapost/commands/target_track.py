@@ -418,6 +418,10 @@ class TargetTrackJob(Job):
     intr: CameraIntrinsics | None
     auto_keys: list[tuple[int, int]]       # (point index, camera) keyed at start
     description: str
+    #: What the run has tracked so far, appended on the worker as it goes: (point id,
+    #: camera, frame, score) per tracked frame (the window draws the span growing, and
+    #: shows the frame being tracked). Read it from another thread by slicing.
+    live: list[tuple[int, int, int, float]] = field(default_factory=list, repr=False)
 
     @property
     def stop(self) -> int:
@@ -454,10 +458,14 @@ class TargetTrackJob(Job):
                     return True
                 return progress(base + done, total) is not False
 
+            def seen(f: int, _xy: NDArray, score: float, tr: _Track = tr) -> None:
+                if f not in tr.keys:
+                    self.live.append((tr.point, tr.camera, int(f), float(score)))
+
             res = track_target(lambda f, c=tr.camera: self.get_image(f, c), tr.keys,
                                start=self.start, stop=tr.stop, direction=d, params=P,
                                start_xy=tr.start_xy, start_velocity=tr.velocity,
-                               progress=step)
+                               progress=step, on_frame=seen)
             done_before += n
             reasons[(tr.point, tr.camera)] = res.reason
             cancelled = res.reason == STOP_CANCELLED
