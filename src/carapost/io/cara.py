@@ -45,6 +45,7 @@ import numpy as np
 from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.io.atomic import atomic_output, check_input_file, checked_path, clean_stale_parts
+from carapost.io.cara_target_sizes import read_target_sizes, target_sizes_manifest
 from carapost.io.errors import CaraFileError
 from carapost.io.ziplimits import (
     MANIFEST_LIMIT,
@@ -149,6 +150,8 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "imported_blob_parameters": project.imported_blob_parameters,
         # optional: the Session calls that made the project (`carapost history --python`)
         **({"script": project.script} if project.script is not None else {}),
+        # optional: per-track Target Tracker sizes, [point id, camera, pattern, search]
+        **({"target_sizes": target_sizes_manifest(project)} if project.target_sizes else {}),
         "stabilization": None if project.stabilization is None
         else project.stabilization.to_manifest(),
         "alignment": None if project.alignment is None else project.alignment.to_manifest(),
@@ -764,6 +767,7 @@ def _build(
     script = m.get("script")
     project.script = list(script) if isinstance(script, list) else None
     _build_stabilization(project, members, m, path)
+    read_target_sizes(project, m.get("target_sizes"))
     project.path = str(path.absolute())
     project.modified = False
     return project

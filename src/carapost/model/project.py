@@ -442,6 +442,10 @@ class Project:
         # Stabilize Data / Align Data (carapost.model.stabilization): never raw positions
         self.stabilization: Any = None
         self.alignment: Any = None
+        # Target Tracker pattern (blue box) and search (green cross) sizes the artist set
+        # for one point in one camera: (point id, camera) -> (pattern px, search px);
+        # a track without an entry uses the Target Tracker's defaults
+        self.target_sizes: dict[tuple[int, int], tuple[int, int]] = {}
         self.show_stabilized = False
         self.modified = False
 
