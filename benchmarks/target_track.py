@@ -373,59 +373,68 @@ def bench_partial(frames: int, size: tuple[int, int], margin: int = 3) -> None:
 
     Keyframes from the truth (the disc centre) ``margin`` frames either side of every
     covered stretch, tracked forwards from the first and backwards from the second with
-    the default settings (Stop On Next Keyframe); every confidently tracked frame where
-    the disc is partly covered and visible is compared with the centroid of its visible
-    part (``visible_uv``) and with its true centre (``uv``)."""
+    Stop On Next Keyframe, at the default Break Threshold (0.9) and at 0 (every frame
+    gets a position); every tracked frame where the disc is partly covered and visible is
+    compared with the centroid of its visible part (``visible_uv``) and with its true
+    centre (``uv``)."""
     for preset, kind in (("blink", "eyelid"), ("speech", "lip")):
         cfg = SynthConfig(preset=preset, frames=frames, size=size, partial_occlusion=True)
         scene, imgs = render(cfg)
-        uv, vis, vuv = scene.uv, scene.visible, scene.visible_uv
         covered = np.isfinite(scene.cover_offset)
         cover_frac = np.clip((scene.marker_radius_mm[None] - scene.cover_offset)
                              / (2 * scene.marker_radius_mm[None]), 0, 1)
-        params = TargetTrackerParameters()
-        e_vis, e_cen, frac, wrong, n_frames, n_tracked, spans = [], [], [], 0, 0, 0, 0
-        for m in np.flatnonzero(covered.any(0)):
-            for c in range(scene.n_cameras):
-                for a, b in _runs(covered[:, m]):
-                    k0, k1 = a - 1 - margin, b + 1 + margin
-                    if k0 < 0 or k1 >= frames or not (vis[k0, m, c] and vis[k1, m, c]):
-                        continue
-                    spans += 1
-                    keys = {k0: uv[k0, m, c], k1: uv[k1, m, c]}
-                    part = covered[:, m] & vis[:, m, c]
-                    n_frames += int(part[a:b + 1].sum())
-                    seen = np.zeros(frames, bool)
-                    for start, stop, d in ((k0, k1, 1), (k1, k0, -1)):
-                        r = track_target(lambda f, c=c, im=imgs: im[f, c], keys, start=start,
-                                         stop=stop, direction=d, params=params)
-                        good = r.tracked & part[r.frames]
-                        wrong += int(_wrong(r.xy[r.tracked], r.frames[r.tracked],
-                                            uv[:, :, c], m))
-                        f = r.frames[good]
-                        seen[f] = True
-                        e_vis.extend(np.linalg.norm(r.xy[good] - vuv[f, m, c], axis=-1))
-                        e_cen.extend(np.linalg.norm(r.xy[good] - uv[f, m, c], axis=-1))
-                        frac.extend(cover_frac[f, m])
-                    n_tracked += int(seen.sum())
-        ev, ec, fr = np.array(e_vis), np.array(e_cen), np.array(frac)
-        common = {"case": f"partial_{kind}", "preset": preset, "spans": spans,
-                  "covered_visible_frames": n_frames, "frames": frames,
-                  "size": f"{size[0]}x{size[1]}"}
+        for bt in (0.9, 0.0):
+            _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
+                         TargetTrackerParameters(break_threshold=bt))
 
-        def q(e: np.ndarray, p: float) -> float | None:
-            return round(float(np.percentile(e, p)), 4) if len(e) else None
 
-        emit("partial_occlusion_visible_median_px", q(ev, 50), "px", **common,
-             p95=q(ev, 95), against="visible-part centroid")
-        emit("partial_occlusion_centre_median_px", q(ec, 50), "px", **common,
-             p95=q(ec, 95), against="true centre")
-        half = fr >= 0.25
-        emit("partial_occlusion_centre_median_px_cover_ge_25pc", q(ec[half], 50), "px",
-             **common, samples=int(half.sum()), visible_median=q(ev[half], 50))
-        emit("partial_occlusion_tracked_fraction", round(n_tracked / max(n_frames, 1), 3),
-             "fraction", **common, break_threshold=params.break_threshold)
-        emit("partial_occlusion_wrong_marker", wrong, "tracks", **common)
+def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
+                 params) -> None:
+    """One Break Threshold of :func:`bench_partial`."""
+    uv, vis, vuv = scene.uv, scene.visible, scene.visible_uv
+    e_vis, e_cen, frac, wrong, n_frames, n_tracked, spans = [], [], [], 0, 0, 0, 0
+    for m in np.flatnonzero(covered.any(0)):
+        for c in range(scene.n_cameras):
+            for a, b in _runs(covered[:, m]):
+                k0, k1 = a - 1 - margin, b + 1 + margin
+                if k0 < 0 or k1 >= frames or not (vis[k0, m, c] and vis[k1, m, c]):
+                    continue
+                spans += 1
+                keys = {k0: uv[k0, m, c], k1: uv[k1, m, c]}
+                part = covered[:, m] & vis[:, m, c]
+                n_frames += int(part[a:b + 1].sum())
+                seen = np.zeros(frames, bool)
+                for start, stop, d in ((k0, k1, 1), (k1, k0, -1)):
+                    r = track_target(lambda f, c=c, im=imgs: im[f, c], keys, start=start,
+                                     stop=stop, direction=d, params=params)
+                    good = r.tracked & part[r.frames]
+                    wrong += int(_wrong(r.xy[r.tracked], r.frames[r.tracked],
+                                        uv[:, :, c], m))
+                    f = r.frames[good]
+                    seen[f] = True
+                    e_vis.extend(np.linalg.norm(r.xy[good] - vuv[f, m, c], axis=-1))
+                    e_cen.extend(np.linalg.norm(r.xy[good] - uv[f, m, c], axis=-1))
+                    frac.extend(cover_frac[f, m])
+                n_tracked += int(seen.sum())
+    ev, ec, fr = np.array(e_vis), np.array(e_cen), np.array(frac)
+    common = {"case": f"partial_{kind}", "preset": preset, "spans": spans,
+              "break_threshold": params.break_threshold,
+              "covered_visible_frames": n_frames, "frames": frames,
+              "size": f"{size[0]}x{size[1]}"}
+
+    def q(e: np.ndarray, p: float) -> float | None:
+        return round(float(np.percentile(e, p)), 4) if len(e) else None
+
+    emit("partial_occlusion_visible_median_px", q(ev, 50), "px", **common,
+         p95=q(ev, 95), against="visible-part centroid")
+    emit("partial_occlusion_centre_median_px", q(ec, 50), "px", **common,
+         p95=q(ec, 95), against="true centre")
+    half = fr >= 0.25
+    emit("partial_occlusion_centre_median_px_cover_ge_25pc", q(ec[half], 50), "px",
+         **common, samples=int(half.sum()), visible_median=q(ev[half], 50))
+    emit("partial_occlusion_tracked_fraction", round(n_tracked / max(n_frames, 1), 3),
+         "fraction", **common)
+    emit("partial_occlusion_wrong_marker", wrong, "tracks", **common)
 
 
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
