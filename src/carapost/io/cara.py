@@ -238,19 +238,20 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         project.events.emit("file")
         # the saved file is now the newest: autosave copies of this name, of the name
         # it had before a Save As, and of the never-saved project are all stale
-        stale = [autosave_path(path), getattr(project, "untitled_autosave", None)]
+        stale = [autosave_path(path), project.untitled_autosave]
         if previous and Path(previous).absolute() != path:
             stale.append(autosave_path(previous))
         for copy in stale:
             if copy is not None:
                 with contextlib.suppress(OSError):
                     Path(copy).unlink(missing_ok=True)
-        project.untitled_autosave = None  # type: ignore[attr-defined]
-        source = getattr(project, "mapped_source", None)
+        project.untitled_autosave = None
+        project.session_autosave = None
+        source = project.mapped_source
         if source is not None and Path(source[0]) == path:
             # the mapping keeps the replaced file's data alive, and no one can reach
             # that file by its name any more: nothing left to guard
-            project.mapped_source = None  # type: ignore[attr-defined]
+            project.mapped_source = None
     log.info("Saved %s", path)
     return path
 
@@ -268,7 +269,7 @@ def check_mapped_source(project: Project) -> None:
     CaraFileError
         Naming the file, when its size, modification time or identity changed.
     """
-    source = getattr(project, "mapped_source", None)
+    source = project.mapped_source
     if source is None:
         return
     path, size, mtime_ns, ino = source
@@ -311,13 +312,17 @@ def untitled_autosaves() -> list[Path]:
     return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
 
 
-def discard_untitled_autosave(project: Project) -> None:
-    """Remove the autosave copy of a never-saved project (closed without saving)."""
-    copy = getattr(project, "untitled_autosave", None)
-    if copy is not None:
-        with contextlib.suppress(OSError):
-            Path(copy).unlink(missing_ok=True)
-        project.untitled_autosave = None  # type: ignore[attr-defined]
+def discard_autosaves(project: Project) -> None:
+    """Remove the autosave copies this session wrote for a project whose changes the
+    user discards (closed without saving): the copy of a never-saved project, and the
+    copy beside a saved one. A copy the session did not write (say, one left by a crash
+    that the user declined to recover) stays."""
+    for copy in (project.untitled_autosave, project.session_autosave):
+        if copy is not None:
+            with contextlib.suppress(OSError):
+                Path(copy).unlink(missing_ok=True)
+    project.untitled_autosave = None
+    project.session_autosave = None
 
 
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
@@ -329,7 +334,7 @@ def autosave_project(project: Project, path: str | Path | None = None) -> Path |
     """
     target = path or project.path
     if target is None:
-        copy = getattr(project, "untitled_autosave", None)
+        copy = project.untitled_autosave
         if copy is None:
             folder = untitled_autosave_folder()
             try:
@@ -339,9 +344,11 @@ def autosave_project(project: Project, path: str | Path | None = None) -> Path |
             name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
                            (project.take.name or "untitled"))[:80]
             copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
-            project.untitled_autosave = copy  # type: ignore[attr-defined]
+            project.untitled_autosave = copy
         return save_project(project, copy, autosave=True)
-    return save_project(project, autosave_path(target), autosave=True)
+    written = save_project(project, autosave_path(target), autosave=True)
+    project.session_autosave = written
+    return written
 
 
 def recoverable_autosave(path: str | Path) -> Path | None:
@@ -665,7 +672,7 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None,
                 # check_mapped_source)
                 st = os.stat(path)
                 source = (str(path.absolute()), st.st_size, st.st_mtime_ns, st.st_ino)
-                project.mapped_source = source  # type: ignore[attr-defined]
+                project.mapped_source = source
             return project
         except CaraFileError:
             raise

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy as _copy
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -444,6 +445,14 @@ class Project:
         self.alignment: Any = None
         self.show_stabilized = False
         self.modified = False
+        # file bookkeeping kept by carapost.io.cara and the recovery code: the newer
+        # autosave found beside the file when it was opened, the autosave of an untitled
+        # project, the autosave this session wrote beside a saved one, and (path, size,
+        # mtime_ns, inode) of a file whose arrays are still memory-mapped
+        self.newer_autosave: Path | None = None
+        self.untitled_autosave: Path | None = None
+        self.session_autosave: Path | None = None
+        self.mapped_source: tuple[str, int, int, int] | None = None
 
     # -- sizes ---------------------------------------------------------------------------
     @property
