@@ -144,7 +144,7 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "active_range": list(project.active_range),
         "view_range": list(project.view_range),
         "selected_cameras": sorted(project.selection.cameras),
-        "selected_points": sorted(project.selection.points),
+        "selected_points": project.selection.ordered_points(),  # in selection order
         "rom": project.rom.path if project.rom else None,
         "imported_blob_parameters": project.imported_blob_parameters,
         # optional: the Session calls that made the project (`carapost history --python`)
@@ -761,9 +761,11 @@ def _build(
     project.current_frame = int(m.get("current_frame", 0))
     project.active_range = tuple(m.get("active_range", project.active_range))  # type: ignore[assignment]
     project.view_range = tuple(m.get("view_range", project.view_range))  # type: ignore[assignment]
+    selected = tuple(dict.fromkeys(int(p) for p in m.get("selected_points", [])))
     project.selection = Selection(
-        points=frozenset(int(p) for p in m.get("selected_points", [])),
+        points=frozenset(selected),
         cameras=frozenset(int(c) for c in m.get("selected_cameras", [])),
+        order=selected,
     )
     if m.get("rom"):
         project.rom = RomReference(path=str(m["rom"]))

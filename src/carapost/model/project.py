@@ -391,12 +391,20 @@ class Selection:
 
     ``points`` are point ids; ``detections`` are (frame, camera, index) triples;
     ``cameras`` is the explicit camera selection used by processing and detach commands
-    (empty = all cameras).
+    (empty = all cameras). ``order`` holds the selected point ids in the order they were
+    selected (Align Data takes origin, direction and plane in click order).
     """
 
     points: frozenset[int] = frozenset()
     detections: frozenset[tuple[int, int, int]] = frozenset()
     cameras: frozenset[int] = frozenset()
+    order: tuple[int, ...] = ()
+
+    def ordered_points(self) -> list[int]:
+        """The selected point ids, oldest selection first (ids without a recorded order,
+        e.g. from an older file, follow in id order)."""
+        known = [p for p in self.order if p in self.points]
+        return known + sorted(self.points.difference(known))
 
 
 @dataclass
@@ -508,12 +516,18 @@ class Project:
     ) -> None:
         """Replace parts of the selection (None keeps that part)."""
         sel = self.selection
+        order = sel.order
+        if points is not None:
+            given = list(dict.fromkeys(int(p) for p in points))
+            kept = [p for p in sel.ordered_points() if p in set(given)]
+            order = tuple(kept + [p for p in given if p not in set(kept)])
         new = Selection(
-            frozenset(int(p) for p in points) if points is not None else sel.points,
+            frozenset(order) if points is not None else sel.points,
             frozenset(tuple(int(x) for x in d) for d in detections)
             if detections is not None
             else sel.detections,
             frozenset(int(c) for c in cameras) if cameras is not None else sel.cameras,
+            order,
         )
         if new != sel:
             self.selection = new
