@@ -107,6 +107,14 @@ def main_synth(argv: list[str]) -> int:
     except (CaraFileError, SynthCancelled) as exc:
         print(f"\ncarapost synth: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        # the same one line as every other subcommand (an unwritable or full folder)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"\ncarapost synth: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\ncarapost: cancelled", file=sys.stderr)
+        return 130
     if not args.quiet:
         print(f"\nwrote {path} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
     print(path)

@@ -125,10 +125,13 @@ def load_rom(ctx: ActionContext) -> None:
 
 
 def align_data(ctx: ActionContext) -> bool:
-    """Process > Align Data: the three selected points (in id order: origin, direction,
-    plane) define the coordinate frame; the dialog asks which axes they give."""
+    """Process > Align Data: the three selected points, in the order they were selected
+    (origin, direction, plane), define the coordinate frame; the dialog asks which axes
+    they give."""
     p = ctx.project
-    cols = p.selected_columns()
+    present = set(p.points.ids.tolist())
+    ordered = [i for i in p.selection.ordered_points() if i in present]
+    cols = p.points.index_of(ordered) if ordered else []
     if len(cols) != 3:
         ctx.report_error("Align Data", f"Align Data: select exactly 3 points (got {len(cols)})",
                          show=False)
@@ -141,8 +144,7 @@ def align_data(ctx: ActionContext) -> bool:
         "Axes (two of x, y, z, '-' flips one; e.g. xy, zx, x-z):", "xy")
     if axes is None:
         return False
-    ids = [int(i) for i in p.points.ids[cols]]
-    return ctx.act("Align Data", ctx.session.align, ids, axes.strip() or "xy") is not None
+    return ctx.act("Align Data", ctx.session.align, ordered, axes.strip() or "xy") is not None
 
 
 def remove_stabilization(ctx: ActionContext) -> bool:
