@@ -447,7 +447,9 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     detected, Add Keyframe To Current Frame, Track forward to the end of the stretch.
     ``mode="inside"``: Edit Target Track at the marker (its truth) on the first frame
     of the stretch where it is fully faded, Track forward to the end of the stretch,
-    then back to its start (the artist keys the marker as it looks while missed)."""
+    then back to its start (the artist keys the marker as it looks while missed).
+    ``mode="gaps"``: Gaps To Keys (keyframes either side of the stretch), Track forward
+    from the first (Stop On Next Keyframe), then back from the second."""
     import functools
 
     from carapost import Session
@@ -463,6 +465,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     s = Session(project, get_image=get)
     missed = np.flatnonzero(scene.missed.any(0))
     e2_all, rmse, worst2, complete, found, t = [], [], [], 0, 0, time.process_time()
+    recovered = cells = 0
     for m in missed:
         st = np.flatnonzero(scene.missed[:, m])
         a, b = int(st[0]), int(st[-1])
@@ -479,6 +482,12 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             s.current_frame = a - 1
             s.add_keyframe()
             s.target_track(+1, to=b)
+        elif mode == "gaps":
+            s.gaps_to_keys(pid)
+            s.current_frame = a - 1
+            s.target_track(+1)
+            s.current_frame = b + 1
+            s.target_track(-1)
         else:
             k = a + MISSED_RAMP
             s.current_frame = k
@@ -489,6 +498,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
         e2 = np.linalg.norm(pts.obs[a:b + 1, m] - scene.uv[a:b + 1, m], axis=-1)
         e3 = np.linalg.norm(pts.positions[a:b + 1, m] - scene.points3d[a:b + 1, m], axis=-1)
         complete += int(np.isfinite(e2).all() and np.isfinite(e3).all())
+        recovered += int(np.isfinite(e2).sum())
+        cells += e2.size
         e2_all.extend(e2[np.isfinite(e2)])
         worst2.append(float(np.nanmax(e2)) if np.isfinite(e2).any() else np.nan)
         rmse.append(float(np.sqrt(np.nanmean(e3 ** 2))) if np.isfinite(e3).any() else np.nan)
@@ -506,7 +517,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     emit("missed_faded_rmse_mm", round(float(np.nanmax(rmse)), 4), "mm", **common,
          per_marker=[round(v, 4) for v in rmse], statistic="worst marker")
     emit("missed_faded_complete_fraction", round(complete / max(len(missed), 1), 3),
-         "fraction", **common, cpu_s=round(cpu, 1))
+         "fraction", **common, cpu_s=round(cpu, 1),
+         recovered_2d_fraction=round(recovered / max(cells, 1), 3))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -544,7 +556,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.partial:
         bench_partial(min(a.frames, 120), size)
     if a.faded:
-        for mode in ("before", "inside"):
+        for mode in ("before", "inside", "gaps"):
             bench_missed_faded(min(a.frames, 120), size, mode=mode)
     emit("load_average", _load(), "")
     return 0
