@@ -104,3 +104,14 @@ def test_truth_file_carries_the_new_members(speech, tmp_path):
         assert z["cover_offset"].shape == speech.visible.shape[:2]
     with pytest.raises(ValueError, match="missed_markers"):
         SynthConfig(missed_markers=-1).validate()
+
+
+def test_command_line_options(tmp_path):
+    from carapost.synth.cli import main_synth
+
+    out = tmp_path / "take"
+    assert main_synth([str(out), "--frames", "12", "--size", "160x90", "--quiet",
+                       "--workers", "1", "--partial-occlusion", "--missed-markers", "2"]) == 0
+    with np.load(out / "truth.npz") as z:
+        assert z["missed"].any(0).sum() == 2 and "visible_uv" in z.files
+    assert main_synth([str(out), "--missed-markers", "-1", "--quiet"]) == 2

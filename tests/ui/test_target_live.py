@@ -136,3 +136,25 @@ def test_views_follow_every_camera_being_tracked(make_window, take, qtbot,  # no
     drops = [i for i in range(1, len(shown)) if shown[i] < shown[i - 1] - last // 2]
     assert len(drops) >= 2, shown
     assert shown.count(last) >= 1 and max(shown) == last
+
+
+def test_live_redraws_are_throttled():
+    """However often the worker reports progress, the charts redraw at most every
+    INTERVAL seconds (the GUI thread is not kept busy redrawing)."""
+    from types import SimpleNamespace
+
+    from carapost.synth.demo_project import demo_project
+
+    p = demo_project(50, 4, 2, size=(160, 90))
+    pid = int(p.points.ids[1])
+    job = SimpleNamespace(live=[])
+    live = target_live._Live(SimpleNamespace(project=p, shell=None), job)
+    for f in range(1, 40):
+        job.live.append((pid, 0, f, 0.95))
+        live.tick(f, 40)
+    assert live.redraws == 1                  # all 39 ticks came within INTERVAL
+    assert live.read == 1
+    live.last -= target_live.INTERVAL         # INTERVAL later: one more, with the rest
+    live.tick(40, 40)
+    assert live.redraws == 2 and live.read == 39
+    assert live.tracks[(pid, 0)][0] == list(range(1, 40))
