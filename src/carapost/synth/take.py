@@ -128,6 +128,17 @@ def _write_camera(scene: SynthScene, c: int, path: Path, fourcc: str,
     """Render and encode one camera's video; ``tick()`` after each image returns False to
     stop. Returns False if stopped."""
     w, h = scene.size
+    if fourcc == "FFV1":
+        # Every frame a keyframe (FFV1's archival setting): a jump anywhere in the take
+        # decodes one frame per camera (OpenCV's writer puts a keyframe every 12).
+        from carapost.io.encode import FFV1Writer
+
+        with FFV1Writer(path, (w, h), float(scene.config.fps)) as ffv1:
+            for f in range(scene.n_frames):
+                ffv1.write(render_frame(scene, f, c))
+                if not tick():
+                    return False
+        return True
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc),
                              float(scene.config.fps), (w, h), False)
     if not writer.isOpened():
