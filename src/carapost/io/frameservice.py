@@ -96,7 +96,7 @@ class FrameService(TakeFrames):
         self._service_threads: set[int] = set()
         self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
         self._playing = False
-        self._proxies: dict[int, VideoSource] = {}
+        self._proxies: dict[int, Any] = {}  # camera -> ProxyReader
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -146,7 +146,7 @@ class FrameService(TakeFrames):
     def attach_proxies(self) -> int:
         """Open the complete, current proxies of the take's videos (see
         `carapost.io.proxy`); returns how many cameras have one."""
-        from carapost.io.proxy import existing_proxy
+        from carapost.io.proxy import ProxyReader, existing_proxy
 
         for c, cam in enumerate(self.take.cameras):
             if c in self._proxies or not cam.video_path:
@@ -155,7 +155,7 @@ class FrameService(TakeFrames):
             if path is None:
                 continue
             try:
-                proxy = VideoSource(path)
+                proxy = ProxyReader(path)
             except CaraFileError as exc:
                 log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
                 continue
