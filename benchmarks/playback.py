@@ -219,6 +219,7 @@ class Bench:
         self.pump(0.5)
         drawn: set[int] = set()
         t0 = time.perf_counter()
+        gui0, cpu0 = time.thread_time(), time.process_time()
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -226,9 +227,13 @@ class Bench:
                 drawn.add(p.current_frame)
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
+        gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source="originals",
-             take_fps=p.take.fps, seconds=round(elapsed, 2))
+             take_fps=p.take.fps, seconds=round(elapsed, 2),
+             reported_dropped=ctx.playback.dropped,
+             gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
 
     def playback_from_proxies(self, seconds: float = 6.0) -> None:
         """Write the proxies (View > Build Playback Proxies), then play from them."""
@@ -248,6 +253,7 @@ class Bench:
         self.pump(0.5)
         drawn: set[int] = set()
         t0 = time.perf_counter()
+        gui0, cpu0 = time.thread_time(), time.process_time()
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -256,10 +262,34 @@ class Bench:
                 drawn.add(p.current_frame)
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
+        gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source="proxies",
              take_fps=p.take.fps, seconds=round(elapsed, 2),
-             reported_dropped=ctx.playback.dropped)
+             reported_dropped=ctx.playback.dropped,
+             gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
+
+    def display_cost(self, count: int = 60) -> None:
+        """GUI thread CPU per frame with every image cached (no decoding): what one
+        frame costs to show in four views, whatever the load."""
+        self.stalls.phase = "display"
+        start = self.p.n_frames // 4
+        frames = range(start, start + count)
+        for f in frames:  # fill the cache
+            self.go(f)
+        self.pump(0.3)
+        costs = []
+        for _ in range(2):
+            for f in frames:
+                c0 = time.thread_time()
+                self.w.set_frame(f)
+                self.w.flush()
+                for _ in range(3):  # delivery, then the paint events
+                    self.app.processEvents()
+                costs.append((time.thread_time() - c0) * 1e3)
+        emit("gui_frame_cpu_ms", statistics.median(costs), "ms", p95=round(p95(costs), 2),
+             frames=len(costs), note="GUI thread CPU per frame shown, images cached")
 
     def detect_current(self) -> None:
         self.stalls.phase = "detect_current"
@@ -378,7 +408,8 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true",
                     help="time the GUI thread's drawing and delivery; charge stalls to it")
     ap.add_argument("--only", default="",
-                    help="comma-separated phases: jumps,steps,playback,detect,scrub,proxies")
+                    help="comma-separated phases: jumps,steps,display,playback,detect,scrub,"
+                         "proxies")
     args = ap.parse_args()
     from carapost.ui.app import application
 
@@ -406,6 +437,8 @@ def main() -> None:
         b.jumps()
     if run("steps"):
         b.steps()
+    if run("display"):
+        b.display_cost()
     if run("playback"):
         b.playback()
     if run("detect"):

@@ -30,6 +30,7 @@ from carapost.session import Session
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import GREY, RED, YELLOW
+from carapost.ui.throttle import FrameThrottle
 
 __all__ = ["LabellingPane"]
 
@@ -120,6 +121,8 @@ class LabellingPane(QWidget):
         self.filter.textChanged.connect(self._apply_filter)
         ctx.view.changed.connect(self._changed)
         self._last_selection: frozenset[int] = frozenset()
+        # the colours follow the frame: a few times a second while playing
+        self._throttle = FrameThrottle(ctx.view, self.refresh)
 
     # -- state -----------------------------------------------------------------------------
     def selected_labels(self) -> list[str]:
@@ -206,6 +209,8 @@ class LabellingPane(QWidget):
         self._update_status()
 
     def _changed(self, change: Change) -> None:
+        if self._throttle.defer(change):
+            return
         if change.parts is None or change.parts & self.PARTS:
             self.refresh()
         if (self.next_box.isChecked() and (change.parts is None or "selection" in

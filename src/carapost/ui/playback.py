@@ -79,10 +79,12 @@ class Playback(QObject):
             self._window = [0, 0]
             self._last_report = self._t0
             self.ctx.frames.set_playing(self._fps)
+            self.ctx.view.playing = True
             # Ticks at twice the frame rate so a frame is at most half a frame late.
             self.timer.start(max(int(500 / self._fps), 1))
         else:
             self.timer.stop()
+            self.ctx.view.playing = False
             self.ctx.frames.set_playing(None)
             # back to the original images (the views may show a proxy frame)
             shell = self.ctx.shell

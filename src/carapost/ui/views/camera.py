@@ -22,6 +22,7 @@ from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.frame_item import GrayImageItem
 from carapost.ui.views.geometry import (
     cross_segments,
     crossed_circle,
@@ -107,7 +108,7 @@ class CameraView(BaseView):
         self.gv.setCentralItem(self.vb)
         self.group = pg.ItemGroup()
         self.vb.addItem(self.group)
-        self.image = pg.ImageItem(axisOrder="row-major")
+        self.image = GrayImageItem(axisOrder="row-major")
         self.image.setParentItem(self.group)
         self.image.setPos(-0.5, -0.5)
         self.border = QGraphicsRectItem()
@@ -260,6 +261,16 @@ class CameraView(BaseView):
         if self.ctx.lock_to_point:
             self.center_selection(frame=False)
 
+    def image_landed(self, frame: int) -> None:
+        """The decoded image of ``frame`` arrived: show it. The overlays of the current
+        frame are drawn already (they do not wait for images), so only the image is
+        replaced, unless the Blob Preview, which is computed from the image, is on."""
+        if frame != self._drawn_frame or self.ctx.options.blob_preview or not self._fitted:
+            self.refresh(None)
+            return
+        self._draw_image(frame)
+        self._update_rotation()
+
     def _mode_text(self) -> str:
         sel = self.ctx.project.selection.cameras
         parts = []
@@ -301,7 +312,10 @@ class CameraView(BaseView):
             self.image.hide()
         else:
             self._image_shape = img.shape[:2]
-            self.image.setImage(img, autoLevels=False, levels=(0, 255))
+            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself.
+            # Levels (even 0-255) would make pyqtgraph build a 256-colour table in
+            # Python and paint an indexed image, every frame.
+            self.image.setImage(img, autoLevels=False, levels=None)
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
