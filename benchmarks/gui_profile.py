@@ -125,4 +125,5 @@ class GuiProfiler:
                               "per_call_ms": round(v[1] * 1e3 / max(v[0], 1), 2),
                               "max_ms": round(v[3] * 1e3, 1)} for k, v in rows},
             "longest_stalls": sorted(self.stalls, key=lambda s: -s["gap_ms"])[:15],
+            "longest_gui_cpu": sorted(self.stalls, key=lambda s: -s["gui_cpu_ms"])[:15],
         }

@@ -111,7 +111,7 @@ class Stalls:
         self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
         self.busy_by_phase[self.phase] = max(self.busy_by_phase.get(self.phase, 0.0), busy)
         if self.profiler is not None:
-            if gap > 0.04:
+            if gap > 0.04 or busy > 0.02:
                 self.profiler.attribute(self.last, now, busy, self.phase)
             self.profiler.prune(now - 1.0)
         self.last, self.last_cpu = now, cpu

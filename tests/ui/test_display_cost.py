@@ -1,4 +1,4 @@
-"""What a frame costs the GUI thread: the camera image drawn through a 32-bit copy with
+"""What a frame costs the GUI thread: the camera image drawn as a plain gray image with
 the same pixels on screen, images landing without redrawing the overlays, panes that
 follow the frame throttled while playing."""
 
@@ -10,7 +10,6 @@ from PySide6.QtGui import QImage, QPainter
 
 from carapost.model.events import Change
 from carapost.ui.throttle import FrameThrottle
-from carapost.ui.views.frame_item import GrayImageItem
 
 
 def _draw(item: pg.ImageItem, size: tuple[int, int], scale: float) -> np.ndarray:
@@ -23,38 +22,25 @@ def _draw(item: pg.ImageItem, size: tuple[int, int], scale: float) -> np.ndarray
     return np.frombuffer(out.constBits(), np.uint8).reshape(size[1], size[0], 4).copy()
 
 
-def test_gray_item_draws_the_pixels_pyqtgraph_draws(qtbot, rng):
-    img = rng.integers(0, 256, (90, 160), dtype=np.uint8)
+def test_camera_images_are_drawn_without_levels_with_the_same_pixels(make_window, demo,
+                                                                      qtbot, rng):
+    from carapost.ui.frames import ArrayFrameSource
+
+    project, _ = demo
+    img = rng.integers(0, 256, (360, 640), dtype=np.uint8)
+    w = make_window(project, ArrayFrameSource(lambda f, c: img))
+    view = next(v for v in w.workspace.views() if v.kind == "sensor")
+    w.flush()
+    qtbot.wait(20)
+    item = view.image
+    assert item.levels is None and np.shares_memory(item.image, img)
+    item.render()
+    # a gray QImage over the frame itself: no colour table, no copy per frame
+    assert item.qimage.format() == QImage.Format.Format_Grayscale8
     ref = pg.ImageItem(axisOrder="row-major")
-    ref.setImage(img, autoLevels=False, levels=(0, 255))
-    fast = GrayImageItem(axisOrder="row-major")
-    fast.setImage(img, autoLevels=False, levels=None)
-    for size, scale in (((160, 90), 1.0), ((80, 45), 0.5), ((240, 135), 1.5),
-                        ((320, 180), 2.0)):
-        np.testing.assert_array_equal(_draw(fast, size, scale), _draw(ref, size, scale))
-    # at other scales Qt's 32-bit scaler rounds the sample position its own way: every
-    # pixel drawn is still one of the image's pixels next to the one it stands for
-    drawn = _draw(fast, (100, 56), 0.625)
-    assert (drawn[..., 0] == drawn[..., 1]).all() and (drawn[..., 3] == 255).all()
-    ys, xs = np.mgrid[0:56, 0:100]
-    cy, cx = ((ys + 0.5) / 0.625).astype(int), ((xs + 0.5) / 0.625).astype(int)
-    near = np.zeros(drawn.shape[:2], bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            yy, xx = np.clip(cy + dy, 0, 89), np.clip(cx + dx, 0, 159)
-            near |= img[yy, xx] == drawn[..., 0]
-    assert near.all()
-    assert fast.qimage.format() == QImage.Format.Format_RGB32
-    assert fast.image is not None and fast.image.shape == (90, 160)  # the gray array
-    # a new frame of another size is drawn from its own pixels
-    img2 = rng.integers(0, 256, (40, 70), dtype=np.uint8)
-    fast.setImage(img2, autoLevels=False, levels=None)
-    ref.setImage(img2, autoLevels=False, levels=(0, 255))
-    np.testing.assert_array_equal(_draw(fast, (70, 40), 1.0), _draw(ref, (70, 40), 1.0))
-    # anything else (levels set) goes through pyqtgraph's own rendering
-    fast.setImage(img2, autoLevels=False, levels=(50, 100))
-    ref.setImage(img2, autoLevels=False, levels=(50, 100))
-    np.testing.assert_array_equal(_draw(fast, (70, 40), 1.0), _draw(ref, (70, 40), 1.0))
+    ref.setImage(img, autoLevels=False, levels=(0, 255))  # the indexed path
+    for size, scale in (((640, 360), 1.0), ((400, 225), 0.625), ((960, 540), 1.5)):
+        np.testing.assert_array_equal(_draw(item, size, scale), _draw(ref, size, scale))
 
 
 class _View:

@@ -22,7 +22,6 @@ from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
-from carapost.ui.views.frame_item import GrayImageItem
 from carapost.ui.views.geometry import (
     cross_segments,
     crossed_circle,
@@ -108,7 +107,7 @@ class CameraView(BaseView):
         self.gv.setCentralItem(self.vb)
         self.group = pg.ItemGroup()
         self.vb.addItem(self.group)
-        self.image = GrayImageItem(axisOrder="row-major")
+        self.image = pg.ImageItem(axisOrder="row-major")
         self.image.setParentItem(self.group)
         self.image.setPos(-0.5, -0.5)
         self.border = QGraphicsRectItem()
@@ -312,9 +311,11 @@ class CameraView(BaseView):
             self.image.hide()
         else:
             self._image_shape = img.shape[:2]
-            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself.
-            # Levels (even 0-255) would make pyqtgraph build a 256-colour table in
-            # Python and paint an indexed image, every frame.
+            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself,
+            # which Qt scales cheapest. Levels (even 0-255) make pyqtgraph build a
+            # 256-colour table in Python and paint an indexed image, every frame: 4x
+            # the cost (0.16 against 0.04 ms for 1280x720 into 700x394, measured with a
+            # new image per frame; an RGB32 copy costs more than it saves).
             self.image.setImage(img, autoLevels=False, levels=None)
             self.image.show()
         self.border.setVisible(opts.border or img is None)
