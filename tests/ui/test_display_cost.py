@@ -81,3 +81,23 @@ def test_an_image_landing_redraws_the_image_only(make_window, demo, qtbot):
     assert int(view.image.image[0, 0]) == (3 + 40 * view.camera) % 256
     view.image_landed(4)  # not the frame drawn: a full redraw of the current one
     assert overlays == [3]
+
+
+def test_label_colours_follow_the_frame_row_by_row(make_window, demo, qtbot):
+    project, frames = demo
+    w = make_window(project, frames)
+    pane = w.pane("Labelling")
+    p = w.project
+    labels = [n for n in p.points.labels if n]
+    assert labels
+    # a label absent at some frames: its state changes with the frame
+    col = p.points.labels.index(labels[0])
+    p.points.positions[10:20, col] = np.nan
+    for f in (0, 12, 30):
+        w.set_frame(f)
+        w.flush()
+        names = [pane.list.item(i).text() for i in range(pane.list.count())]
+        assert pane.label_states(names) == [pane.label_state(n) for n in names]
+        state = "absent" if 10 <= f < 20 else "assigned"
+        item = pane.list.item(names.index(labels[0]))
+        assert item.toolTip() == f"{labels[0]}: {state}"
