@@ -101,3 +101,28 @@ def test_label_colours_follow_the_frame_row_by_row(make_window, demo, qtbot):
         state = "absent" if 10 <= f < 20 else "assigned"
         item = pane.list.item(names.index(labels[0]))
         assert item.toolTip() == f"{labels[0]}: {state}"
+
+
+def test_playback_sends_the_decoders_once_per_frame_due(make_window, demo, qtbot):
+    from carapost.ui.frames import ArrayFrameSource
+
+    class Counting(ArrayFrameSource):
+        def __init__(self, render):
+            super().__init__(render)
+            self.requests: list[int] = []
+
+        def request(self, frame, camera=None, direction=0):
+            if camera is None and direction == 1:  # playback's own requests
+                self.requests.append(frame)
+
+    project, frames = demo
+    source = Counting(frames._render)
+    w = make_window(project, source)
+    pb = w.context.playback
+    pb.toggle(True)
+    assert w.view_context.playing
+    qtbot.waitUntil(lambda: not pb.playing, timeout=20000)  # plays the take to its end
+    assert not w.view_context.playing
+    assert source.requests, "playback asks the decoders for the frames due"
+    # the timer ticks at twice the frame rate: each frame due is asked for once
+    assert len(source.requests) == len(set(source.requests))
