@@ -145,6 +145,8 @@ class ViewContext(QObject):
         self.active_camera: int | None = None
         self.lock_to_point = False
         self.show_stabilized = False
+        #: playback runs (panes that follow the frame refresh less often meanwhile)
+        self.playing = False
         self._proj_cache: dict[int, NDArray[np.float64] | None] = {}
         self._preview_cache: dict[tuple[int, int], Any] = {}
         #: the user settings the Display preferences are read from (the owner's, when
@@ -549,7 +551,8 @@ class ActionContext(QObject):
             return
         for view in self.shell.all_views():
             if view.kind == "sensor" and view.camera == camera:
-                view.refresh(None)
+                landed = getattr(view, "image_landed", None)
+                landed(frame) if landed is not None else view.refresh(None)
 
     def flush(self) -> None:
         """Deliver pending model changes now (tests and benchmarks)."""

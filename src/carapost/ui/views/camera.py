@@ -260,6 +260,16 @@ class CameraView(BaseView):
         if self.ctx.lock_to_point:
             self.center_selection(frame=False)
 
+    def image_landed(self, frame: int) -> None:
+        """The decoded image of ``frame`` arrived: show it. The overlays of the current
+        frame are drawn already (they do not wait for images), so only the image is
+        replaced, unless the Blob Preview, which is computed from the image, is on."""
+        if frame != self._drawn_frame or self.ctx.options.blob_preview or not self._fitted:
+            self.refresh(None)
+            return
+        self._draw_image(frame)
+        self._update_rotation()
+
     def _mode_text(self) -> str:
         sel = self.ctx.project.selection.cameras
         parts = []
@@ -301,7 +311,12 @@ class CameraView(BaseView):
             self.image.hide()
         else:
             self._image_shape = img.shape[:2]
-            self.image.setImage(img, autoLevels=False, levels=(0, 255))
+            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself,
+            # which Qt scales cheapest. Levels (even 0-255) make pyqtgraph build a
+            # 256-colour table in Python and paint an indexed image, every frame: 4x
+            # the cost (0.16 against 0.04 ms for 1280x720 into 700x394, measured with a
+            # new image per frame; an RGB32 copy costs more than it saves).
+            self.image.setImage(img, autoLevels=False, levels=None)
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
