@@ -524,8 +524,10 @@ def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
     """
     from scipy.stats import chi2
 
-    o = np.asarray(obs, dtype=np.float64)
-    Xm = np.asarray(X, dtype=np.float64)
+    # at most ~600 frames spread over the take (a median needs no more)
+    step = max(1, np.shape(X)[0] // 600)
+    o = np.asarray(obs)[::step].astype(np.float64)
+    Xm = np.asarray(X)[::step].astype(np.float64)
     s = np.asarray(noise_px, dtype=np.float64)
     has = np.isfinite(o).all(-1)
     n = has.sum(-1)
@@ -534,8 +536,8 @@ def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
     if not use.any():
         return out
     fi, pi = np.nonzero(use)
-    uv = _project_per_frame(Xm[fi, pi], np.asarray(R, dtype=np.float64)[fi],
-                            np.asarray(t, dtype=np.float64)[fi], intr)
+    uv = _project_per_frame(Xm[fi, pi], np.asarray(R, dtype=np.float64)[::step][fi],
+                            np.asarray(t, dtype=np.float64)[::step][fi], intr)
     r2 = np.where(has[fi, pi], np.sum((uv - o[fi, pi]) ** 2, -1), 0.0) / s[None, :] ** 2
     q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
     order = np.argsort(pi, kind="stable")
