@@ -40,10 +40,11 @@ def sigma_rgb(sigma_mm: NDArray) -> NDArray[np.uint8]:
     return np.rint(rgb).astype(np.uint8)
 
 
-def draw_sigma_legend(painter: QPainter, right: float, bottom: float) -> None:
-    """A colour bar with its range, its lower right corner at (right, bottom) px."""
+def draw_sigma_legend(painter: QPainter, right: float, top: float) -> None:
+    """A colour bar with its range above it, its upper right corner at (right, top) px
+    (the frame text of the views is at the bottom left)."""
     w, h = 120.0, 10.0
-    rect = QRectF(right - w, bottom - h, w, h)
+    rect = QRectF(right - w, top + painter.fontMetrics().height() + 2, w, h)
     grad = QLinearGradient(rect.left(), 0, rect.right(), 0)
     for stop, rgb in zip(_STOPS, _RGB, strict=True):
         grad.setColorAt(float(stop), QColor(*(int(v) for v in rgb)))

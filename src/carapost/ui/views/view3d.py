@@ -263,7 +263,7 @@ class View3D(BaseView):
             if face[col]:
                 text = f"{sig[col]:.3f} mm" if np.isfinite(sig[col]) else "sigma unknown"
                 painter.drawText(QPointF(xy[col, 0] + 8, xy[col, 1] + 14), text)
-        draw_sigma_legend(painter, self.width() - 10.0, self.height() - 10.0)
+        draw_sigma_legend(painter, self.width() - 10.0, 8.0)
 
     def _dots(self, painter: QPainter, xy: NDArray, colour: QColor, size: float) -> None:
         pen = QPen(colour, size)
