@@ -475,20 +475,23 @@ def brim_pose_covariance(brim_xyz: ArrayLike, brim_obs: ArrayLike, R: ArrayLike,
     dof = np.where(solved, 2 * n - 6, 0).sum(0)
     ss = np.where(solved[:, None, :], r2, 0.0).sum((0, 1))
     s_b = np.where(dof > 0, np.sqrt(ss / np.maximum(dof, 1)), np.nan)
-    Xc = np.einsum("fcij,fnj->fnci", Rm, Bz) + tm[:, None]  # (F, N, C, 3)
-    zs = np.where(has & (Xc[..., 2] > 1e-6), Xc[..., 2], 1.0)
     f = np.asarray(intr.focal, dtype=np.float64)[None, None, :]
-    Jp = np.zeros(Xc.shape[:-1] + (2, 3))
-    Jp[..., 0, 0] = Jp[..., 1, 1] = f / zs
-    Jp[..., 0, 2] = -f * Xc[..., 0] / zs ** 2
-    Jp[..., 1, 2] = -f * Xc[..., 1] / zs ** 2
-    M = np.zeros(Xc.shape[:-1] + (3, 6))
-    M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
-    M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
-    M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
-    M[..., 3:] = np.eye(3)
-    G = np.where(has[..., None, None], Jp @ M, 0.0)  # (F, N, C, 2, 6)
-    info = np.einsum("fncai,fncaj->fcij", G, G)
+    info = np.zeros((F, C, 6, 6))
+    for a in range(0, F, 256):  # blocks of frames bound the memory of long takes
+        b = slice(a, a + 256)
+        Xc = np.einsum("fcij,fnj->fnci", Rm[b], Bz[b]) + tm[b][:, None]  # (f, N, C, 3)
+        zs = np.where(has[b] & (Xc[..., 2] > 1e-6), Xc[..., 2], 1.0)
+        Jp = np.zeros(Xc.shape[:-1] + (2, 3))
+        Jp[..., 0, 0] = Jp[..., 1, 1] = f / zs
+        Jp[..., 0, 2] = -f * Xc[..., 0] / zs ** 2
+        Jp[..., 1, 2] = -f * Xc[..., 1] / zs ** 2
+        M = np.zeros(Xc.shape[:-1] + (3, 6))
+        M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
+        M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
+        M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
+        M[..., 3:] = np.eye(3)
+        G = np.where(has[b][..., None, None], Jp @ M, 0.0)  # (f, N, C, 2, 6)
+        info[b] = np.einsum("fncai,fncaj->fcij", G, G)
     good = solved & np.isfinite(s_b)[None, :]
     good[good] = np.linalg.cond(info[good]) < 1e12
     cov[good] = np.linalg.inv(info[good]) * (s_b ** 2)[None, :, None, None].repeat(F, 0)[good]
