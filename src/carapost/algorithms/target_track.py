@@ -147,8 +147,12 @@ class TargetTrackerParameters:
     confirm_frames: int = param(
         5, min=0, max=1000, unit="frames",
         help="A run that loses the marker within this many frames of its first step "
-             "(taken before the motion is known) keeps none of them: that step may "
-             "have been onto a neighbour.")
+             "(taken before the motion is known, scoring below Confirm Score) keeps none "
+             "of them: that step may have been onto a neighbour.")
+    confirm_score: float = param(
+        0.97, min=0.0, max=1.0,
+        help="A first step scoring at least this needs no confirmation (a near-perfect "
+             "match of the keyframe pattern is the marker itself).")
     max_refine_px: float = param(
         1.5, min=0.0, min_exclusive=True,
         help="A refinement moving farther than this from the integer peak failed.")
@@ -683,7 +687,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                     xys[first_step] = np.array([np.nan, np.nan])
                     scores[first_step] = 0.0
                 break
-            if not moving:
+            if not moving and score < params.confirm_score:
                 first_step = len(frames) - 1
             velocity = xy - pos
             pos = xy
@@ -725,11 +729,7 @@ def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray
     cands = _candidates(prev_img, tpl, xy, params, refiner)
     if not cands:
         return False
-    (bxy, bw), rest = cands[0], cands[1:]
-    if np.hypot(*(bxy - pos)) >= params.max_refine_px:
-        return False
-    margin = max(params.ambiguity_margin, 0.02)
-    return all(w < bw - margin for _, w in rest)
+    return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
 
 
 def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
