@@ -68,6 +68,7 @@ class DisplayOptions:
     recon_colours: bool = True
     cameras: bool = True
     rays: bool = True
+    uncertainty: bool = False
 
     def to_dict(self) -> dict[str, bool]:
         """Plain dict for settings."""
@@ -91,7 +92,7 @@ OPTION_TITLES_2D = (
 OPTION_TITLES_3D = (
     ("face_points", "Face Points"), ("brim_points", "Calibration Brim Points"),
     ("recon_colours", "Reconstruction Type Colors"), ("cameras", "Cameras"),
-    ("rays", "Rays"), ("rom", "ROM"), ("sticks", "Sticks"),
+    ("rays", "Rays"), ("rom", "ROM"), ("sticks", "Sticks"), ("uncertainty", "Uncertainty"),
 )
 
 
