@@ -145,6 +145,30 @@ class GapFillActions:
         job = self.prepare_filter_trajectories(cutoff_hz, order, points, frames=frames)
         return self.run(job, progress)  # type: ignore[attr-defined]
 
+    def prepare_remove_filtering(self, points: Iterable[int] | None = None, *,
+                                 frames: tuple[int, int] | None = None) -> Job:
+        """Prepare :meth:`remove_filtering`."""
+        from carapost.commands.gapfill import prepare_remove_filtering
+
+        return prepare_remove_filtering(self.project, points, frames=frames)
+
+    def remove_filtering(self, points: Iterable[int] | None = None, *,
+                         frames: tuple[int, int] | None = None) -> ApplyResult | None:
+        """Process > Remove Filtering: the filtered samples of the selected (or all)
+        points over the active range get back their raw values from before Filter
+        Trajectories (positions, reconstruction kind, sigma), as one History entry. The
+        raw values are kept in the project (and its file), so this works after undo
+        history is gone; samples tracked, edited or filled since keep their newer values.
+
+        Returns None (a warning logged) when there is no filtered sample to restore.
+        """
+        job = self.prepare_remove_filtering(points, frames=frames)
+        result = job.compute(None)
+        if result.changes_nothing():
+            log.warning(result.message)
+            return None
+        return self.apply(result)  # type: ignore[attr-defined]
+
     def find_problems(self, points: Iterable[int] | None = None,
                       frames: tuple[int, int] | None = None) -> list:
         """Find Problems: gaps, spikes and suspected identity swaps (see
