@@ -3,7 +3,8 @@ Find Problems and its repairs (mixed into the Session, on the processing recipe)
 
 Each action is one History entry; undo restores the project bit for bit::
 
-    s.interpolate_gaps()                         # all points, active range, auto method
+    s.interpolate_gaps()                         # all points, active range, guide method
+    s.interpolate_gaps(method="auto")            # per gap, the best method by self-test
     s.gap_report()["gaps"][0]                    # method, estimated error (mm), status
     s.filter_trajectories(8.0, order=4)
     for problem in s.find_problems():
@@ -59,7 +60,8 @@ class GapFillActions:
         return prepare_interpolate_gaps(self.project, points, frames=frames, method=method,
                                         max_gap=max_gap, **options)
 
-    def interpolate_gaps(self, points: Iterable[int] | None = None, method: str | None = None,
+    def interpolate_gaps(self, points: Iterable[int] | None = None,
+                         method: str | None = "guide",
                          *, max_gap: int | None = None, frames: tuple[int, int] | None = None,
                          progress: Any = None, report: str | Path | None = None,
                          **options: Any) -> ApplyResult | None:
@@ -69,8 +71,11 @@ class GapFillActions:
         ----------
         points : iterable of int, optional
             Point ids (default: the selected points, or all).
-        method : {"auto", "guide", "lowrank", "spline"}, optional
-            Default: the Gap-Filling Method property ("auto").
+        method : {"guide", "auto", "lowrank", "spline"} or None
+            Default "guide", the reference workflow's neighbour prediction; "auto"
+            (recommended for faces) picks per gap the method with the lowest hold-out
+            error. None: the project's Gap-Filling Method property (what Process >
+            Interpolate Gaps uses; "guide" unless changed).
         max_gap : int, optional
             Longest gap filled (frames; 0 = all). Default: Max Gap Length.
         frames : (int, int), optional
@@ -208,7 +213,7 @@ class GapFillActions:
         return self.apply(result)  # type: ignore[attr-defined]
 
 
-def fill_gaps_file(source: str | Path, output: str | Path, *, method: str | None = None,
+def fill_gaps_file(source: str | Path, output: str | Path, *, method: str | None = "guide",
                    max_gap: int | None = None, report: str | Path | None = None,
                    progress: Any = None) -> dict[str, Any]:
     """``carapost fill-gaps``: fill every gap of a ``.c3d`` or ``.cara`` file and write
