@@ -144,6 +144,15 @@ class TargetTrackerParameters:
         2.0, min=0.0, unit="px",
         help="Steps longer than this are checked backwards (the patch found must lead "
              "back to the previous position): a step onto a neighbour fails the check.")
+    confirm_frames: int = param(
+        5, min=0, max=1000, unit="frames",
+        help="A run that loses the marker within this many frames of its first step "
+             "(taken before the motion is known, scoring below Confirm Score) keeps none "
+             "of them: that step may have been onto a neighbour.")
+    confirm_score: float = param(
+        0.97, min=0.0, max=1.0,
+        help="A first step scoring at least this needs no confirmation (a near-perfect "
+             "match of the keyframe pattern is the marker itself).")
     max_refine_px: float = param(
         1.5, min=0.0, min_exclusive=True,
         help="A refinement moving farther than this from the integer peak failed.")
@@ -313,18 +322,26 @@ def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float
 
 
 class _Refiner:
-    """Lucas-Kanade refinement of a translation with gain and bias on one pattern.
+    """Lucas-Kanade refinement of a translation with gain, bias and shading on one pattern.
 
-    The model is ``I(x + p) = a T(x - d) + b``; linearised at ``d = 0`` the unknowns
-    ``(dx, dy, a, b)`` solve a 4 x 4 system whose matrix depends on the pattern only
-    (its columns scale by the current gain), so it is factored once per pattern.
+    The model is ``I(x + p) = a T(x - d) + b + c_x u + c_y v`` (``u, v`` in [-1, 1]
+    across the box); linearised at ``d = 0`` the unknowns ``(a dx, a dy, a, b, c_x,
+    c_y)`` solve a 6 x 6 system whose matrix depends on the pattern only, so it is
+    factored once per pattern. The shading ramp absorbs the change of the skin's shading
+    under the marker as the face turns: without it a shading gradient that slides under
+    the pattern pulls the position towards the brighter side (a bias of 0.1-0.2 px on
+    curved skin such as the nose tip).
     """
 
-    def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0) -> None:
+    def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0,
+                 shading: bool = True) -> None:
         gy, gx = np.gradient(tpl.astype(np.float64))
         self.size = n = tpl.shape[0]
-        J = np.stack([-gx.ravel(), -gy.ravel(), tpl.ravel().astype(np.float64),
-                      np.ones(tpl.size)])                         # (4, N)
+        g = (np.arange(n) - n // 2) / max(n // 2, 1)
+        cols = [-gx.ravel(), -gy.ravel(), tpl.ravel().astype(np.float64), np.ones(tpl.size)]
+        if shading:   # a shading ramp across the box (skin curving away from the light)
+            cols += [np.tile(g, n), np.repeat(g, n)]
+        J = np.stack(cols)                                        # (4 or 6, N)
         if weight_sigma > 0:   # weigh the marker at the centre over its surroundings
             g = np.arange(n) - n // 2
             wt = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / weight_sigma ** 2)
@@ -381,6 +398,7 @@ class _Refiner:
         wu = w - w.mean()
         den = math.sqrt(float(wu @ wu))
         ncc_u = float(self.tpl_u @ wu) / den if den > 1e-9 else 0.0
+        self.last_ncc_w = ncc_w
         return p, min(ncc_w, ncc_u), converged
 
 
@@ -480,7 +498,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                  keyframes: Mapping[int, Any], *, start: int, stop: int, direction: int,
                  params: TargetTrackerParameters | None = None,
                  start_xy: Any = None, start_velocity: Any = None,
-                 progress: ProgressFn = None) -> TargetTrackResult:
+                 progress: ProgressFn = None,
+                 on_frame: Callable[[int, NDArray[np.float64], float], None] | None = None
+                 ) -> TargetTrackResult:
     """Track one marker in one camera from ``start`` towards ``stop``.
 
     Parameters
@@ -505,6 +525,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
         else none).
     progress : callable, optional
         ``progress(done, total)`` after each frame; returning False cancels.
+    on_frame : callable, optional
+        ``on_frame(frame, xy, score)`` after each frame given a position (tracked or a
+        keyframe passed through), before ``progress``: for showing a run as it goes.
 
     Returns
     -------
@@ -597,6 +620,14 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
+    back_params_first = replace(params, near_px=0, distance_penalty=0.0)
+    # the previous frame, for the backwards check of long steps: the start frame too (a
+    # keyframe's image is already decoded; get_image is the caller's cache)
+    prev_frame = start
+    # the motion is known once a step has been tracked (or given); until then the
+    # prediction is a guess and the first step is checked strictly
+    moving = start_velocity is not None and bool(np.any(velocity != 0))
+    first_step: int | None = None   # index of the step taken while the motion was unknown
     prev_img = None
     f = start
     for done in range(1, total + 1):
@@ -608,7 +639,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             new = keys[f]
             velocity = new - pos
             pos = new.copy()
-            prev_img = None
+            prev_frame, prev_img = f, None
             frames.append(f)
             xys.append(pos.copy())
             scores.append(1.0)
@@ -632,22 +663,43 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 ref = _Refiner(tpl, params.weight_fraction * params.pattern_size)
                 if pn is None:
                     refiners[rkey] = ref
-            xy, score = match_patch(img, tpl, pos + velocity, params, ref)
-            if (np.all(np.isfinite(xy)) and prev_img is not None
-                    and np.hypot(*(xy - pos)) > params.check_step_px
-                    and not _consistent_backwards(img, prev_img, xy, pos, back_params)):
-                xy, score = np.array([np.nan, np.nan]), 0.0
-            prev_img = img
+            # until the motion is known, the whole search region (and its ambiguity check)
+            xy, score = match_patch(img, tpl, pos + velocity,
+                                    params if moving else back_params_first, ref)
+            if np.all(np.isfinite(xy)) and (not moving
+                                            or np.hypot(*(xy - pos)) > params.check_step_px):
+                if prev_img is None:
+                    prev_img = get_image(prev_frame)
+                if not _consistent_backwards(img, prev_img, xy, pos, back_params,
+                                             strict=not moving):
+                    xy, score = np.array([np.nan, np.nan]), 0.0
+            prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)
             scores.append(score)
             if not np.all(np.isfinite(xy)) or score < params.break_threshold:
                 xys.append(np.array([np.nan, np.nan]))
                 reason = STOP_THRESHOLD
+                if (first_step is not None
+                        and len(frames) - 1 - first_step <= params.confirm_frames):
+                    # the track failed soon after its first step, taken with the motion
+                    # unknown: that step is not confirmed. A neighbour that moved into
+                    # the marker's place (or that a fast marker's first step found
+                    # instead of it) passes every check of one frame and loses the match
+                    # a few frames later; the run ends at the first step instead
+                    del frames[first_step + 1:], is_key[first_step + 1:]
+                    del scores[first_step + 1:], xys[first_step + 1:]
+                    xys[first_step] = np.array([np.nan, np.nan])
+                    scores[first_step] = 0.0
                 break
+            if not moving and score < params.confirm_score:
+                first_step = len(frames) - 1
             velocity = xy - pos
             pos = xy
+            moving = True
             xys.append(xy.copy())
+        if on_frame is not None:
+            on_frame(f, xys[-1], scores[-1])
         if progress is not None and progress(done, total) is False:
             reason = STOP_CANCELLED if f != start + total * direction else reason
             break
@@ -657,19 +709,74 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
 
 
 def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
-                          pos: NDArray, params: TargetTrackerParameters) -> bool:
+                          pos: NDArray, params: TargetTrackerParameters,
+                          strict: bool = False) -> bool:
     """Whether the patch found at ``xy`` leads back to ``pos`` in the previous image.
 
     A long step may have landed on a neighbouring marker: searched back in the previous
     image (around ``xy``, with no motion prior), the neighbour's patch finds the
     neighbour, not the tracked marker. Only long steps are checked (the caller), so
     this costs little on slow markers.
+
+    ``strict`` (the first step of a run, when the motion is unknown): every candidate in
+    the search region is scored by the NCC weighted to the marker, and the check fails
+    unless the best of them is ``pos`` and no other comes within the Ambiguity Margin.
+    A neighbour that moved into the place the tracked marker left matches the pattern
+    there (same background, a similar disc), but its own patch leads back to where it
+    came from, whose disc is the very same one.
     """
     tpl = _normalise(sample_patch(img, xy, params.pattern_size))
     if tpl is None:
         return False
-    back, _ = match_patch(prev_img, tpl, xy, params)
-    return bool(np.all(np.isfinite(back)) and np.hypot(*(back - pos)) < params.max_refine_px)
+    if not strict:
+        back, _ = match_patch(prev_img, tpl, xy, params)
+        return bool(np.all(np.isfinite(back))
+                    and np.hypot(*(back - pos)) < params.max_refine_px)
+    refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
+    cands = _candidates(prev_img, tpl, xy, params, refiner)
+    if not cands:
+        return False
+    return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
+
+
+def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
+                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6
+                ) -> list[tuple[NDArray[np.float64], float]]:
+    """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
+    refined and sorted by their marker-weighted NCC (best first)."""
+    P, S = params.pattern_size, params.search_size
+    hp, hs = P // 2, S // 2
+    H, W = image.shape[:2]
+    cx, cy = int(round(float(centre[0]))), int(round(float(centre[1])))
+    m = 3
+    x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
+    y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
+    if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
+        return []
+    crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
+    # candidates by the NCC weighted to the marker like the refinement: a neighbour on
+    # another background is a candidate too
+    mask = (refiner.wt.reshape(P, P) / refiner.wt.max()).astype(np.float32)
+    res = cv2.matchTemplate(crop[m:-m, m:-m], tpl, cv2.TM_CCOEFF_NORMED, mask=mask)
+    res = np.nan_to_num(res, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    peaks = (res >= cv2.dilate(res, np.ones((5, 5), np.uint8))) & (res > 0.3)
+    ys, xs = np.nonzero(peaks)
+    order = np.argsort(-res[ys, xs])[:n]
+    crop64 = crop.astype(np.float64)
+    out = []
+    for i in order:
+        peak = np.array([x0 + m + xs[i] + hp, y0 + m + ys[i] + hp], dtype=np.float64)
+        xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
+                                    params.tolerance_px)
+        if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
+            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0))
+    out.sort(key=lambda c: -c[1])
+    # one entry per place: peaks refined onto the same spot count once
+    uniq: list[tuple[NDArray[np.float64], float]] = []
+    for c in out:
+        if all(np.hypot(*(c[0] - u[0])) > max(hp // 2, 2) for u in uniq):
+            uniq.append(c)
+    return uniq
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:
