@@ -21,6 +21,7 @@ from carapost.algorithms.codes import (
     RECON_TRIANGULATED,
     blank_point_array,
 )
+from carapost.algorithms.depth_prior import sample_covariance, smooth_along_uncertainty
 from carapost.algorithms.tracking.identity import (
     absorb,
     drop_isolated,
@@ -245,7 +246,8 @@ def track_take(
     lo, hi = min(start, last), max(start, last)
     if cancelled or last == end2:
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
-                            merge_mm, intr, start, params.pose_smoothing_frames)
+                            merge_mm, intr, start, (params.pose_smoothing_frames,
+                                                  params.depth_smoothing_frames))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -280,13 +282,14 @@ def track_take(
         lo, hi = min(lo, bwd.first), max(hi, bwd.last)
     kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
-                        merge_mm, intr, start, params.pose_smoothing_frames)
+                        merge_mm, intr, start, (params.pose_smoothing_frames,
+                                                  params.depth_smoothing_frames))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 pose_window: int) -> TrackResult:
+                 windows: tuple[int, int]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -297,8 +300,10 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     3. Clear what still hops, drop found points triangulated in fewer than ``min_frames``
        frames and found points far from every other point (:func:`drop_isolated`).
     4. Fit the cameras' poses over time (:func:`smooth_camera_poses`, the start frame's
-       kept), triangulate the face samples again with them and estimate each
-       triangulated sample's sigma (:func:`sample_sigma`).
+       kept), triangulate the face samples again with them, estimate each
+       triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
+       prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
+       of the pose fit and of the depth prior. The sigma is that of the result.
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -311,7 +316,7 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     sl = slice(first, last + 1)
     o = {k: v[sl][:, keep] for k, v in A.items()}
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
-                                    np.arange(first, last + 1) == start, pose_window)
+                                    np.arange(first, last + 1) == start, *windows)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -320,9 +325,11 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
 
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
-                    window: int) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
+                    window: int, depth_window: int = 0
+                    ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
-    place, the ``fixed`` frame left alone) and estimate each sample's sigma."""
+    place, the ``fixed`` frame left alone), apply the depth prior from time over
+    ``depth_window`` frames and estimate each sample's sigma."""
     face = kind != KIND_BRIM
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
@@ -336,8 +343,19 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     noise = noise_from_residuals(obs_t, X, R, t, intr)
-    noise = noise * pair_holdout_scale(obs_t, X, R, t, intr, noise)
-    sigma = sample_sigma(X, obs, R, t, intr, noise)
+    scale = pair_holdout_scale(obs_t, X, R, t, intr, noise)
+    if depth_window < 5 or len(R) < 5 or not tri.any():
+        return R, t, sample_sigma(X, obs, R, t, intr, noise * scale)
+    # the depth prior from time: one-caddy depth follows the smooth track, well-seen
+    # directions keep their measurement (docs/algorithms.md). The residual noise is the
+    # part that changes from frame to frame; what the hold-out scale adds is the camera
+    # pose error that neighbouring frames share
+    cov = sample_covariance(X, obs_t, R, t, intr, noise)
+    Xs, cov = smooth_along_uncertainty(X, cov, depth_window, shared=scale ** 2 - 1.0)
+    moved = tri & ~fixed[:, None] & np.isfinite(Xs).all(-1)
+    o["positions"][moved] = Xs[moved].astype(o["positions"].dtype)
+    sigma = np.sqrt(np.einsum("fpii->fp", cov)).astype(np.float32)
+    sigma[~np.isfinite(X).all(-1)] = np.nan
     return R, t, sigma
 
 
