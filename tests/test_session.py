@@ -420,7 +420,7 @@ def test_two_step_form_is_the_synchronous_method(synth_take):
 
 
 def test_open_a_recovered_autosave_stays_unsaved(tmp_path, rng):
-    from carapost.io.cara import autosave_project
+    from carapost.io.autosave import autosave_project
 
     s = Session(make_project(rng))
     path = s.save(tmp_path / "a.cara")

@@ -15,14 +15,8 @@ from hypothesis import strategies as st
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.commands import edit
 from carapost.commands.stack import CommandError, CommandStack
-from carapost.io.cara import (
-    FORMAT_VERSION,
-    autosave_path,
-    autosave_project,
-    load_project,
-    recoverable_autosave,
-    save_project,
-)
+from carapost.io.autosave import autosave_path, autosave_project, recoverable_autosave
+from carapost.io.cara import FORMAT_VERSION, load_project, save_project
 from carapost.io.errors import CaraFileError
 from carapost.model.project import Stick
 

@@ -239,7 +239,8 @@ def test_open_project_survives_its_file_changing(tmp_path: Path, change: str) ->
         import os, sys
         sys.path[:0] = [{str(REPO)!r}, {str(REPO / "src")!r}]
         import numpy as np
-        from carapost.io.cara import load_project, autosave_project, save_project
+        from carapost.io.autosave import autosave_project
+        from carapost.io.cara import load_project, save_project
         path = {str(path)!r}
         project = load_project(path)
         before = {{k: a.copy() for k, a in project.points.arrays.items()}}
@@ -342,7 +343,7 @@ def test_kill_9_during_saves_keeps_the_original_and_leaves_no_debris(tmp_path: P
 # recovery: a newer autosave is never silently ignored
 # --------------------------------------------------------------------------------------
 def _crashed(tmp_path: Path) -> Path:
-    from carapost.io.cara import autosave_project
+    from carapost.io.autosave import autosave_project
 
     path = tmp_path / "take.cara"
     project = _small_project()
@@ -382,7 +383,7 @@ def test_cli_reports_a_newer_autosave_and_takes_recover(tmp_path: Path) -> None:
 
 
 def test_save_as_and_untitled_autosaves_are_moved(tmp_path: Path, monkeypatch) -> None:
-    from carapost.io.cara import autosave_path, autosave_project
+    from carapost.io.autosave import autosave_path, autosave_project
 
     monkeypatch.setenv("CARAPOST_AUTOSAVE_DIR", str(tmp_path / "auto"))
     project = _small_project()

@@ -87,7 +87,8 @@ def test_a_never_saved_project_is_autosaved_and_offered_after_a_crash(
 
 def test_discarding_a_saved_project_removes_the_autosave_this_session_wrote(
         make_window, tmp_path: Path) -> None:
-    from carapost.io.cara import autosave_path, save_project
+    from carapost.io.autosave import autosave_path
+    from carapost.io.cara import save_project
     from carapost.ui.handlers import file as file_menu
 
     path = tmp_path / "take.cara"

@@ -13,7 +13,8 @@ import pytest
 from PySide6.QtCore import QPointF, Qt
 from PySide6.QtWidgets import QApplication
 
-from carapost.io.cara import autosave_path, load_project, save_project
+from carapost.io.autosave import autosave_path
+from carapost.io.cara import load_project, save_project
 from carapost.synth.demo_project import render_dots
 from carapost.ui.frames import ArrayFrameSource
 from carapost.ui.handlers import edit as edit_menu

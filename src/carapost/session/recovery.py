@@ -29,7 +29,8 @@ def open_with_recovery(cls: type[Session], path: str | Path, *, relocate: Any = 
                        get_image: Any = None, source: str | Path | None = None,
                        recover: bool | None = None) -> Session:
     """`Session.open` (see there for the parameters)."""
-    from carapost.io.cara import load_project, recoverable_autosave
+    from carapost.io.autosave import recoverable_autosave
+    from carapost.io.cara import load_project
 
     newer = recoverable_autosave(path) if source is None and recover is not False else None
     if newer is not None and recover:

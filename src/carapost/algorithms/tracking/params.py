@@ -132,6 +132,9 @@ class TrackingParameters:
     #: Frames of the camera pose fit after tracking a take (`track_take`; below 5: off),
     #: see :func:`carapost.algorithms.uncertainty.smooth_camera_poses`.
     pose_smoothing_frames: int = param(11, min=0)
+    #: Frames of the depth prior from time after tracking a take (`track_take`; below 5:
+    #: off), see :func:`carapost.algorithms.depth_prior.smooth_along_uncertainty`.
+    depth_smoothing_frames: int = param(9, min=0)
 
     def __post_init__(self) -> None:
         validate(self)

@@ -21,6 +21,7 @@ from carapost.algorithms.codes import (
     RECON_TRIANGULATED,
     blank_point_array,
 )
+from carapost.algorithms.depth_prior import sample_covariance, smooth_along_uncertainty
 from carapost.algorithms.tracking.identity import (
     absorb,
     drop_isolated,
@@ -31,6 +32,7 @@ from carapost.algorithms.tracking.identity import (
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
+from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
     brim_pose_covariance,
     noise_from_residuals,
@@ -246,7 +248,9 @@ def track_take(
     lo, hi = min(start, last), max(start, last)
     if cancelled or last == end2:
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
-                            merge_mm, intr, start, params.pose_smoothing_frames)
+                            merge_mm, intr, start, (params.pose_smoothing_frames,
+                                                  params.depth_smoothing_frames,
+                                                  _outlier_target_px(params)))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -281,13 +285,15 @@ def track_take(
         lo, hi = min(lo, bwd.first), max(hi, bwd.last)
     kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
-                        merge_mm, intr, start, params.pose_smoothing_frames)
+                        merge_mm, intr, start, (params.pose_smoothing_frames,
+                                                  params.depth_smoothing_frames,
+                                                  _outlier_target_px(params)))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 pose_window: int) -> TrackResult:
+                 windows: tuple[int, int, float]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -298,9 +304,13 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     3. Clear what still hops, drop found points triangulated in fewer than ``min_frames``
        frames and found points far from every other point (:func:`drop_isolated`).
     4. Fit the cameras' poses over time (:func:`smooth_camera_poses`, the start frame's
-       kept), triangulate the face samples again with them and estimate each
-       triangulated sample's sigma (:func:`sample_sigma`, with the cameras' pose
-       covariance from the brim and each point's noise factor).
+       kept), triangulate the face samples again with them, estimate each
+       triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
+       prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
+       of the pose fit and of the depth prior and the target reprojection error (px) of
+       the outlier rejection. The sigma is that of the result, plus what no fit over
+       time removes: each point's excess noise (its noise factor) and the cameras' pose
+       error from the brim (:func:`sample_sigma`).
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -313,26 +323,67 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     sl = slice(first, last + 1)
     o = {k: v[sl][:, keep] for k, v in A.items()}
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
-                                    np.arange(first, last + 1) == start, pose_window)
+                                    np.arange(first, last + 1) == start, *windows)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
                        sigma=sigma)
 
 
+def _outlier_target_px(params: TrackingParameters) -> float:
+    """The per-frame tracker's target reprojection error (px, `FrameMatcher`)."""
+    return max(0.5, params.max_2d_projection_error / 5.0)
+
+
+def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrinsics,
+                       mask: NDArray[np.bool_], target_px: float
+                       ) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
+    """Triangulate the masked samples with outlier rejection (at most one camera
+    dropped): positions, residuals (mm) and the cameras each solution used."""
+    sel = np.where(mask[..., None, None], obs, np.nan)
+    params = TriangulationParameters(minimum_cameras=2, use_outlier_rejection=True,
+                                     maximum_cameras_to_drop=1,
+                                     target_reprojection_error=target_px,
+                                     refine_iterations=1)
+    res = triangulate(sel, R, t, intr, params)
+    return res.points, res.residual, res.contribution
+
+
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
-                    window: int) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
+                    window: int, depth_window: int = 0, target_px: float = 0.0
+                    ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
-    place, the ``fixed`` frame left alone) and estimate each sample's sigma."""
+    place, the ``fixed`` frame left alone), apply the depth prior from time over
+    ``depth_window`` frames and estimate each sample's sigma.
+
+    With ``target_px`` > 0 (the per-frame tracker's target) the re-solve rejects
+    outliers (one camera may be dropped from a sample seen by three or more, see
+    :func:`carapost.algorithms.triangulation.triangulate`) with a target of 6 times the
+    take's measured 2D noise, between 0.5 px and ``target_px``: an observation the
+    solution leaves out (a wrong match) is removed from the sample."""
     face = kind != KIND_BRIM
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():
         R, t = smooth_camera_poses(R, t, window, keep=fixed)
         redo = tri & ~fixed[:, None]
-        X, res = retriangulate(obs, R, t, intr, redo)
-        ok = redo & np.isfinite(X).all(-1)
+        if target_px > 0 and intr.n_cameras > 2:
+            # a wrong match stands out against the take's own centroid noise: the target
+            # is 6 times it (at least 0.5 px, at most the per-frame tracker's)
+            X0 = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+            s0 = float(np.median(noise_from_residuals(
+                np.where(tri[..., None, None], obs, np.nan), X0, R, t, intr)))
+            target = min(target_px, max(0.5, 6.0 * s0))
+            X, res, used = _resolve_rejecting(obs, R, t, intr, redo, target)
+            ok = redo & np.isfinite(X).all(-1)
+            drop = ok[..., None] & np.isfinite(obs).all(-1) & ~used
+            for k in ("obs", "source", "detection", "quality"):  # not its keyframes
+                o[k][drop] = POINT_FILLS[k]
+            obs[drop] = np.nan
+        else:
+            X, res = retriangulate(obs, R, t, intr, redo)
+            ok = redo & np.isfinite(X).all(-1)
         o["positions"][ok] = X[ok].astype(o["positions"].dtype)
         o["residual"][ok] = res[ok].astype(o["residual"].dtype)
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
@@ -341,7 +392,33 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     phi = point_noise_factor(obs_t, X, R, t, intr, noise)
     brim = ~face
     pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
-    sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov, point_factor=phi)
+    if depth_window < 5 or len(R) < 5 or not tri.any():
+        return R, t, sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
+                                  point_factor=phi)
+    # the depth prior from time: one-caddy depth follows the smooth track, well-seen
+    # directions keep their measurement (docs/algorithms.md). It reduces only the error
+    # that changes from frame to frame (the cameras' 2D noise, up to each point's own
+    # level); what neighbouring frames share is added to the sigma unchanged: a point's
+    # excess noise (phi above 1: a blob consistently off) and the cameras' pose error
+    # from the brim, both through `sample_sigma` (with the excess as its point factor)
+    shared = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
+                          point_factor=np.maximum(phi - 1.0, 0.0)).astype(np.float64)
+    own = np.minimum(phi, 1.0)
+    F, P = X.shape[:2]
+    sigma = np.full((F, P), np.nan, dtype=np.float32)
+    # a few points at a time: the covariances of a long take would not fit in memory
+    step = max(1, 500_000 // max(F, 1))
+    for p0 in range(0, P, step):
+        ps = slice(p0, p0 + step)
+        cov = sample_covariance(X[:, ps], obs_t[:, ps], R, t, intr, noise)
+        Xs, cov = smooth_along_uncertainty(X[:, ps], cov, depth_window)
+        moved = tri[:, ps] & ~fixed[:, None] & np.isfinite(Xs).all(-1)
+        block = o["positions"][:, ps]
+        block[moved] = Xs[moved].astype(block.dtype)
+        o["positions"][:, ps] = block
+        var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
+        sigma[:, ps] = np.sqrt(var)
+    sigma[~np.isfinite(X).all(-1)] = np.nan
     return R, t, sigma
 
 

@@ -30,7 +30,7 @@ def maybe_save(ctx: ActionContext) -> bool:
     When the project is left (saved or discarded), the autosave copies this session
     wrote go with it.
     """
-    from carapost.io.cara import discard_autosaves
+    from carapost.io.autosave import discard_autosaves
 
     if not ctx.is_modified or ctx.project.n_frames == 0:
         discard_autosaves(ctx.project)
@@ -47,7 +47,7 @@ def maybe_save(ctx: ActionContext) -> bool:
 def offer_untitled_recovery(ctx: ActionContext) -> bool:
     """At start: offer the newest autosave of a never-saved project that a session
     which did not end normally left behind; opened unsaved, as it was."""
-    from carapost.io.cara import untitled_autosaves
+    from carapost.io.autosave import untitled_autosaves
     from carapost.session import Session
 
     found = untitled_autosaves()
@@ -68,7 +68,7 @@ def offer_untitled_recovery(ctx: ActionContext) -> bool:
 
 def open_project(ctx: ActionContext, path: str | None = None) -> bool:
     """File > Open (Ctrl+O); offers the autosave copy when it is newer."""
-    from carapost.io.cara import recoverable_autosave
+    from carapost.io.autosave import recoverable_autosave
     from carapost.session import Session
 
     if not maybe_save(ctx):
@@ -133,7 +133,7 @@ def save_to(ctx: ActionContext, path: str) -> bool:
 
 def autosave(ctx: ActionContext) -> None:
     """Write the autosave copy beside the project when there are unsaved changes."""
-    from carapost.io.cara import autosave_project
+    from carapost.io.autosave import autosave_project
 
     # never-saved projects too (autosave_project puts them in the autosave folder)
     if ctx.is_modified and ctx.project.n_frames and not ctx.runner.busy:
