@@ -158,17 +158,18 @@ def report(res: dict, suffix: str = "") -> None:
 
 
 def problems(X: NDArray, suffix: str = "", seed: int = 3, n_spikes: int = 40,
-             n_swaps: int = 10) -> None:
+             n_swaps: int = 10, clean: bool = False) -> None:
     """Find Problems on the capture with injected spikes (3-8 mm, one or two frames) and
     identity swaps of neighbouring markers (swapped for 150 frames: two swap events).
     Reports on the untouched file are the file's own problems and are not counted as
-    false; a report of an injected problem is found when its point(s) and frame (+-2)
-    match."""
+    false, unless ``clean`` (data with truth and no problems of their own: every report
+    that is not an injected problem is false); a report of an injected problem is found
+    when its point(s) and frame (+-2) match."""
     from carapost.algorithms.cleanup import find_spikes, find_swaps
 
     F, P, _ = X.shape
     rng = np.random.default_rng(seed)
-    own = {(s.point, s.start) for s in find_spikes(X)} | {
+    own = set() if clean else {(s.point, s.start) for s in find_spikes(X)} | {
         (w.points, w.frame) for w in find_swaps(X)}
     Y = X.copy()
     spikes, swaps = [], []
@@ -200,16 +201,22 @@ def problems(X: NDArray, suffix: str = "", seed: int = 3, n_spikes: int = 40,
     found = sum(any(s.point == p and abs(s.start - f) <= 2 for s in got_s) for p, f in spikes)
     found += sum(any(tuple(sorted(w.points)) == pr and abs(w.frame - f) <= 2 for w in got_w)
                  for pr, f in swaps)
+    # a spike report on a swapped point while it carries the other one's trajectory is
+    # on wrong data (the swap's repair removes it); counted apart
+    in_swap = [s for s in got_s if any(s.point in pr and f - 3 <= s.start <= f + 153
+                                       for pr, f in swaps[::2])]
     false = [s for s in got_s if (s.point, s.start) not in own
              and not any(s.point == p and abs(s.start - f) <= 2 for p, f in spikes)
-             and not any(s.point in pr and abs(s.start - f) <= 3 for pr, f in swaps)]
+             and not any(s.point in pr and abs(s.start - f) <= 3 for pr, f in swaps)
+             and s not in in_swap]
     false += [w for w in got_w if (w.points, w.frame) not in own
               and not any(tuple(sorted(w.points)) == pr and abs(w.frame - f) <= 2
                           for pr, f in swaps)]
     total = len(spikes) + len(swaps)
     emit(f"find_problems_recall{suffix}", found / total, "", injected=total)
     emit(f"find_problems_false_per_1000_frames{suffix}", 1000 * len(false) / F, "",
-         false=len(false), own_reports=len(own), frames=F)
+         false=len(false), own_reports=len(own), frames=F,
+         spikes_inside_swapped_stretches=len(in_swap))
     emit(f"find_problems_s{suffix}", dt, "s")
 
 
@@ -291,7 +298,7 @@ def scene_check(suffix: str, frames: int = 1200, noise_mm: float = 0.05, **confi
     for name, e in (("auto", errs), ("linear", lin), ("cubic", cub)):
         emit(f"gapfill_scene_rmse_mm_L10_{name}{suffix}",
              np.sqrt(np.nanmean(np.concatenate(e) ** 2)), "mm", points=P, frames=F)
-    problems(X, "_scene" + suffix, n_spikes=30, n_swaps=6)
+    problems(X, "_scene" + suffix, n_spikes=30, n_swaps=6, clean=True)
 
 
 def synthetic_take(frames: int, points: int, seed: int = 1, gap_rate: float = 0.03
@@ -369,8 +376,12 @@ def main() -> None:
                    "_holdout_" + name.split("_")[0].split(".")[0])
     if not args.only_holdout:
         scene_check("", preset="speech", seed=1)
-        # held out: another rig and marker layout, another motion preset
-        scene_check("_holdout_variant7_fast", preset="fast", seed=4, variant=7)
+        # another rig and marker layout, another motion preset (fast blinks: used to
+        # tune the spike test, so no longer held out)
+        scene_check("_variant7_fast", preset="fast", seed=4, variant=7)
+        # held out, never tuned on: another seed of the fast preset, and the blink preset
+        scene_check("_holdout_fast_seed9", preset="fast", seed=9)
+        scene_check("_holdout_variant3_blink", preset="blink", seed=11, variant=3)
     if args.rendered:
         rendered(Path(args.rendered[0]), Path(args.rendered[1]))
     if not args.no_speed:

@@ -38,6 +38,7 @@ import resource
 import statistics
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -63,31 +64,62 @@ def rss_mb() -> float:
 class Stalls:
     """Longest gap between the ticks of a 10 ms timer on the GUI thread."""
 
-    def __init__(self) -> None:
+    def __init__(self, profiler=None) -> None:
         from PySide6.QtCore import Qt, QTimer
 
         self.timer = QTimer()
         self.timer.setTimerType(Qt.TimerType.PreciseTimer)
         self.timer.timeout.connect(self._tick)
         self.last = time.perf_counter()
+        self.last_cpu = time.thread_time()
         self.max_gap = 0.0
+        self.max_busy = 0.0  # GUI thread CPU time between two ticks (load-independent)
         self.phase = "open"
         self.by_phase: dict[str, float] = {}
+        self.busy_by_phase: dict[str, float] = {}
+        self.profiler = profiler
+        self._sched = f"/proc/self/task/{threading.get_native_id()}/schedstat"
+        self.last_runq = self._runq()
+        # the longest gap split into the GUI thread's CPU time, its wait for a core
+        # (run queue) and the rest (blocked: waiting for the GIL or a lock)
+        self.worst: dict[str, dict[str, float]] = {}
+
+    def _runq(self) -> float:
+        try:
+            with open(self._sched) as fh:
+                return int(fh.read().split()[1]) / 1e9
+        except OSError:
+            return 0.0
 
     def start(self) -> None:
         self.last = time.perf_counter()
+        self.last_cpu = time.thread_time()
+        self.last_runq = self._runq()
         self.timer.start(10)
 
     def _tick(self) -> None:
-        now = time.perf_counter()
-        gap = now - self.last
+        now, cpu, runq = time.perf_counter(), time.thread_time(), self._runq()
+        gap, busy = now - self.last, cpu - self.last_cpu
+        if gap > self.worst.get(self.phase, {}).get("gap_ms", 0.0) / 1e3:
+            wait = runq - self.last_runq
+            self.worst[self.phase] = {"gap_ms": round(gap * 1e3, 1),
+                                      "cpu_ms": round(busy * 1e3, 1),
+                                      "runqueue_ms": round(wait * 1e3, 1),
+                                      "blocked_ms": round((gap - busy - wait) * 1e3, 1)}
+        self.last_runq = runq
         self.max_gap = max(self.max_gap, gap)
+        self.max_busy = max(self.max_busy, busy)
         self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
-        self.last = now
+        self.busy_by_phase[self.phase] = max(self.busy_by_phase.get(self.phase, 0.0), busy)
+        if self.profiler is not None:
+            if gap > 0.04 or busy > 0.02:
+                self.profiler.attribute(self.last, now, busy, self.phase)
+            self.profiler.prune(now - 1.0)
+        self.last, self.last_cpu = now, cpu
 
 
 class Bench:
-    def __init__(self, app, take: Path) -> None:
+    def __init__(self, app, take: Path, profiler=None) -> None:
         from carapost.session import Session
         from carapost.ui.mainwindow import MainWindow
 
@@ -99,7 +131,7 @@ class Bench:
         self.session = Session.import_take(take)
         self.p = self.session.project
         self.views = []
-        self.stalls = Stalls()
+        self.stalls = Stalls(profiler)
         self.stalls.start()
 
     def pump(self, seconds: float = 0.0) -> None:
@@ -188,6 +220,7 @@ class Bench:
         self.pump(0.5)
         drawn: set[int] = set()
         t0 = time.perf_counter()
+        gui0, cpu0 = time.thread_time(), time.process_time()
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -195,9 +228,13 @@ class Bench:
                 drawn.add(p.current_frame)
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
+        gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source="originals",
-             take_fps=p.take.fps, seconds=round(elapsed, 2))
+             take_fps=p.take.fps, seconds=round(elapsed, 2),
+             reported_dropped=ctx.playback.dropped,
+             gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
 
     def playback_from_proxies(self, seconds: float = 6.0) -> None:
         """Write the proxies (View > Build Playback Proxies), then play from them."""
@@ -217,6 +254,7 @@ class Bench:
         self.pump(0.5)
         drawn: set[int] = set()
         t0 = time.perf_counter()
+        gui0, cpu0 = time.thread_time(), time.process_time()
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -225,10 +263,36 @@ class Bench:
                 drawn.add(p.current_frame)
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
+        gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source="proxies",
              take_fps=p.take.fps, seconds=round(elapsed, 2),
-             reported_dropped=ctx.playback.dropped)
+             reported_dropped=ctx.playback.dropped,
+             gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
+
+    def display_cost(self, count: int = 60) -> None:
+        """GUI thread CPU per frame with every image cached (no decoding): what one
+        frame costs to show in four views, whatever the load."""
+        # a tight loop of its own, not something an artist does: no stall ticks meanwhile
+        self.stalls.timer.stop()
+        start = self.p.n_frames // 4
+        frames = range(start, start + count)
+        for f in frames:  # fill the cache
+            self.go(f)
+        self.pump(0.3)
+        costs = []
+        for _ in range(2):
+            for f in frames:
+                c0 = time.thread_time()
+                self.w.set_frame(f)
+                self.w.flush()
+                for _ in range(3):  # delivery, then the paint events
+                    self.app.processEvents()
+                costs.append((time.thread_time() - c0) * 1e3)
+        emit("gui_frame_cpu_ms", statistics.median(costs), "ms", p95=round(p95(costs), 2),
+             frames=len(costs), note="GUI thread CPU per frame shown, images cached")
+        self.stalls.start()
 
     def detect_current(self) -> None:
         self.stalls.phase = "detect_current"
@@ -344,28 +408,59 @@ def main() -> None:
     ap.add_argument("take", nargs="?", help="take .json (default: render 300 frames)")
     ap.add_argument("--scrub-s", type=float, default=120.0)
     ap.add_argument("--codecs", action="store_true", help="also measure readers/proxies")
+    ap.add_argument("--profile", action="store_true",
+                    help="time the GUI thread's drawing and delivery; charge stalls to it")
+    ap.add_argument("--only", default="",
+                    help="comma-separated phases: jumps,steps,display,playback,detect,scrub,"
+                         "proxies")
     args = ap.parse_args()
     from carapost.ui.app import application
+
+    only = set(filter(None, args.only.split(",")))
+
+    def run(phase: str) -> bool:
+        return not only or phase in only
 
     tmp = tempfile.TemporaryDirectory()
     take = Path(args.take) if args.take else render_take(Path(tmp.name), 300)
     if args.codecs:
         bench_codecs(take)
+    profiler = None
+    if args.profile:
+        sys.path.insert(0, str(Path(__file__).parent))
+        from gui_profile import GuiProfiler
+
+        profiler = GuiProfiler()
+        profiler.install()
     app = application()
-    b = Bench(app, take)
+    b = Bench(app, take, profiler)
     cpu0 = time.process_time()
     b.open_and_first_jump()
-    b.jumps()
-    b.steps()
-    b.playback()
-    b.detect_current()
+    if run("jumps"):
+        b.jumps()
+    if run("steps"):
+        b.steps()
+    if run("display"):
+        b.display_cost()
+    if run("playback"):
+        b.playback()
+    if run("detect"):
+        b.detect_current()
     emit("gui_stall_ms_max", b.stalls.max_gap * 1e3, "ms",
          by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()})
-    b.scrub_session(args.scrub_s)
-    b.playback_from_proxies()
+    if run("scrub"):
+        b.scrub_session(args.scrub_s)
+    if run("proxies"):
+        b.playback_from_proxies()
     emit("gui_stall_ms_max_all", b.stalls.max_gap * 1e3, "ms",
          by_phase={k: round(v * 1e3) for k, v in b.stalls.by_phase.items()},
          note="including the scrub session and proxy playback")
+    emit("gui_busy_ms_max", b.stalls.max_busy * 1e3, "ms",
+         by_phase={k: round(v * 1e3) for k, v in b.stalls.busy_by_phase.items()},
+         note="GUI thread CPU time between two 10 ms ticks (the load does not stretch it)")
+    print(json.dumps({"longest_gap_split": b.stalls.worst}), flush=True)
+    if profiler is not None:
+        print(json.dumps({"profile": profiler.report()}, indent=1), flush=True)
     emit("cpu_s", time.process_time() - cpu0, "s")
     b.w.context.stack.mark_clean()  # no "save changes?" box for the detections made
     b.p.modified = False

@@ -1,14 +1,15 @@
 """Stabilisation benchmark: accuracy on tracked rendered takes, and speed.
 
-    python benchmarks/stabilise.py [--frames 300] [--takes speech,fast,heldout]
+    python benchmarks/stabilise.py [--frames 300] [--takes speech,fast,heldout,heldout2]
         [--skip-accuracy] [--skip-speed] [--speed-frames 36000] [--runs 3]
         [--workdir DIR]
 
 Prints JSON lines (``{"metric": ..., "value": ..., "unit": ...}`` plus context):
 
 - per take (``take``: ``speech`` and ``fast`` presets, seed 1; ``heldout``: the speech
-  preset on another rig and layout, ``variant`` 4, seed 11, never used for tuning and
-  reported separately with ``held_out: true``): the take is rendered, processed end to
+  preset on another rig and layout, ``variant`` 4, seed 11, and ``heldout2``: the fast
+  preset, ``variant`` 3, seed 12; never used for tuning and reported separately with
+  ``held_out: true``): the take is rendered, processed end to
   end by ``carapost.pipeline.process_take`` (blob detection, brim solve, Initialize 3D,
   tracking), its face points matched to the truth markers, and then stabilised through
   the Session:
@@ -52,6 +53,7 @@ TAKES = {
     "speech": dict(preset="speech", seed=1, variant=0),
     "fast": dict(preset="fast", seed=1, variant=0),
     "heldout": dict(preset="speech", seed=11, variant=4),
+    "heldout2": dict(preset="fast", seed=12, variant=3),
 }
 
 
@@ -100,7 +102,7 @@ def bench_take(name: str, frames: int, workdir: Path) -> None:
     if not out.exists():
         process_take(take, output=out)
     truth = dict(np.load(folder / "truth.npz"))
-    ctx = {"take": name, "frames": frames, **cfg, "held_out": name == "heldout"}
+    ctx = {"take": name, "frames": frames, **cfg, "held_out": name.startswith("heldout")}
 
     s = Session.open(out)
     p = s.project
@@ -221,7 +223,7 @@ def bench_speed(frames: int, runs: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--takes", default="speech,fast,heldout")
+    ap.add_argument("--takes", default="speech,fast,heldout,heldout2")
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--speed-frames", type=int, default=36_000)

@@ -381,6 +381,163 @@ def _speed(cfg: SynthConfig, scene, imgs: np.ndarray, m: int, decode: float | No
              share=round(decode / (decode + w), 3), load_average=_load())
 
 
+
+# ----------------------------------------------------------- partial occlusion, faded markers
+
+def bench_partial(frames: int, size: tuple[int, int], margin: int = 3) -> None:
+    """Partial occlusion (``SynthConfig.partial_occlusion``): an eyelid fold over the
+    upper-lid markers (``blink`` take) and curling lips over the lip markers (``speech``).
+
+    Keyframes from the truth (the disc centre) ``margin`` frames either side of every
+    covered stretch, tracked forwards from the first and backwards from the second with
+    Stop On Next Keyframe, at the default Break Threshold (0.9) and at 0 (every frame
+    gets a position); every tracked frame where the disc is partly covered and visible is
+    compared with the centroid of its visible part (``visible_uv``) and with its true
+    centre (``uv``)."""
+    for preset, kind in (("blink", "eyelid"), ("speech", "lip")):
+        cfg = SynthConfig(preset=preset, frames=frames, size=size, partial_occlusion=True)
+        scene, imgs = render(cfg)
+        covered = np.isfinite(scene.cover_offset)
+        cover_frac = np.clip((scene.marker_radius_mm[None] - scene.cover_offset)
+                             / (2 * scene.marker_radius_mm[None]), 0, 1)
+        for bt in (0.9, 0.0):
+            _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
+                         TargetTrackerParameters(break_threshold=bt))
+
+
+def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
+                 params) -> None:
+    """One Break Threshold of :func:`bench_partial`."""
+    uv, vis, vuv = scene.uv, scene.visible, scene.visible_uv
+    e_vis, e_cen, frac, wrong, n_frames, n_tracked, spans = [], [], [], 0, 0, 0, 0
+    for m in np.flatnonzero(covered.any(0)):
+        for c in range(scene.n_cameras):
+            for a, b in _runs(covered[:, m]):
+                k0, k1 = a - 1 - margin, b + 1 + margin
+                if k0 < 0 or k1 >= frames or not (vis[k0, m, c] and vis[k1, m, c]):
+                    continue
+                spans += 1
+                keys = {k0: uv[k0, m, c], k1: uv[k1, m, c]}
+                part = covered[:, m] & vis[:, m, c]
+                n_frames += int(part[a:b + 1].sum())
+                seen = np.zeros(frames, bool)
+                for start, stop, d in ((k0, k1, 1), (k1, k0, -1)):
+                    r = track_target(lambda f, c=c, im=imgs: im[f, c], keys, start=start,
+                                     stop=stop, direction=d, params=params)
+                    good = r.tracked & part[r.frames]
+                    wrong += int(_wrong(r.xy[r.tracked], r.frames[r.tracked],
+                                        uv[:, :, c], m))
+                    f = r.frames[good]
+                    seen[f] = True
+                    e_vis.extend(np.linalg.norm(r.xy[good] - vuv[f, m, c], axis=-1))
+                    e_cen.extend(np.linalg.norm(r.xy[good] - uv[f, m, c], axis=-1))
+                    frac.extend(cover_frac[f, m])
+                n_tracked += int(seen.sum())
+    ev, ec, fr = np.array(e_vis), np.array(e_cen), np.array(frac)
+    common = {"case": f"partial_{kind}", "preset": preset, "spans": spans,
+              "break_threshold": params.break_threshold,
+              "covered_visible_frames": n_frames, "frames": frames,
+              "size": f"{size[0]}x{size[1]}"}
+
+    def q(e: np.ndarray, p: float) -> float | None:
+        return round(float(np.percentile(e, p)), 4) if len(e) else None
+
+    emit("partial_occlusion_visible_median_px", q(ev, 50), "px", **common,
+         p95=q(ev, 95), against="visible-part centroid")
+    emit("partial_occlusion_centre_median_px", q(ec, 50), "px", **common,
+         p95=q(ec, 95), against="true centre")
+    half = fr >= 0.25
+    emit("partial_occlusion_centre_median_px_cover_ge_25pc", q(ec[half], 50), "px",
+         **common, samples=int(half.sum()), visible_median=q(ev[half], 50))
+    emit("partial_occlusion_tracked_fraction", round(n_tracked / max(n_frames, 1), 3),
+         "fraction", **common)
+    emit("partial_occlusion_wrong_marker", wrong, "tracks", **common)
+
+
+def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
+                       mode: str = "before") -> None:
+    """Markers the blob detector misses over a stretch (``SynthConfig.missed_markers``:
+    their ink fades to a low contrast), recovered through the Session as a script would.
+
+    The stretch has no 2D and no 3D (as after the blob detection and the automatic
+    tracker). ``mode="before"``: the artist selects the point on the last frame it was
+    detected, Add Keyframe To Current Frame, Track forward to the end of the stretch.
+    ``mode="inside"``: Edit Target Track at the marker (its truth) on the first frame
+    of the stretch where it is fully faded, Track forward to the end of the stretch,
+    then back to its start (the artist keys the marker as it looks while missed).
+    ``mode="gaps"``: Gaps To Keys (keyframes either side of the stretch), Track forward
+    from the first (Stop On Next Keyframe), then back from the second."""
+    import functools
+
+    from carapost import Session
+    from carapost.algorithms.blobs.detect import detect_blobs
+    from carapost.algorithms.blobs.params import BlobParameters
+    from carapost.synth.demo_project import scene_project
+    from carapost.synth.occlusion import MISSED_RAMP
+
+    project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=3,
+                                        decorate=False, missed_markers=n)
+    get = functools.lru_cache(maxsize=None)(get)
+    pts = project.points
+    s = Session(project, get_image=get)
+    missed = np.flatnonzero(scene.missed.any(0))
+    e2_all, rmse, worst2, complete, found, t = [], [], [], 0, 0, time.process_time()
+    recovered = cells = 0
+    for m in missed:
+        st = np.flatnonzero(scene.missed[:, m])
+        a, b = int(st[0]), int(st[-1])
+        mid = (a + b) // 2
+        found += sum(int(np.linalg.norm(detect_blobs(get(mid, c), BlobParameters()).centre
+                                        - scene.uv[mid, m, c], axis=1).min() < 1.5)
+                     for c in range(scene.n_cameras))
+        for name, fill in (("obs", np.nan), ("positions", np.nan), ("source", 0),
+                           ("detection", -1), ("recon", 0), ("keyframe", False)):
+            pts.arrays[name][a:b + 1, m] = fill
+        pid = int(pts.ids[m])
+        s.select(points=[pid])
+        if mode == "before":
+            s.current_frame = a - 1
+            s.add_keyframe()
+            s.target_track(+1, to=b)
+        elif mode == "gaps":
+            s.gaps_to_keys(pid)
+            s.current_frame = a - 1
+            s.target_track(+1)
+            s.current_frame = b + 1
+            s.target_track(-1)
+        else:
+            k = a + MISSED_RAMP
+            s.current_frame = k
+            for c in range(scene.n_cameras):
+                s.edit_target_track(pid, c, k, scene.uv[k, m, c])
+            s.target_track(+1, to=b)
+            s.target_track(-1, to=a)
+        e2 = np.linalg.norm(pts.obs[a:b + 1, m] - scene.uv[a:b + 1, m], axis=-1)
+        e3 = np.linalg.norm(pts.positions[a:b + 1, m] - scene.points3d[a:b + 1, m], axis=-1)
+        complete += int(np.isfinite(e2).all() and np.isfinite(e3).all())
+        recovered += int(np.isfinite(e2).sum())
+        cells += e2.size
+        e2_all.extend(e2[np.isfinite(e2)])
+        worst2.append(float(np.nanmax(e2)) if np.isfinite(e2).any() else np.nan)
+        rmse.append(float(np.sqrt(np.nanmean(e3 ** 2))) if np.isfinite(e3).any() else np.nan)
+    cpu = time.process_time() - t
+    e2_all = np.array(e2_all)
+    common = {"case": f"missed_faded_{mode}", "markers": len(missed), "frames": frames,
+              "stretch_frames": int(scene.missed[:, missed].sum(0).max()),
+              "labels": [scene.labels[m] for m in missed], "size": f"{size[0]}x{size[1]}"}
+    emit("missed_faded_detector_found", found, "images", **common,
+         of=len(missed) * scene.n_cameras, where="middle of each stretch")
+    emit("missed_faded_max_px", round(float(np.nanmax(worst2)), 4), "px", **common,
+         per_marker=[round(v, 3) for v in worst2])
+    emit("missed_faded_p95_px", round(float(np.percentile(e2_all, 95)), 4), "px", **common,
+         median=round(float(np.median(e2_all)), 4))
+    emit("missed_faded_rmse_mm", round(float(np.nanmax(rmse)), 4), "mm", **common,
+         per_marker=[round(v, 4) for v in rmse], statistic="worst marker")
+    emit("missed_faded_complete_fraction", round(complete / max(len(missed), 1), 3),
+         "fraction", **common, cpu_s=round(cpu, 1),
+         recovered_2d_fraction=round(recovered / max(cells, 1), 3))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300)
@@ -389,6 +546,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-blink", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-missed", action="store_true")
+    ap.add_argument("--partial", action="store_true",
+                    help="also the partial-occlusion takes (eyelid fold, lip curl)")
+    ap.add_argument("--faded", action="store_true",
+                    help="also the faded markers the blob detector misses")
+    ap.add_argument("--only-new", action="store_true",
+                    help="only --partial and --faded (skip everything else)")
     ap.add_argument("--klt", default="9x3,15x3,21x3,31x4",
                     help="KLT window x pyramid levels to try (the best is reported)")
     ap.add_argument("--speed-frames", type=int, default=600)
@@ -401,6 +564,8 @@ def main(argv: list[str] | None = None) -> int:
     CACHE_DIR = a.cache
     size = tuple(int(v) for v in a.size.split("x"))
     klt_configs = tuple(tuple(int(v) for v in k.split("x")) for k in a.klt.split(","))
+    if a.only_new:
+        a.skip_speed, a.skip_blink, a.skip_missed, a.cases = True, True, True, ""
     if not a.skip_speed:
         bench_speed(size, a.speed_frames, decode=not a.skip_decode)
     for name in [c for c in a.cases.split(",") if c]:
@@ -409,6 +574,11 @@ def main(argv: list[str] | None = None) -> int:
         bench_blink(a.frames, size)
     if not a.skip_missed:
         bench_missed(min(a.frames, 120), size)
+    if a.partial:
+        bench_partial(min(a.frames, 120), size)
+    if a.faded:
+        for mode in ("before", "inside", "gaps"):
+            bench_missed_faded(min(a.frames, 120), size, mode=mode)
     emit("load_average", _load(), "")
     return 0
 

@@ -35,8 +35,10 @@ Prints JSON lines:
   ``variety_over_0_5mm``, ``variety_swaps``, ``variety_spurious``,
   ``uncertainty_within_1sigma`` and ``uncertainty_within_2sigma`` (fraction of samples
   whose error is within their 1 / 2 sigma), one line per take and group, then the same
-  pooled over the takes (``take: "pooled"``). ``--variety-set heldout`` (the default)
-  scores the held-out takes, never used to tune; ``tuning`` the development ones.
+  pooled over the takes (``take: "pooled"``); the calibration also per number of
+  cameras that observed the sample (groups ``cameras_2``, ``cameras_3``, ``cameras_4``).
+  ``--variety-set heldout`` (the default) scores the held-out takes, never used to tune;
+  ``tuning`` the development ones.
 """
 
 from __future__ import annotations
@@ -252,6 +254,7 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
 
     indices = HELD_OUT_VARIANTS if which == "heldout" else TUNING_VARIANTS
     pooled: dict[str, list] = {g: [] for g in GROUPS}
+    by_cams: dict[int, list] = {}
     totals = {"swaps": 0, "spurious": 0}
     for index in indices:
         cfg = other_rig_config(index, frames=frames, take_name="take")
@@ -280,6 +283,11 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
         errs = _group_errors(truth["points3d"], truth["visible"], pos, sig, caddies)
         for g in GROUPS:
             pooled[g].append(errs[g])
+        n_obs = np.isfinite(project.points.obs[:, face][..., 0]).sum(-1)
+        for n, (e, sg) in _camera_count_errors(truth["points3d"], truth["visible"], pos, sig,
+                                               n_obs).items():
+            by_cams.setdefault(n, []).append((e, sg))
+            _emit_calibration(e, sg, {**common, "group": f"cameras_{n}"})
     pooled_q = {}
     for g in GROUPS:
         e = np.concatenate([x[0] for x in pooled[g]]) if pooled[g] else np.zeros(0)
@@ -299,6 +307,42 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
     pooled_q["all"].update(totals)
     _emit_groups(pooled_q, {"set": which, "take": "pooled", "frames": frames,
                             "takes": list(indices), "load_average": _load_average()})
+    for n in sorted(by_cams):
+        _emit_calibration(np.concatenate([x[0] for x in by_cams[n]]),
+                          np.concatenate([x[1] for x in by_cams[n]]),
+                          {"set": which, "take": "pooled", "frames": frames,
+                           "group": f"cameras_{n}"})
+
+
+def _camera_count_errors(truth, visible, pos, sig, n_obs):
+    """Errors and sigmas of the matched samples with a sigma, by the number of cameras
+    that observed the sample (2, 3, 4): the calibration per observation geometry."""
+    from carapost.synth.scoring import score_tracks
+
+    Y = np.asarray(pos, dtype=np.float64)
+    present = np.isfinite(Y[..., 0]).any(0)
+    Y, sg_p, n_p = Y[:, present], np.asarray(sig, np.float64)[:, present], n_obs[:, present]
+    s = score_tracks(Y, truth, np.asarray(visible).astype(bool))
+    out = {}
+    for i in np.flatnonzero(s.match >= 0):
+        e = np.linalg.norm(Y[:, i] - truth[:, s.match[i]], axis=-1)
+        ok = np.isfinite(e) & np.isfinite(sg_p[:, i]) & (sg_p[:, i] > 0)
+        for n in np.unique(n_p[ok, i]):
+            m = ok & (n_p[:, i] == n)
+            a = out.setdefault(int(n), ([], []))
+            a[0].append(e[m])
+            a[1].append(sg_p[m, i])
+    return {n: (np.concatenate(a[0]), np.concatenate(a[1])) for n, a in out.items()}
+
+
+def _emit_calibration(e, sg, extra: dict) -> None:
+    """uncertainty_within_1sigma / 2sigma of one group of samples."""
+    if e.size == 0:
+        return
+    extra = {**extra, "samples": int(e.size)}
+    emit("uncertainty_within_1sigma", round(float(np.mean(e <= sg)), 4), "fraction", **extra)
+    emit("uncertainty_within_2sigma", round(float(np.mean(e <= 2 * sg)), 4), "fraction",
+         **extra)
 
 
 def _group_errors(truth, visible, pos, sig, caddies):

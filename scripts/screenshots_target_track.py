@@ -5,7 +5,9 @@
 Writes ``target-track-selected.png`` (a camera view zoomed on a selected keyframe: blue
 pattern box, green search cross with white handles, centre circle; the Tracker pane)
 and ``target-track-selected-point.png`` (the Selected Point pane and continuity chart
-after a tracking run: white keyframe lines, the tracked span coloured by score).
+after a tracking run: white keyframe lines, the tracked span coloured by score) and
+``target-track-sizes.png`` (the same keyframe in two cameras, its pattern box and search
+cross resized in camera 0 by their handles, camera 1 at the default sizes).
 """
 
 from __future__ import annotations
@@ -72,10 +74,22 @@ def main(argv: list[str] | None = None) -> int:
     w.docks["Selected Point"].raise_()
     _settle(app)
     w.grab().save(str(out / "target-track-selected-point.png"))
+    s.set_target_track_size(pid, 0, pattern=15)
+    s.set_target_track_size(pid, 0, search=121)
+    w.set_frame(0)
+    ws.containers[1].set_spec("sensor:1")
+    w.docks["Tracker"].raise_()
+    _settle(app)
+    for c, container in enumerate(ws.containers[:2]):
+        x, y = scene.uv[0, m, c]
+        container.view.vb.setRange(QRectF(x - 80, y - 55, 160, 110), padding=0)
+    _settle(app)
+    w.grab().save(str(out / "target-track-sizes.png"))
     w.stack.clear()
     w.stack.mark_clean()
     w.close()
-    print(out / "target-track-selected.png", out / "target-track-selected-point.png")
+    print(out / "target-track-selected.png", out / "target-track-selected-point.png",
+          out / "target-track-sizes.png")
     return 0
 
 

@@ -11,6 +11,16 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 UI_TESTS = REPO / "tests" / "ui"
 
+try:  # property tests check behaviour, never speed: no per-example deadline
+    from hypothesis import HealthCheck as _HealthCheck
+    from hypothesis import settings as _hypothesis_settings
+
+    _hypothesis_settings.register_profile(
+        "carapost", deadline=None, suppress_health_check=[_HealthCheck.too_slow])
+    _hypothesis_settings.load_profile("carapost")
+except ImportError:  # pragma: no cover - hypothesis is a test dependency
+    pass
+
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test under ``tests/ui`` as ``gui`` (a conftest ``pytestmark`` is inert)."""

@@ -226,3 +226,17 @@ def test_console_progress_plain_lines_and_bars():
         bars.stage("Detect blobs")(50, 100)
     assert "Detect blobs" in drawn.getvalue()
 
+
+
+def test_synth_reports_a_write_failure_in_one_line(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from carapost.synth import cli as synth_cli
+
+    def full_disk(outdir, config, progress=None, workers=1):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "cam0.mkv"))
+
+    monkeypatch.setattr(synth_cli, "generate_take", full_disk)
+    assert main(["synth", str(tmp_path / "take"), "--frames", "2", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"carapost synth: error: {tmp_path / 'cam0.mkv'}: No space left on device"]

@@ -64,7 +64,7 @@ def open_project(path: str | Path, *, relocate: RelocateCallback | None = None,
     """
     session = Session.open(path, relocate=relocate, recover=recover)
     project = session.project
-    project.newer_autosave = session.newer_autosave  # type: ignore[attr-defined]
+    project.newer_autosave = session.newer_autosave
     return project
 
 

@@ -38,6 +38,9 @@ __all__ = ["ROM_FRAMES", "demo_cache_dir", "display_available", "ensure_demo_tak
 
 _COMPLETE = "complete.json"
 _RESULTS = "demo-results.json"
+# How the cached demo's videos are written: a cache of another layout is generated again
+# (FFV1 with a keyframe on every frame since "ffv1-intra": jumps decode one frame).
+_VIDEOS = "ffv1-intra"
 
 
 def demo_cache_dir(frames: int, name: str = "demo") -> Path:
@@ -92,12 +95,13 @@ def ensure_demo_take(frames: int, *, preset: str = "speech", seed: int = 0,
             info = json.loads(marker.read_text(encoding="utf-8"))
             take = folder / info["take"]
             truth = folder / info["truth"] if info.get("truth") else None
-            if take.exists():
+            if take.exists() and info.get("videos") == _VIDEOS:
                 _say(f"Using the demo take cached in {folder}")
                 return take, truth
         except (ValueError, KeyError, OSError):
             pass
-        log.info("The cached demo take in %s is incomplete; generating it again", folder)
+        log.info("The cached demo take in %s is incomplete or of an older layout; "
+                 "generating it again", folder)
     config = SynthConfig(preset=preset, markers="standard", frames=int(frames), seed=seed,
                          take_name=name.replace("-", "_"))
     folder.parent.mkdir(parents=True, exist_ok=True)
@@ -115,7 +119,7 @@ def ensure_demo_take(frames: int, *, preset: str = "speech", seed: int = 0,
                                           progress=bars.stage(f"Render {name}")))
         rel_take = produced.relative_to(tmp) if produced != tmp else Path(".")
         truth = next(iter(sorted(tmp.rglob("truth.npz"))), None)
-        info = {"take": str(rel_take),
+        info = {"take": str(rel_take), "videos": _VIDEOS,
                 "truth": str(truth.relative_to(tmp)) if truth is not None else None}
         (tmp / _COMPLETE).write_text(json.dumps(info), encoding="utf-8")
         if folder.exists():

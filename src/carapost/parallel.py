@@ -291,9 +291,10 @@ def map_arrays(
         Called on the calling thread before an array is sent to a process, to raise a
         clear error there (a bad array otherwise fails in the worker).
     progress : callable (done, total) -> bool, optional
-        Called on the calling thread after each finished array; returning False
-        cancels: no new arrays are started, the ones in flight finish, and what is done
-        is returned.
+        Called on the calling thread after each finished array, and before each array
+        is read (with the count unchanged, so a Cancel is seen while slow reads fill
+        the queue); returning False cancels: no new arrays are read or started, the
+        ones in flight finish, and what is done is returned.
     thread_name_prefix : str
         Name of the worker threads.
 
@@ -344,6 +345,12 @@ def map_arrays(
                 items: list[np.ndarray | tuple] = []
                 slots: list[int] = []
                 while len(task_keys) < chunk:
+                    # reading an image can be slow (a decode, a network share): a
+                    # Cancel pressed while the queue fills stops it here, not after
+                    # every image in flight has been read and processed
+                    if progress is not None and progress(len(results), total) is False:
+                        cancelled = True
+                        break
                     try:
                         key = next(it)
                     except StopIteration:

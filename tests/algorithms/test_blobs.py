@@ -552,7 +552,10 @@ def test_batch_matches_single_images_and_reports_progress(processes):
         assert len(ref) >= 12
         for x, y in zip(out[k], ref, strict=True):
             np.testing.assert_array_equal(x, y)
-    assert [d for d, _ in seen] == list(range(1, 11)) and all(t == 10 for _, t in seen)
+    # after each finished image (and, with the count unchanged, before each read)
+    done = [d for d, _ in seen]
+    assert done == sorted(done) and sorted(set(done)) == list(range(11))
+    assert all(t == 10 for _, t in seen)
 
 
 def test_batch_in_processes_applies_the_mask_and_reports_errors():

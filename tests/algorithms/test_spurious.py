@@ -71,3 +71,21 @@ def test_a_blob_much_larger_than_the_markers_is_not_a_marker(fast_truth):
     assert np.allclose(size, radius, rtol=0.01)
     found = find_spurious_points(X, recon, np.zeros(M, int), blob_size_mm=size)
     assert [(s.index, s.reason.split(":")[0]) for s in found] == [(7, "blob unlike a marker")]
+
+
+def test_misfit_alone_or_with_a_large_blob_marks_a_ghost(fast_truth):
+    """A huge ray misfit alone is enough; a moderate one only with a large blob; a marker
+    with either sign alone (a clipped blob, a marker near the lens) stays."""
+    X = fast_truth
+    F, M, _ = X.shape
+    recon = np.full((F, M), RECON_TRIANGULATED)
+    kind = np.zeros(M, int)
+    size = np.full(M, 1.4)
+    misfit = np.full(M, 1.0)
+    misfit[0], size[0] = 540.0, 1.4     # rays far apart, marker-sized blob: ghost
+    misfit[1], size[1] = 57.0, 2.5      # both weaker signs together: ghost
+    misfit[2], size[2] = 46.0, 1.0      # a marker whose blobs are off: kept
+    misfit[3], size[3] = 5.0, 2.4       # a large marker close to the lens: kept
+    found = find_spurious_points(X, recon, kind, blob_size_mm=size, misfit=misfit)
+    assert [(s.index, s.reason.split(":")[0]) for s in found] == [
+        (0, "rays do not meet"), (1, "blob and rays unlike a marker's")]

@@ -54,6 +54,38 @@ def test_assisted_and_auto_find_the_stable_points():
     assert auto < 0.15 and auto < raw / 8
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_auto_is_as_good_as_assisted_from_the_truly_rigid_points(seed):
+    X, expr, rigid = _take(seed=seed, noise=0.1)
+    raw = _rmse(np.broadcast_to(np.eye(4), (len(X), 4, 4)), X, expr)
+    assisted = _rmse(S.stabilise_assisted(X, rigid[:4], base_frame=0).transforms, X, expr)
+    st = S.stabilise_auto(X)
+    auto = _rmse(st.transforms, X, expr)
+    assert auto <= 1.02 * assisted and auto < raw / 8
+    # the chosen base frame is exactly the identity, the seeds are truly rigid points
+    assert np.array_equal(st.transforms[st.base_frame], np.eye(4))
+    assert np.isin(st.points, rigid).mean() >= 0.8
+
+
+def test_auto_does_not_follow_one_frames_expression():
+    # a strong expression on one frame (every point moves 3 mm but the rigid ones)
+    X, expr, rigid = _take(seed=4, noise=0.1)
+    Y = X.copy()
+    moving = np.setdiff1d(np.arange(X.shape[1]), rigid)
+    Y[0, moving] += np.random.default_rng(5).normal(0, 3.0, (len(moving), 3))
+    a = S.stabilise_auto(X)
+    b = S.stabilise_auto(Y)
+    # frames other than the changed one keep their stabilisation (to a common rigid
+    # transform: compare in each result's own base frame via one fit)
+    keep = np.arange(1, len(X))
+    assert _rmse(b.transforms[keep], X[keep], S.apply_transforms(a.transforms[keep],
+                                                                 X[keep])) < 0.01
+    calls = []
+    r = S.stabilise_auto(X, progress=lambda d, n: calls.append((d, n)) or len(calls) < 2)
+    assert r.cancelled and len(calls) == 2 and calls[0][1] >= calls[0][0] == 1
+    assert np.isfinite(r.transforms).all()
+
+
 def test_gaps_and_cancel():
     X, expr, rigid = _take()
     X = X.copy()

@@ -8,8 +8,10 @@ import pytest
 from carapost.algorithms.camera import CameraIntrinsics, project, rodrigues_to_matrix
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
+    brim_pose_covariance,
     noise_from_residuals,
     pair_holdout_scale,
+    point_noise_factor,
     sample_sigma,
     smooth_camera_poses,
 )
@@ -152,3 +154,101 @@ def test_track_take_fills_sigma_for_triangulated_samples():
     assert ok.sum() > 1000
     # the 2D noise is estimated from the take: most truth errors lie within 2 sigma
     assert 0.5 < np.mean(e[ok] <= s[ok]) and np.mean(e[ok] <= 2 * s[ok]) > 0.85
+
+
+def brim_dots():
+    """A brim arc of 17 dots above and in front of the face (mm)."""
+    a = np.linspace(-1.1, 1.1, 17)
+    return np.c_[110 * np.sin(a), np.full(17, -95.0), 40 + 110 * np.cos(a)]
+
+
+def test_brim_pose_covariance_matches_the_scatter_of_resections():
+    """Resect each camera from noisy brim dots many times: the scatter of the solved
+    poses is the covariance predicted from the dots' residuals."""
+    from carapost.algorithms.camera import pixels_to_normalised
+    from carapost.algorithms.pose import refine_poses
+
+    rng = np.random.default_rng(4)
+    intr, R, t = caddy_rig()
+    B = brim_dots()
+    uv0, _ = project(B, R, t, intr)  # (N, C, 2)
+    assert np.isfinite(uv0).all()
+    K, noise = 300, 0.05
+    uv = uv0[None] + rng.normal(0, noise, (K,) + uv0.shape)  # (K, N, C, 2)
+    errs, fits = [], []
+    for k in range(K):
+        xn = pixels_to_normalised(uv[k], intr).transpose(1, 0, 2)  # (C, N, 2)
+        fit = refine_poses(B, xn, R, t, scale=intr.focal, huber_px=None, iterations=10,
+                           linearise="camera")
+        dR = np.einsum("cij,ckj->cik", fit.R, R)  # fit = exp([w]x) R
+        w = np.stack([dR[:, 2, 1] - dR[:, 1, 2], dR[:, 0, 2] - dR[:, 2, 0],
+                      dR[:, 1, 0] - dR[:, 0, 1]], -1) / 2
+        errs.append(np.c_[w, fit.t - np.einsum("cij,cj->ci", dR, t)])
+        fits.append((fit.R, fit.t))
+    errs = np.array(errs)  # (K, C, 6)
+    # the residuals are those of the solved poses, as in a take
+    Rf, tf = np.array([f[0] for f in fits]), np.array([f[1] for f in fits])
+    cov, s_b = brim_pose_covariance(np.broadcast_to(B, (K,) + B.shape), uv, Rf, tf, intr)
+    # the residuals (2N - 6 degrees of freedom) give back the dots' noise
+    assert np.allclose(s_b, noise, rtol=0.1)
+    for c in range(4):
+        emp = np.var(errs[:, c], axis=0)
+        pred = np.diagonal(cov[:, c], axis1=-2, axis2=-1).mean(0)
+        assert np.all((emp > 0.6 * pred) & (emp < 1.6 * pred)), (c, emp / pred)
+
+
+def test_pose_error_shared_by_the_cameras_is_carried_by_sigma():
+    """The rig is off against the helmet by a small rigid motion in every frame (what a
+    brim error does to all cameras alike): the face points seen by all four cameras move
+    with it, which their residuals cannot show. Without the pose term their sigma is far
+    too small; with the pose covariance each camera sees, the errors fall within 1 / 2
+    sigma about as often as a normal error's."""
+    from carapost.algorithms.camera import cross_matrix
+
+    rng = np.random.default_rng(5)
+    intr, R, t = caddy_rig()
+    F, P, noise = 150, 20, 0.03
+    sd = np.r_[np.full(3, np.radians(0.01)), np.full(3, 0.03)]  # rad, mm
+    xi = rng.normal(0, 1, (F, 6)) * sd                           # world rotation, shift
+    X = face_points(rng, P)[None].repeat(F, 0)
+    moved = X + np.cross(xi[:, None, :3], X) + xi[:, None, 3:]
+    Rf, tf = np.broadcast_to(R, (F, 4, 3, 3)), np.broadcast_to(t, (F, 4, 3))
+    uv, _ = project(moved, Rf, tf, intr)
+    uv = uv + rng.normal(0, noise, uv.shape)
+    params = TriangulationParameters(minimum_cameras=2, refine_iterations=3)
+    Y = triangulate(uv, Rf, tf, intr, params).points
+    e = np.linalg.norm(Y - X, axis=-1)
+    # the same rigid error as each camera's pose error: omega_c = R w, delta_c = R d + [t]x R w
+    T = np.zeros((4, 6, 6))
+    T[:, :3, :3] = R
+    T[:, 3:, 3:] = R
+    T[:, 3:, :3] = np.einsum("cij,cjk->cik", np.array([cross_matrix(v) for v in t]), R)
+    cov = np.einsum("cij,jk,clk->cil", T, np.diag(sd ** 2), T)
+    cov = np.broadcast_to(cov, (F, 4, 6, 6))
+    est = noise_from_residuals(uv, Y, Rf, tf, intr)
+    plain = sample_sigma(Y, uv, Rf, tf, intr, est)
+    full = sample_sigma(Y, uv, Rf, tf, intr, est, pose_cov=cov)
+    assert np.mean(e <= plain) < 0.3
+    # an isotropic 3D error is within sqrt(trace) 61 % of the time, within twice it 99 %
+    assert 0.55 <= np.mean(e <= full) <= 0.75 and 0.95 <= np.mean(e <= 2 * full)
+
+
+def test_point_noise_factor_finds_the_point_with_bad_blobs():
+    rng = np.random.default_rng(6)
+    intr, R, t = caddy_rig()
+    F, P, noise = 60, 12, 0.1
+    X = face_points(rng, P)[None].repeat(F, 0)
+    Rf, tf = np.broadcast_to(R, (F, 4, 3, 3)), np.broadcast_to(t, (F, 4, 3))
+    uv, _ = project(X, Rf, tf, intr)
+    scale = np.ones(P)
+    scale[3] = 3.0  # one marker's blobs are three times as noisy (half hidden)
+    uv = uv + rng.normal(0, noise, uv.shape) * scale[None, :, None, None]
+    params = TriangulationParameters(minimum_cameras=2, refine_iterations=3)
+    Y = triangulate(uv, Rf, tf, intr, params).points
+    est = noise_from_residuals(uv, Y, Rf, tf, intr)
+    phi = point_noise_factor(uv, Y, Rf, tf, intr, est)
+    assert 5.0 < phi[3] < 14.0                        # about 3^2
+    assert np.all(np.delete(phi, 3) < 1.6)
+    s = sample_sigma(Y, uv, Rf, tf, intr, est, point_factor=phi)
+    e = np.linalg.norm(Y - X, axis=-1)
+    assert 0.5 < np.mean(e[:, 3] <= s[:, 3]) < 0.85

@@ -87,6 +87,7 @@ def snapshot(project: Project) -> dict:
         "ranges": (project.active_range, project.view_range),
         "selection": project.selection,
         "cameras": copy.deepcopy(project.take.cameras),
+        "target_sizes": dict(project.target_sizes),
     }
 
 

@@ -225,7 +225,7 @@ def test_detect_blobs_command_cameras_cancel_and_undo():
 
     def progress(done, total):
         calls.append(done)
-        return False
+        return done < 1
 
     cmd2 = DetectBlobs(p, (0, 2), cameras=[0], get_image=get_image, progress=progress,
                        workers=1)

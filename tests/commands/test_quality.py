@@ -69,3 +69,46 @@ def test_c3d_residual_word_carries_sigma_and_the_sidecar_lists_it(tmp_path):
     assert first["recon"] == "triangulated"
     blank = [r for r in rows if r["frame"] == "4" and r["label"] == first["label"]]
     assert blank and blank[0]["sigma_mm"] == ""
+
+
+def test_a_ghost_matched_across_caddies_is_removed_with_its_reason():
+    """A point made of marker a in one camera of caddy 0 and a neighbour b in one camera
+    of caddy 1 (the dense held-out take's ghost): it moves with the skin and its blobs
+    are a marker's, but its rays do not meet. Every real marker stays."""
+    from carapost.algorithms.codes import RECON_TRIANGULATED
+    from carapost.algorithms.triangulation import TriangulationParameters, triangulate
+    from carapost.commands.quality import spurious_points
+
+    project, scene, _ = scene_project(frames=60, size=(640, 360))
+    pts = project.points
+    cal = project.calibration
+    rng = np.random.default_rng(1)
+    obs = pts.obs.astype(np.float64) + rng.normal(0, 0.1, pts.obs.shape)  # blob noise
+    pts.obs[:] = obs
+    face = np.flatnonzero(pts.kind == 0)
+    seen = np.isfinite(obs[..., 0])
+    both = seen[:, face][:, :, 1].all(0) & seen[:, face][:, :, 2].all(0)
+    a = face[np.flatnonzero(both)[0]]
+    rest = np.nanmedian(pts.positions[:, face], 0)
+    d = np.linalg.norm(rest - rest[face == a], axis=-1)
+    d[~both | (d < 1e-6)] = np.inf
+    params = TriangulationParameters(minimum_cameras=2, use_outlier_rejection=False)
+
+    def ghost(b):
+        g = np.full(obs.shape[:1] + (1,) + obs.shape[2:], np.nan)
+        g[:, 0, 1], g[:, 0, 2] = obs[:, a, 1], obs[:, b, 2]
+        res = triangulate(g, cal.R, cal.t, cal.intrinsics, params)
+        return g, res.points, float(np.median(res.residual))
+
+    # of its five nearest neighbours, the one furthest off the epipolar line
+    near = face[np.argsort(d)[:5]]
+    b = max(near, key=lambda k: ghost(k)[2])
+    g, X, _ = ghost(b)
+    assert np.isfinite(X).all()
+    col = int(pts.append(1, labels=["Ghost"])[0])
+    pts.positions[:, col] = X[:, 0]
+    pts.recon[:, col] = RECON_TRIANGULATED
+    pts.obs[:, col] = g[:, 0]
+    found = spurious_points(project)
+    assert [lab for _, lab, _ in found] == ["Ghost"], found
+    assert found[0][2].startswith("rays do not meet")

@@ -146,7 +146,39 @@ def test_read_ahead_follows_the_direction(videos):
         assert fs.get_cached(48, 0) is not None  # decoded on the way from the keyframe
         fs.request(100, direction=-1)
         _wait_for(fs, 90, 1)
-        assert fs.get_cached(101, 1) is None
+        # then a third as far the other way, so that a step back is a cache hit too
+        _wait_for(fs, 103, 1)
+        time.sleep(0.3)
+        assert fs.get_cached(104, 1) is None and fs.get_cached(89 - 12, 1) is None
+
+
+def test_a_step_back_after_a_jump_is_read_ahead_in_all_intra_videos(tmp_path, rng):
+    """With a keyframe on every frame a jump decodes nothing before its target; the idle
+    decoder still reads a few frames back, so Prev Frame finds them cached."""
+    from carapost.io.encode import FFV1Writer
+
+    frames = _frames(rng, 60, 0)
+    path = tmp_path / "i_cam0.mkv"
+    with FFV1Writer(path, (W, H), 60.0) as w:
+        for img in frames:
+            w.write(img)
+    from carapost.io.video import VideoSource
+
+    VideoSource(path).verify_frame_count()  # as importing does (else one decode more)
+    with FrameService(_take([path], 60), read_ahead=9) as fs:
+        fs.request(30, direction=1)
+        _wait_for(fs, 39, 0)
+        for f in (29, 28, 27):
+            np.testing.assert_array_equal(_wait_for(fs, f, 0), frames[f])
+        reader = fs.source(0)._reader
+        assert reader.decoded == 9 + 1 + 3  # ahead, the target, behind: nothing twice
+        time.sleep(0.2)
+        assert fs.get_cached(26, 0) is None and fs.get_cached(40, 0) is None
+        fs.set_read_ahead(9, playing=True)  # playing: forward only
+        fs.request(10, direction=1)
+        _wait_for(fs, 19, 0)
+        time.sleep(0.2)
+        assert fs.get_cached(9, 0) is None
 
 
 def test_missing_and_truncated_videos_give_a_message_not_a_freeze(videos, tmp_path):
@@ -183,6 +215,33 @@ def test_keyframe_index_is_cached_and_invalidated(tmp_path, rng):
     _write(path, _frames(rng, 20, 0))  # the file changes: the stored index is stale
     assert KeyframeIndex.load(path) is None
     assert AVReader(path).n_frames == 20
+
+
+def test_opening_decodes_only_the_frame_wanted(tmp_path, rng):
+    """A jump right after opening decodes from the keyframe before the target only: no
+    probe of frame 0, and the check that the last frame decodes is done once per file
+    (the stored index keeps it), not on every opening."""
+    frames = _frames(rng, 60, 0)
+    path = _write(tmp_path / "o_cam0.mkv", frames)
+    from carapost.io.video import VideoSource
+
+    assert VideoSource(path).verify_frame_count() == 60  # as importing the take does
+    assert KeyframeIndex.load(path).decodable == 60
+    target = 41
+    with FrameService(_take([path], 60)) as fs:
+        np.testing.assert_array_equal(fs.get(target, 0), frames[target])
+        reader = fs.source(0)._reader
+        assert reader.decoded == target - reader.index.keyframe_before(target) + 1
+    # A file never checked: the check runs while the decoder is idle, and is stored.
+    fresh = _write(tmp_path / "p_cam0.mkv", frames)
+    with FrameService(_take([fresh], 60)) as fs:
+        fs.request(5)
+        _wait_for(fs, 5, 0)
+        deadline = time.perf_counter() + 10
+        while KeyframeIndex.load(fresh) is None or KeyframeIndex.load(fresh).decodable is None:
+            assert time.perf_counter() < deadline, "the last frame was never checked"
+            time.sleep(0.01)
+        assert KeyframeIndex.load(fresh).decodable == 60
 
 
 def test_proxies_stand_in_while_playing_and_never_for_processing(videos):

@@ -295,6 +295,11 @@ def test_take_files_written_and_readable(tiny_take):
             np.testing.assert_array_equal(gray, render_frame(sc, f, c))
         assert not cap.read()[0]
         cap.release()
+    # every frame a keyframe: a jump decodes one frame per camera
+    from carapost.io.decode import AVReader
+
+    index = AVReader(out / "T01_cam0.mkv").index
+    assert index.n_frames == 3 and index.keyframe.all()
 
 
 def test_written_xcp_reproduces_truth_2d(tiny_take):

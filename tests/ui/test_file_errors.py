@@ -85,6 +85,29 @@ def test_a_never_saved_project_is_autosaved_and_offered_after_a_crash(
     assert not file_menu.offer_untitled_recovery(make_window().context)
 
 
+def test_discarding_a_saved_project_removes_the_autosave_this_session_wrote(
+        make_window, tmp_path: Path) -> None:
+    from carapost.io.cara import autosave_path, save_project
+    from carapost.ui.handlers import file as file_menu
+
+    path = tmp_path / "take.cara"
+    save_project(_small_project(), path)
+    # a copy left by an earlier crash, declined at open: this session did not write it
+    stale = autosave_path(path)
+    stale.write_bytes(b"left by a crash")
+    w = make_window()
+    w.dialogs.confirm_answers.append(False)
+    assert file_menu.open_project(w.context, str(path))
+    assert file_menu.maybe_save(w.context)  # nothing changed: the crash's copy stays
+    assert stale.read_bytes() == b"left by a crash"
+    w.context.session.set_active_range(1, 4)
+    file_menu.autosave(w.context)
+    assert stale.read_bytes() != b"left by a crash"  # now the session's own copy
+    w.dialogs.ask_save_answers.append("discard")
+    assert file_menu.maybe_save(w.context)
+    assert not stale.exists()  # discarded changes are not offered on the next open
+
+
 def test_import_xcp_brim_and_labels_show_the_message(make_window, damaged, caplog) -> None:
     w = make_window(_small_project())
     before = (w.project.labels[:], w.project.calibration.intrinsics, len(w.stack))

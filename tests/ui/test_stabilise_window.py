@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 from PySide6.QtGui import QKeySequence
 
+from carapost.io.cara import load_project, save_project
 from carapost.model.stabilization import display_positions
 from carapost.synth.demo_project import scene_project
 
 
-def test_stabilise_toggle_align_remove(make_window, qtbot):
+def test_stabilise_toggle_align_remove(make_window, qtbot, tmp_path):
     p, _, _ = scene_project(frames=40, preset="speech", seed=1)
     w = make_window(p)
     labels = list(p.points.labels)
@@ -36,10 +37,21 @@ def test_stabilise_toggle_align_remove(make_window, qtbot):
     n = len(w.stack.history())
     w.action("process.align").trigger()
     assert p.alignment is not None and len(w.stack.history()) == n + 1
+    assert p.alignment.point_ids == tuple(sorted(int(p.points.ids[c]) for c in three))
+    # clicked one by one, highest id first: the first click is the origin
+    clicks = sorted((int(p.points.ids[c]) for c in three), reverse=True)
+    p.set_selection(points=[])
+    for k in range(3):
+        p.set_selection(points=p.selection.points | {clicks[k]})
+    w.dialogs.texts.append("xy")
+    w.action("process.align").trigger()
+    assert p.alignment.point_ids == tuple(clicks) and len(w.stack.history()) == n + 2
+    saved = save_project(p, tmp_path / "aligned.cara", autosave=True)
+    assert load_project(saved).selection.ordered_points() == clicks  # kept in the file
     # a refusal is reported, not raised
     p.set_selection(points=[int(p.points.ids[three[0]])])
     w.action("process.align").trigger()
-    assert len(w.stack.history()) == n + 1
+    assert len(w.stack.history()) == n + 2
     w.action("process.remove_stab").trigger()
     assert p.stabilization is None and p.alignment is None and not p.show_stabilized
     w.action("edit.undo").trigger()

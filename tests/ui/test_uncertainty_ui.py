@@ -35,3 +35,43 @@ def test_graph_band_and_selected_point_sigma(make_window, demo, qtbot):
     p.current_frame = 50
     pane.refresh(None)
     assert "at frame 50: triangulated, sigma unknown" in pane.sample.text()
+
+
+def test_3d_view_uncertainty_option_colours_points_by_sigma(make_window, demo, qtbot):
+    from PySide6.QtGui import QColor
+    from PySide6.QtWidgets import QMenu
+
+    from carapost.ui.views.sigma_colours import sigma_rgb
+
+    p, frames = demo
+    f = 0
+    sig = p.points.arrays["sigma"]
+    sig[:] = np.nan
+    sig[f, 4], sig[f, 5] = 0.02, 0.9     # well determined (blue), doubtful (red)
+    w = make_window(p, frames)
+    w.show()
+    w.workspace.containers[1].set_spec("3d")
+    w.flush()
+    qtbot.wait(30)
+    v3 = w.workspace.containers[1].view
+    menu = QMenu()
+    v3.add_menu_items(menu)
+    item = next(a for a in menu.actions() if a.text() == "Uncertainty")
+    assert item.isCheckable() and not item.isChecked()   # off by default
+    xy, _ = v3.to_screen(p.points.positions[f].astype(float))
+
+    def colour_at(col):
+        img = v3.grab().toImage()
+        return QColor(img.pixel(int(round(xy[col, 0])), int(round(xy[col, 1]))))
+
+    off = colour_at(4)
+    item.trigger()                                         # the menu toggles the option
+    assert v3.ctx.options.uncertainty
+    w.flush()
+    qtbot.wait(30)
+    for col in (4, 5, 6):                                  # 6: sigma unknown -> grey
+        want = sigma_rgb(np.array([sig[f, col]]))[0]
+        got = colour_at(col)
+        assert abs(got.red() - int(want[0])) < 25 and abs(got.blue() - int(want[2])) < 25, col
+    assert colour_at(4) != off
+    assert colour_at(4).blue() > colour_at(4).red() and colour_at(5).red() > colour_at(5).blue()

@@ -104,6 +104,9 @@ class ProblemParameters:
     spike_robust_factor: float = param(8.0, min=1.0, max=100.0)
     swap_tolerance: float = param(0.35, min=0.01, max=1.0)
     max_spike_frames: int = param(2, min=1, max=10)
+    recur_min: int = param(3, min=1, max=1000)
+    recur_cos: float = param(0.8, min=-1.0, max=1.0)
+    smooth_ratio: float = param(0.2, min=0.0, max=10.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -198,6 +201,20 @@ def _head(X: NDArray) -> NDArray:
     return Y
 
 
+def _running_median(y: NDArray, half: int = 2) -> NDArray:
+    """Median of each sample's 2 half + 1 frame window (ignoring missing samples), y
+    (F, p, 3); NaN where the sample itself is missing."""
+    import warnings
+
+    pad = np.pad(y, ((half, half), (0, 0), (0, 0)), constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(win, axis=-1)
+    med[~np.isfinite(y)] = np.nan
+    return med
+
+
 def _median_deviation(y: NDArray, half: int = 2) -> NDArray:
     """Distance of each sample of y (F, p, 3) from the median of its 2 half + 1 frame
     window (NaN where fewer than 4 of the window's samples exist)."""
@@ -225,8 +242,6 @@ def find_spikes(X: NDArray, params: ProblemParameters | None = None,
     deviations of that offset's usual deviation): fast expressions move the neighbours
     too, so the offset stays smooth where the trajectory alone does not.
     """
-    import warnings
-
     from carapost.algorithms.gapfill_methods import neighbour_table
 
     prm = params or ProblemParameters()
@@ -236,33 +251,124 @@ def find_spikes(X: NDArray, params: ProblemParameters | None = None,
         return []
     known = np.isfinite(Y[..., 0])
     nb, nbw = neighbour_table(Y, known, 6)
-    out: list[Spike] = []
+    # two passes: the second reads each neighbour with the samples the first flagged
+    # replaced by its 5-frame running median, so that one point's spike does not make
+    # the points around it look spiky
+    flags = np.zeros((F, P), bool)
     for p0 in range(0, P, 32):
-        y = Y[:, p0:p0 + 32]
-        dev_y = _median_deviation(y)
-        if nb.shape[1]:
-            q = nb[p0:p0 + 32]                                       # (p, K)
-            qq = np.maximum(q, 0)
-            vals = Y[:, qq]                                          # (F, p, K, 3)
-            w = np.where((q >= 0)[None] & np.isfinite(vals[..., 0]), nbw[p0:p0 + 32][None],
-                         0.0)
-            sw = w.sum(-1)
-            with np.errstate(all="ignore"):
-                mean = np.einsum("fpk,fpki->fpi", w, np.nan_to_num(vals)) / sw[..., None]
-            r = y - np.where((sw > 0)[..., None], mean, np.nan)
-            dev = _median_deviation(r)
-        else:
-            dev = dev_y
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            scale = 1.4826 * np.nanmedian(dev, axis=0)
-        thr = np.maximum(prm.spike_threshold_mm, prm.spike_robust_factor * np.nan_to_num(scale))
-        flag = (np.nan_to_num(dev) > thr[None]) & (np.nan_to_num(dev_y) > prm.spike_threshold_mm)
+        flags[:, p0:p0 + 32] = _spike_flags(Y, Y, nb, nbw, p0, prm)[0]
+    Yc = Y
+    if flags.any():
+        Yc = Y.copy()
+        for p0 in range(0, P, 32):
+            sub = flags[:, p0:p0 + 32]
+            if sub.any():
+                Yc[:, p0:p0 + 32][sub] = _running_median(Y[:, p0:p0 + 32])[sub]
+    out: list[Spike] = []
+    shapes: list[tuple[NDArray, float]] = []
+    # the point's own history: its events at half the thresholds (start, deviation)
+    history: dict[int, list[tuple[int, NDArray]]] = {}
+    for p0 in range(0, P, 32):
+        flag, dev_y, res, weak = _spike_flags(Y, Yc, nb, nbw, p0, prm)
         for j in range(flag.shape[1]):
             for a, b in _runs1(flag[:, j]):
                 if b - a + 1 > prm.max_spike_frames:
                     continue
+                vec, ratio = _event_shape(res[:, j], a, b)
                 out.append(Spike(p0 + j, a, b, float(np.nanmax(dev_y[a:b + 1, j]))))
+                shapes.append((vec, ratio))
+            if flag[:, j].any():
+                history[p0 + j] = [(a, _event_shape(res[:, j], a, b)[0])
+                                   for a, b in _runs1(weak[:, j])
+                                   if b - a + 1 <= 2 * prm.max_spike_frames]
+    keep = ~_consistent_motion(out, shapes, history, prm)
+    return [s for s, k in zip(out, keep, strict=True) if k]
+
+
+def _spike_flags(Y: NDArray, Ynb: NDArray, nb: NDArray, nbw: NDArray, p0: int,
+                 prm: ProblemParameters, block: int = 32
+                 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """The spike test of points ``p0 .. p0 + block - 1``, their neighbours read from
+    ``Ynb``: flags (F, p) bool, the deviation of the trajectories themselves (F, p) mm
+    and the trajectories tested (F, p, 3): offsets from the neighbours, or the
+    trajectories where there are no neighbours; and the flags at half the thresholds
+    (F, p) bool."""
+    import warnings
+
+    y = Y[:, p0:p0 + block]
+    dev_y = _median_deviation(y)
+    if nb.shape[1]:
+        q = nb[p0:p0 + block]                                       # (p, K)
+        qq = np.maximum(q, 0)
+        vals = Ynb[:, qq]                                           # (F, p, K, 3)
+        w = np.where((q >= 0)[None] & np.isfinite(vals[..., 0]), nbw[p0:p0 + block][None],
+                     0.0)
+        sw = w.sum(-1)
+        with np.errstate(all="ignore"):
+            mean = np.einsum("fpk,fpki->fpi", w, np.nan_to_num(vals)) / sw[..., None]
+        r = y - np.where((sw > 0)[..., None], mean, np.nan)
+        dev = _median_deviation(r)
+    else:
+        r, dev = y, dev_y
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        scale = 1.4826 * np.nanmedian(dev, axis=0)
+    thr = np.maximum(prm.spike_threshold_mm, prm.spike_robust_factor * np.nan_to_num(scale))
+    flag = (np.nan_to_num(dev) > thr[None]) & (np.nan_to_num(dev_y) > prm.spike_threshold_mm)
+    weak = ((np.nan_to_num(dev) > 0.5 * thr[None])
+            & (np.nan_to_num(dev_y) > 0.5 * prm.spike_threshold_mm))
+    return flag, dev_y, r, weak
+
+
+def _event_shape(r: NDArray, a: int, b: int) -> tuple[NDArray, float]:
+    """Deviation vector (3,) of a candidate spike (frames a..b of the trajectory r
+    (F, 3)) from the straight line through the samples two frames outside it, and the
+    share of that deviation already present one frame outside it (0 for a sample that
+    leaves the trajectory and comes back, about one half for fast but smooth motion
+    caught mid-way)."""
+    F = len(r)
+    lo, hi = a - 2, b + 2
+    if lo < 0 or hi >= F or not (np.isfinite(r[lo]).all() and np.isfinite(r[hi]).all()):
+        return np.full(3, np.nan), np.nan
+
+    def base(t: int) -> NDArray:
+        w = (t - lo) / (hi - lo)
+        return (1 - w) * r[lo] + w * r[hi]
+
+    seg = r[a:b + 1] - np.stack([base(t) for t in range(a, b + 1)])
+    k = int(np.nanargmax(np.linalg.norm(seg, axis=-1)))
+    vec = seg[k]
+    size = float(np.linalg.norm(vec))
+    side = max(float(np.linalg.norm(r[a - 1] - base(a - 1))),
+               float(np.linalg.norm(r[b + 1] - base(b + 1))))
+    return vec, side / size if size > 0 else np.nan
+
+
+def _consistent_motion(spikes: list[Spike], shapes: list[tuple[NDArray, float]],
+                       history: dict[int, list[tuple[int, NDArray]]],
+                       prm: ProblemParameters) -> NDArray[np.bool_]:
+    """Candidates that are the point's own fast but consistent motion (a blink), not
+    spikes: the same deviation (direction within ``recur_cos``, size within a factor 3)
+    recurs at ``recur_min`` or more other times in the point's history (its events at
+    half the spike thresholds), and the motion passes through intermediate positions
+    (``smooth_ratio`` of the deviation one frame outside it). A sample that jumps away
+    and back, or a jump that does not recur, is kept."""
+    out = np.zeros(len(spikes), bool)
+    for i, (s, (v, ratio)) in enumerate(zip(spikes, shapes, strict=True)):
+        if not ratio >= prm.smooth_ratio:                      # NaN: not smooth
+            continue
+        past = [(a, u) for a, u in history.get(s.point, [])
+                if abs(a - s.start) > 2 * prm.max_spike_frames and np.isfinite(u).all()]
+        if len(past) < prm.recur_min:
+            continue
+        U = np.array([u for _, u in past])
+        size = float(np.linalg.norm(v))
+        su = np.linalg.norm(U, axis=-1)
+        with np.errstate(all="ignore"):
+            cos = (U @ v) / (su * size)
+            rel = su / size
+        like = (cos > prm.recur_cos) & (rel > 1 / 3) & (rel < 3.0)
+        out[i] = int(like.sum()) >= prm.recur_min
     return out
 
 

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms import _gapfill_jit as _jit
 from carapost.algorithms.gapfill_methods import (
     gap_samples,
     guide_fill,
@@ -63,7 +64,6 @@ from carapost.algorithms.gapfill_methods import (
     lowrank_fill,
     neighbour_table,
     spline_fill,
-    to_head,
 )
 from carapost.algorithms.params import param, validate
 
@@ -246,20 +246,11 @@ def _ends_blend(fit: NDArray, Y: NDArray, point: NDArray, start: NDArray, end: N
                 left: NDArray, right: NDArray) -> NDArray:
     """Low-rank fit of each gap sample plus its offset to the data at the anchors, blended
     linearly across the gap (one-sided: the one offset)."""
-    F = Y.shape[0]
-    g, f = gap_samples(start, end)
-    p = point[g]
-    a = np.clip(start[g] - 1, 0, F - 1)
-    b = np.clip(end[g] + 1, 0, F - 1)
-    ra = Y[a, p] - fit[a, p]
-    rb = Y[b, p] - fit[b, p]
-    lf, rt = left[g], right[g]
-    w = ((f - (start[g] - 1)) / (end[g] + 1 - (start[g] - 1)))[:, None]
-    off = np.where(lf[:, None] & rt[:, None], (1 - w) * ra + w * rb,
-                   np.where(lf[:, None], ra, rb))
-    out = fit[f, p] + off
-    out[~(lf | rt)] = np.nan
-    return out
+    if not len(point):
+        return np.zeros((0, 3))
+    return _jit.ends_blend(np.ascontiguousarray(fit), np.ascontiguousarray(Y),
+                           *(np.ascontiguousarray(a, np.int64) for a in (point, start, end)),
+                           *(np.ascontiguousarray(a, np.bool_) for a in (left, right)))
 
 
 def _method_fills(name: str, Y: NDArray, known: NDArray, point: NDArray, start: NDArray,
@@ -383,17 +374,20 @@ def fill_gaps(positions: NDArray, fill: NDArray[np.bool_], known: NDArray[np.boo
     if not tick(0):
         return _empty(F, P, point, start, end, status, messages, cancelled=True)
 
-    Xz = np.where(kn[..., None], X, 0.0)
     # the head's motion from at most 64 of the most-seen points: as good a rigid fit,
     # a fraction of the work on takes with hundreds of points
     best = np.sort(np.argsort(-nknown_all(kn))[:64])
-    Rh, th, _ = head_frame(Xz[:, best], kn[:, best], zeroed=True)
+    kb = kn[:, best]
+    Rh, th, _ = head_frame(np.where(kb[..., None], X[:, best], 0.0), kb, zeroed=True)
     # float32 storage halves the memory traffic of the gathers (1.5e-5 mm at 200 mm)
-    Y = to_head(Xz, Rh, th).astype(np.float32)
-    del Xz
-    Y[~kn] = np.nan
+    kn = np.ascontiguousarray(kn)
+    Y = _jit.to_head32(np.ascontiguousarray(X), kn, np.ascontiguousarray(Rh),
+                       np.ascontiguousarray(th))
     nb, nbw = neighbour_table(Y, kn, prm.neighbours)
-    world = (np.where(kn[..., None], X, np.nan).astype(np.float32), Rh, th)
+    # the capture-frame data, for auto's "cubic" candidate only
+    world = ((_jit.to_head32(np.ascontiguousarray(X), kn, np.tile(np.eye(3), (F, 1, 1)),
+                             np.zeros((F, 3))), Rh, th)
+             if prm.method == "auto" else None)
     if not tick(1):
         return _empty(F, P, point, start, end, status, messages, cancelled=True)
 

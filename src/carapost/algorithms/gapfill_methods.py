@@ -19,6 +19,8 @@ import warnings
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms import _gapfill_jit as _jit
+
 __all__ = ["gap_samples", "guide_fill", "head_frame", "interpolate_columns", "lowrank_fill",
            "neighbour_table", "spline_fill", "to_head", "to_world"]
 
@@ -168,6 +170,18 @@ def neighbour_table(Y: NDArray, known: NDArray[np.bool_], k: int, *,
     return nb.astype(np.intp), w
 
 
+def _f32(Y: NDArray) -> NDArray:
+    return np.ascontiguousarray(Y, dtype=np.float32)
+
+
+def _ip(a: NDArray) -> NDArray:
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def _b(a: NDArray) -> NDArray:
+    return np.ascontiguousarray(a, dtype=np.bool_)
+
+
 def gap_samples(start: NDArray, end: NDArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Flat sample table of gaps: (gap index, frame) of every gap sample, gap by gap."""
     lengths = (end - start + 1).astype(np.intp)
@@ -175,13 +189,6 @@ def gap_samples(start: NDArray, end: NDArray) -> tuple[NDArray[np.intp], NDArray
     first = np.cumsum(lengths) - lengths
     f = start[g] + (np.arange(len(g)) - first[g])
     return g.astype(np.intp), f.astype(np.intp)
-
-
-def _blend(fwd: NDArray, bwd: NDArray, use_f: NDArray, use_b: NDArray, wgt: NDArray) -> NDArray:
-    both = use_f & use_b
-    out = np.where(use_f[:, None], fwd, bwd)
-    out[both] = (1 - wgt[both, None]) * fwd[both] + wgt[both, None] * bwd[both]
-    return out
 
 
 def guide_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDArray,
@@ -202,41 +209,15 @@ def guide_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDAr
         Head-frame positions of the samples of :func:`gap_samples`; NaN for a gap
         with neither anchor.
     """
-    g, f = gap_samples(start, end)
-    p = point[g]
-    a = start[g] - 1
-    b = end[g] + 1
-    F = Y.shape[0]
-    use_f = left[g]
-    use_b = right[g]
-    out = []
-    for anchor, use in ((a, use_f), (b, use_b)):
-        anc = np.clip(anchor, 0, F - 1)
-        yp = Y[anc, p]
-        if nb.shape[1]:
-            q = nb[p]                                   # (S, K)
-            qq = np.maximum(q, 0)
-            ok = (q >= 0) & known[f[:, None], qq] & known[anc[:, None], qq]
-            w = np.where(ok, nbw[p], 0.0)
-            disp = Y[f[:, None], qq] - Y[anc[:, None], qq]  # (S, K, 3)
-            disp = np.where(ok[..., None], disp, 0.0)
-            sw = w.sum(1)
-            move = (w[..., None] * disp).sum(1) / np.maximum(sw, 1e-300)[:, None]
-            move[sw <= 0] = 0.0
-        else:
-            move = np.zeros_like(yp)
-        pred = yp + move
-        pred[~use] = np.nan
-        out.append(pred)
-    wgt = (f - a) / np.maximum(b - a, 1)
-    res = _blend(out[0], out[1], use_f, use_b, wgt.astype(np.float64))
-    res[~(use_f | use_b)] = np.nan
-    return res
+    if not len(point):
+        return np.zeros((0, 3))
+    return _jit.guide(_f32(Y), known, _ip(point), _ip(start), _ip(end), _b(left), _b(right),
+                      _ip(nb), np.asarray(nbw, np.float64))
 
 
 def spline_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDArray,
                 end: NDArray, left: NDArray, right: NDArray, nb: NDArray | None = None,
-                nbw: NDArray | None = None, side: int = 3) -> NDArray:
+                nbw: NDArray | None = None, side: int | NDArray = 3) -> NDArray:
     """Local cubic through the ``side`` frames either side of the gap, after taking out
     the neighbours' own motion.
 
@@ -246,74 +227,24 @@ def spline_fill(Y: NDArray, known: NDArray[np.bool_], point: NDArray, start: NDA
     ``end + 1 .. end + side``, evaluated in the gap, and the neighbours' mean added
     back. Without such neighbours it is a plain local cubic of the head-frame
     trajectory. Needs both anchors (NaN otherwise) and 4 known samples in the window.
+    ``side`` is one number or one per gap.
     """
-    F = Y.shape[0]
-    g, f = gap_samples(start, end)
     n = len(start)
-    offs = np.concatenate([-np.arange(side, 0, -1), np.zeros(0, int)])
-    wf = np.concatenate([start[:, None] + offs[None], end[:, None] + 1 + np.arange(side)[None]],
-                        1)                                       # (G, 2 side)
-    inside = (wf >= 0) & (wf < F)
-    wfc = np.clip(wf, 0, F - 1)
-    wk = known[wfc, point[:, None]] & inside
-    # neighbours known over the whole window [start - side, end + side]
-    lo = np.clip(start - side, 0, F)
-    hi = np.clip(end + side + 1, 0, F)
-    if nb is not None and nb.shape[1]:
-        csum = np.concatenate([np.zeros((1, known.shape[1]), np.int64),
-                               np.cumsum(known, 0, dtype=np.int64)])
-        q = nb[point]
-        qq = np.maximum(q, 0)
-        full = ((csum[hi[:, None], qq] - csum[lo[:, None], qq]) == (hi - lo)[:, None]) & (q >= 0)
-        w = np.where(full, nbw[point], 0.0)
-        sw = w.sum(1)
-        w = w / np.maximum(sw, 1e-300)[:, None]
-    else:
-        qq = np.zeros((n, 0), np.intp)
-        w = np.zeros((n, 0))
-
-    def nbmean(frames: NDArray, rows: NDArray) -> NDArray:
-        if not w.shape[1]:
-            return np.zeros(frames.shape + (3,))
-        fr = np.clip(frames, 0, F - 1)
-        vals = Y[fr[..., None], qq[rows][..., :] if frames.ndim == 1 else qq[rows][:, None]]
-        vals = np.nan_to_num(vals)
-        ww = w[rows] if frames.ndim == 1 else w[rows][:, None]
-        return np.einsum("...k,...ki->...i", ww, vals)
-
-    rows = np.arange(n)
-    r = np.nan_to_num(Y[wfc, point[:, None]]) - nbmean(wf, rows)     # (G, 2 side, 3)
-    mid = 0.5 * (start + end)
-    half = np.maximum(0.5 * (end - start) + side, 1.0)
-    tau = (wf - mid[:, None]) / half[:, None]
-    V = np.stack([np.ones_like(tau), tau, tau**2, tau**3], -1)    # (G, 2 side, 4)
-    Vw = V * wk[..., None]
-    A = np.einsum("gsi,gsj->gij", Vw, V) + 1e-9 * np.eye(4)
-    b = np.einsum("gsi,gsc->gic", Vw, r)
-    enough = (wk.sum(1) >= 4) & left & right
-    A[~enough] = np.eye(4)
-    coef = np.linalg.solve(A, b)                                    # (G, 4, 3)
-    tq = (f - mid[g]) / half[g]
-    Vq = np.stack([np.ones_like(tq), tq, tq**2, tq**3], -1)
-    out = np.einsum("si,sic->sc", Vq, coef[g]) + nbmean(f, g)
-    out[~enough[g]] = np.nan
-    return out
+    if not n:
+        return np.zeros((0, 3))
+    sides = np.broadcast_to(np.asarray(side, np.int64), (n,)).copy()
+    if nb is None or not nb.shape[1]:
+        nb, nbw = np.zeros((Y.shape[1], 0), np.intp), np.zeros((Y.shape[1], 0))
+    return _jit.spline(_f32(Y), known, _ip(point), _ip(start), _ip(end), _b(left), _b(right),
+                       _ip(nb), np.asarray(nbw, np.float64), sides)
 
 
 def interpolate_columns(M: NDArray, known: NDArray[np.bool_]) -> NDArray:
     """Linear interpolation in time of every column of ``M`` (F, D) over its unknown
     entries (held constant beyond the first and last known sample; the column mean of
     0 for a column never known)."""
-    out = M.copy()
-    frames = np.arange(M.shape[0])
-    for j in range(M.shape[1]):
-        k = known[:, j]
-        if k.all():
-            continue
-        if not k.any():
-            out[:, j] = 0.0
-            continue
-        out[~k, j] = np.interp(frames[~k], frames[k], M[k, j])
+    out = np.array(M, dtype=np.float64)
+    _jit.interpolate_columns(out, np.ascontiguousarray(known, dtype=np.bool_))
     return out
 
 
@@ -329,7 +260,10 @@ def lowrank_fill(Y: NDArray, known: NDArray[np.bool_], hidden: NDArray[np.bool_]
     most ``max_rows`` evenly spaced frames) are computed, enough to hold ``energy`` of
     its variance, and ``inner`` expectation-maximisation steps set every missing entry to
     its frame's projection on those components (the known entries stay), which converges
-    to the least-squares fit of each frame's known entries by the components.
+    to the least-squares fit of each frame's known entries by the components. The
+    matrix is held in float32; the EM steps run compiled, frame by frame on the missing
+    entries only (the known entries' share of the projection is computed once per
+    refresh), so a step costs in proportion to the missing entries, not the matrix.
 
     Parameters
     ----------
@@ -355,36 +289,26 @@ def _lowrank(Y: NDArray, known: NDArray[np.bool_], hidden: NDArray[np.bool_], en
              max_rank: int, outer: int, inner: int, max_rows: int) -> NDArray:
     F, P, _ = Y.shape
     D = 3 * P
-    kn = known & ~hidden
+    kn = np.ascontiguousarray(known & ~hidden)
     ever = kn.any(0)
-    M = np.where(kn[..., None], Y, 0.0).reshape(F, D)
-    K = np.repeat(kn, 3, axis=1)
-    cnt = np.maximum(K.sum(0), 1)
-    mean = M.sum(0) / cnt
-    Z = interpolate_columns(M - mean, K)
-    Z[:, ~K.any(0)] = 0.0
-    rows = np.flatnonzero(~K.all(1))
-    if not len(rows) or D < 6:
-        return (Z + mean).reshape(F, P, 3)
+    Z, mean = _jit.lowrank_start(_f32(Y), kn)
+    if kn.all() or D < 6:
+        return (Z + mean.astype(np.float32)).reshape(F, P, 3)
     step = max(1, F // max_rows)
-    Zr = Z[rows].astype(np.float32)
-    Kr = K[rows]
     for _ in range(outer):
-        Z[rows] = Zr
-        S = Z[::step]
+        S = Z[::step].astype(np.float64)
         C = S.T @ S / len(S)
         ev, V = np.linalg.eigh(C)
         ev, V = ev[::-1], V[:, ::-1]
         total = max(ev.sum(), 1e-12)
         k = int(np.searchsorted(np.cumsum(ev) / total, energy) + 1)
         k = max(1, min(k, max_rank, D - 1))
-        U = np.ascontiguousarray(V[:, :k], dtype=np.float32)
+        U = np.ascontiguousarray(V[:, :k])
         # EM: the missing entries take their projection on the components, the known
-        # entries stay; a few steps per refresh of the components
-        for _ in range(inner):
-            rec = (Zr @ U) @ U.T
-            np.copyto(Zr, rec, where=~Kr)
-    Z[rows] = Zr
-    out = (Z + mean).reshape(F, P, 3)
+        # entries stay; a few steps per refresh of the components (compiled, per frame
+        # on its missing entries only)
+        _jit.lowrank_rows(Z, kn, U, (Z @ U.astype(np.float32)).astype(np.float64), inner)
+    Z += mean.astype(np.float32)
+    out = Z.reshape(F, P, 3)
     out[:, ~ever] = np.nan
     return out

@@ -15,6 +15,21 @@ judges each face point over the whole take by what a marker must satisfy:
     its blobs are, at its depth, more than ``max_size_ratio`` times as large as the
     take's typical marker (the median over points of each point's median blob size in
     mm): a nostril, an eye corner or a shadow is a dark blob too, but a larger one;
+``rays do not meet``
+    its cameras disagree: the median over its triangulated samples of the reprojection
+    chi-square (per camera, against that camera's 2D noise measured on the take) divided
+    by the chi-square's median for its degrees of freedom (`ray_misfit`) exceeds
+    ``max_ray_misfit``. A marker's rays meet within its blobs' noise (1 for a typical
+    one, up to ~46 for a marker whose blobs are consistently off on the rendered takes);
+    a ghost made of two different skin features or blobs matched across cameras only
+    follows the epipolar constraint as far as the tracker let it drift, so its rays miss
+    each other by many noise widths in every frame;
+``blob and rays unlike a marker's``
+    two weaker signs together: blobs larger than ``joint_size_ratio`` times the typical
+    marker's and a ray misfit above ``joint_ray_misfit``. Each alone happens to markers
+    (a marker close to the lens; a marker whose blob a fold clips), both together did
+    not on any take we have: the markers with the largest misfits have blobs of typical
+    size or smaller, and the largest blobs of markers meet within a few noise widths;
 ``moves unlike its neighbours``
     the RMS, over frames, of its displacement minus its neighbours' median displacement
     exceeds ``motion_share`` marker spacings: skin carries a marker along with the markers
@@ -31,9 +46,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.codes import KIND_BRIM, RECON_SINGLE_SENSOR, RECON_TRIANGULATED
 
-__all__ = ["SpuriousParameters", "SpuriousPoint", "blob_sizes_mm", "find_spurious_points"]
+__all__ = ["SpuriousParameters", "SpuriousPoint", "blob_sizes_mm", "find_spurious_points",
+           "ray_misfit"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +68,9 @@ class SpuriousParameters:
     min_triangulated_share: float = 0.1
     neighbours: int = 10
     motion_share: float = 0.75
+    max_ray_misfit: float = 100.0
+    joint_size_ratio: float = 1.5
+    joint_ray_misfit: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -71,7 +91,8 @@ class SpuriousPoint:
 
 def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike,
                          params: SpuriousParameters | None = None,
-                         blob_size_mm: ArrayLike | None = None) -> list[SpuriousPoint]:
+                         blob_size_mm: ArrayLike | None = None,
+                         misfit: ArrayLike | None = None) -> list[SpuriousPoint]:
     """Face points of a tracked take that are not markers (see the module docstring).
 
     Parameters
@@ -86,6 +107,8 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
     blob_size_mm : array_like, shape (P,), optional
         Each point's median blob size in mm at its depth (`blob_sizes_mm`); NaN where
         unknown. Without it the blob test is skipped.
+    misfit : array_like, shape (P,), optional
+        Each point's `ray_misfit`; NaN where unknown. Without it the ray test is skipped.
 
     Returns
     -------
@@ -127,6 +150,7 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
         elif n_single[i] > (1.0 - p.min_triangulated_share) * n_present[i]:
             out[int(i)] = (f"too few cameras: {int(n_single[i])} of its {int(n_present[i])} "
                            f"samples are from one camera only")
+    typical = np.nan
     if blob_size_mm is not None:
         size = np.asarray(blob_size_mm, dtype=np.float64)
         typical = np.nanmedian(size[face]) if np.isfinite(size[face]).any() else np.nan
@@ -136,6 +160,22 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
             if size[i] > p.max_size_ratio * typical:
                 out[int(i)] = (f"blob unlike a marker: blob radius {size[i]:.1f} mm at its "
                                f"depth against {typical:.1f} mm for the take's markers")
+    if misfit is not None:
+        q = np.asarray(misfit, dtype=np.float64)
+        rel = np.full(q.shape, np.nan)
+        if blob_size_mm is not None and np.isfinite(typical):
+            rel = np.asarray(blob_size_mm, dtype=np.float64) / typical
+        for i in face:
+            if int(i) in out or not np.isfinite(q[i]):
+                continue
+            if q[i] > p.max_ray_misfit:
+                out[int(i)] = (f"rays do not meet: its cameras disagree by {q[i]:.0f} times "
+                               f"what their noise explains (limit {p.max_ray_misfit:g})")
+            elif q[i] > p.joint_ray_misfit and rel[i] > p.joint_size_ratio:
+                out[int(i)] = (f"blob and rays unlike a marker's: blobs {rel[i]:.1f} times the "
+                               f"take's markers' and cameras that disagree by {q[i]:.0f} times "
+                               f"their noise (limits {p.joint_size_ratio:g} and "
+                               f"{p.joint_ray_misfit:g} together)")
     judged = np.array([i for i in face if n_present[i] and int(i) not in out], dtype=np.intp)
     if judged.size >= 8:
         Xj = X[:, judged]
@@ -185,4 +225,64 @@ def blob_sizes_mm(positions: ArrayLike, axes: ArrayLike, R: ArrayLike, t: ArrayL
     out = np.full(flat.shape[0], np.nan)
     has = np.isfinite(flat).any(1)
     out[has] = np.nanmedian(flat[has], axis=1)
+    return out
+
+
+def ray_misfit(obs: ArrayLike, positions: ArrayLike, recon: ArrayLike, R: ArrayLike,
+               t: ArrayLike, intr: CameraIntrinsics, min_samples: int = 5
+               ) -> NDArray[np.float64]:
+    """How far each point's rays miss each other, in units of what the 2D noise explains.
+
+    For each triangulated sample seen by ``n >= 2`` cameras: ``chi2 = sum_c |r_c|^2 /
+    s_c^2`` (``r_c`` its reprojection residual in camera ``c``, ``s_c`` the camera's noise
+    from `carapost.algorithms.uncertainty.noise_from_residuals`), divided by the median
+    of a chi-square with ``2n - 3`` degrees of freedom; the point's value is the median
+    of that over its samples (about 1 for a marker whose blobs are as good as the
+    camera's typical ones). A long take is sampled on at most ~600 frames.
+
+    Parameters
+    ----------
+    obs : array_like, shape (F, P, C, 2)
+        Raw pixel observations, NaN where none.
+    positions : array_like, shape (F, P, 3)
+    recon : array_like, shape (F, P)
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    min_samples : int
+        A point with fewer triangulated samples gets NaN.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    from scipy.stats import chi2
+
+    from carapost.algorithms.camera import project
+    from carapost.algorithms.uncertainty import noise_from_residuals
+
+    # at most ~600 frames spread over the take: a median needs no more, and a long
+    # take's every sample would cost gigabytes of per-sample cameras
+    step = max(1, np.asarray(recon).shape[0] // 600)
+    tri = np.asarray(recon)[::step] == RECON_TRIANGULATED
+    o = np.where(tri[..., None, None], np.asarray(obs)[::step].astype(np.float64), np.nan)
+    X = np.where(tri[..., None], np.asarray(positions)[::step].astype(np.float64), np.nan)
+    Rm = np.asarray(R, dtype=np.float64)[::step]
+    tm = np.asarray(t, dtype=np.float64)[::step]
+    out = np.full(X.shape[1], np.nan)
+    has = np.isfinite(o).all(-1)
+    n = has.sum(-1)
+    use = (n >= 2) & np.isfinite(X).all(-1)
+    if not use.any():
+        return out
+    s = noise_from_residuals(o, X, Rm, tm, intr)
+    fi, pi = np.nonzero(use)
+    uv = project(X[fi, pi][:, None, :], Rm[fi], tm[fi], intr)[0][:, 0]  # (N, C, 2)
+    r2 = np.where(has[fi, pi], np.sum((uv - o[fi, pi]) ** 2, -1), 0.0) / s[None, :] ** 2
+    q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
+    order = np.argsort(pi, kind="stable")
+    pi_s, q_s = pi[order], q[order]
+    starts = np.flatnonzero(np.r_[True, pi_s[1:] != pi_s[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], pi_s.size], strict=True):
+        if b - a >= min_samples:
+            out[pi_s[a]] = float(np.median(q_s[a:b]))
     return out

@@ -15,10 +15,11 @@ points"):
   base frame (Base Frame Weighting) and its stabilised neighbours (Inter Frame
   Weighting); the iteration stops when the stabilisation error no longer decreases or
   after Max Processing Iterations.
-- :func:`stabilise_auto`: no selection at all. It picks the base frame (the most
-  neutral frame: the medoid of the face shapes, the frame every other frame differs
-  from least after a rigid fit) and the seed set (the points whose distances to each
-  other vary least through the take), then runs the assisted optimisation.
+- :func:`stabilise_auto` (:mod:`carapost.algorithms.stabilise_auto`): no selection at
+  all. It picks the seed set (the points whose distances to each other vary least
+  through the take), fits every frame to the take's mean stabilised shape with the same
+  per-frame trimming (so no single frame's noise or expression steers it), and expresses
+  the result relative to the most neutral frame.
 
 Conventions: positions are (F, P, 3) in mm (NaN where missing); ``T`` is (F, 4, 4)
 float64 with ``stabilised = raw @ T[f, :3, :3].T + T[f, :3, 3]``; a frame that could
@@ -52,7 +53,6 @@ True
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -61,7 +61,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import rodrigues_to_matrix
 from carapost.algorithms.params import param, validate
-from carapost.algorithms.rigid import kabsch
 
 __all__ = [
     "STABILIZATION",
@@ -69,22 +68,13 @@ __all__ = [
     "StabilizationParameters",
     "alignment_transform",
     "apply_transforms",
-    "choose_base_frame",
-    "choose_stable_points",
     "parse_axes",
     "stabilisation_errors",
     "stabilise_assisted",
-    "stabilise_auto",
     "stabilise_manual",
 ]
 
 log = logging.getLogger("carapost.algorithms")
-
-#: Points of the automatic stable set kept in every frame (the rest of each frame's
-#: stable points are chosen per frame, as in assisted stabilisation).
-AUTO_SEEDS = 6
-#: Points of the first automatic stable set (the smallest spread of distances).
-AUTO_FIRST_SEEDS = 12
 
 #: The Properties pane section of :class:`StabilizationParameters`.
 STABILIZATION = "Stabilization Parameters"
@@ -532,173 +522,6 @@ def stabilise_assisted(positions: ArrayLike, points: Sequence[int] | NDArray, *,
 
 
 # ----------------------------------------------------------------------------------------
-# automatic
-# ----------------------------------------------------------------------------------------
-def _sample_frames(F: int, n: int) -> NDArray[np.intp]:
-    return np.unique(np.linspace(0, F - 1, min(F, n)).round().astype(np.intp))
-
-
-def choose_stable_points(positions: ArrayLike, *, fraction: float = 0.25,
-                         candidates: NDArray[np.bool_] | None = None, samples: int = 200,
-                         min_points: int = 4) -> NDArray[np.intp]:
-    """The points whose distances to each other vary least through the take.
-
-    Distances between points are unchanged by the head's slip, so points that move
-    with the skull keep them; points that move with expression do not. Over ``samples``
-    frames spread through the take, each point scores the median over the current set
-    of the spread (MAD) of its distance to the set's points; the set is refined three
-    times from all candidates.
-
-    Parameters
-    ----------
-    positions : array_like, shape (F, P, 3)
-    fraction : float
-        Fraction of the candidates returned (at least ``min_points``).
-    candidates : ndarray of bool, shape (P,), optional
-    samples : int
-        Frames used.
-    min_points : int
-
-    Returns
-    -------
-    ndarray of intp
-        Columns, most stable first.
-    """
-    X = np.asarray(positions, np.float64)
-    F, P = X.shape[:2]
-    cand = np.ones(P, bool) if candidates is None else np.asarray(candidates, bool)
-    present = np.isfinite(X[..., 0]).mean(0) >= 0.5
-    cols = np.flatnonzero(cand & present)
-    if len(cols) < 3:
-        raise ValueError(f"only {len(cols)} points are present in at least half of the "
-                         "frames; stabilisation needs 3")
-    Y = X[_sample_frames(F, samples)][:, cols]
-    D = np.linalg.norm(Y[:, :, None] - Y[:, None], axis=-1)  # (S, N, N)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(D, axis=0)
-        spread = np.nanmedian(np.abs(D - med), axis=0)  # (N, N) MAD of each distance
-    spread = np.where(np.isfinite(spread), spread, np.inf)
-    np.fill_diagonal(spread, np.nan)
-    n = len(cols)
-    k = int(min(n, max(min_points, np.ceil(fraction * n))))
-    chosen = np.arange(n)
-    for _ in range(4):
-        score = np.nanmedian(spread[:, chosen], axis=1)
-        chosen = np.argsort(score, kind="stable")[:k]
-    score = np.nanmedian(spread[:, chosen], axis=1)
-    return cols[np.argsort(score, kind="stable")[:k]]
-
-
-def choose_base_frame(positions: ArrayLike, points: Sequence[int] | NDArray | None = None,
-                      *, samples: int = 120) -> int:
-    """The most neutral frame: the one the face shape differs from least in other frames.
-
-    Every sampled frame is rigidly fitted (on ``points``, the stable set) to every
-    other, and the face shape difference of a pair is the median distance of all points
-    after that fit. The medoid (smallest summed difference) among the sampled frames
-    wins; expressions are departures from a shared neutral, so the neutral frame is the
-    one closest to all the others.
-
-    Parameters
-    ----------
-    positions : array_like, shape (F, P, 3)
-    points : sequence of int, optional
-        Columns the fits use (default: every point).
-    samples : int
-
-    Returns
-    -------
-    int
-        Frame index.
-    """
-    X = np.asarray(positions, np.float64)
-    F, P = X.shape[:2]
-    frames = _sample_frames(F, samples)
-    full = np.isfinite(X[frames, :, 0]).all(0)
-    cols = np.flatnonzero(full)
-    if len(cols) < 3:
-        # fall back to the frames with most points
-        counts = np.isfinite(X[..., 0]).sum(1)
-        return int(np.argmax(counts))
-    fit_cols = cols if points is None else np.intersect1d(cols, np.asarray(points))
-    if len(fit_cols) < 3:
-        fit_cols = cols
-    Y = X[frames][:, cols]
-    fit_idx = np.searchsorted(cols, fit_cols)
-    n = len(frames)
-    ii, jj = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    ii, jj = ii.ravel(), jj.ravel()
-    R, t = kabsch(Y[ii][:, fit_idx], Y[jj][:, fit_idx])
-    moved = np.einsum("kij,kpj->kpi", R, Y[ii]) + t[:, None]
-    diff = np.median(np.linalg.norm(moved - Y[jj], axis=-1), axis=1).reshape(n, n)
-    return int(frames[np.argmin(diff.sum(1))])
-
-
-def stabilise_auto(positions: ArrayLike, *, params: StabilizationParameters | None = None,
-                   candidates: NDArray[np.bool_] | None = None, first: int = 0,
-                   progress: Progress = None) -> StabilisationResult:
-    """Stabilize Data [Automatic]: choose the stable set and the base frame, then run the
-    assisted optimisation.
-
-    Parameters
-    ----------
-    positions : array_like, shape (F, P, 3)
-    params : StabilizationParameters, optional
-    candidates : ndarray of bool, shape (P,), optional
-        Columns that may be stable (the caller leaves the brim out unless Use Brim
-        Points).
-    first : int
-        Unused by the algorithm; kept for callers that report frame numbers.
-    progress : callable, optional
-
-    Returns
-    -------
-    StabilisationResult
-        ``points`` is the chosen seed set, ``base_frame`` the chosen frame.
-    """
-    p = params or StabilizationParameters()
-    X = np.asarray(positions, np.float64)
-    # the seed set's size is fixed: the Stable Points Percent is each frame's choice
-    seed = choose_stable_points(X, fraction=0.0, candidates=candidates,
-                                min_points=AUTO_FIRST_SEEDS)
-    base = choose_base_frame(X, seed)
-    seed = seed[:AUTO_SEEDS]
-    # the seed set must exist at the base frame; keep the ones that do
-    present = np.isfinite(X[base, seed, 0])
-    seed = seed[present]
-    if len(seed) < 3:
-        raise ValueError("fewer than 3 stable points exist at the most neutral frame")
-    first_pass = stabilise_assisted(X, seed, base_frame=base, params=p,
-                                    candidates=candidates)
-    # as an artist would: the points that moved least once stabilised become the seeds
-    S = apply_transforms(first_pass.transforms, X)
-    cand = np.ones(X.shape[1], bool) if candidates is None else np.asarray(candidates, bool)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        spread = np.sqrt(np.nanmean(((S - np.nanmedian(S, axis=0)) ** 2).sum(-1), axis=0))
-    ok = cand & np.isfinite(X[base, :, 0]) & (np.isfinite(S[..., 0]).mean(0) >= 0.5)
-    spread = np.where(ok & np.isfinite(spread), spread, np.inf)
-    refined = np.argsort(spread, kind="stable")[:AUTO_SEEDS]
-    refined = refined[np.isfinite(spread[refined])]
-    log.debug("automatic stabilisation: base frame %d, seeds %s", base, refined.tolist())
-    if len(refined) < 3:
-        refined = seed
-    # the median stabilised shape is a reference without the base frame's noise
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        shape = np.nanmedian(S, axis=0)
-    shape = np.where(np.isfinite(X[base]), shape, np.nan)
-    # inverse-variance weights: a point's motion once stabilised, over the noise floor
-    # (the spread of the most stable points)
-    floor = float(np.median(spread[refined]))
-    weights = np.where(np.isfinite(spread), 1.0 / (floor ** 2 + spread ** 2), 0.0)
-    weights /= weights.max()
-    return stabilise_assisted(X, refined, base_frame=base, params=p, candidates=candidates,
-                              reference=shape, point_weights=weights, progress=progress)
-
-
-# ----------------------------------------------------------------------------------------
 # alignment
 # ----------------------------------------------------------------------------------------
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -792,3 +615,16 @@ def alignment_transform(p1: ArrayLike, p2: ArrayLike, p3: ArrayLike, axes: str =
     ec = np.cross(ea, eb)
     R = np.stack([ea, eb, ec], 1) @ np.stack([u, v, w], 0)
     return _to4(R, -R @ a)
+
+
+_AUTOMATIC = ("AUTO_FIRST_SEEDS", "AUTO_SEEDS", "choose_base_frame", "choose_stable_points",
+              "stabilise_auto")
+
+
+def __getattr__(name: str) -> object:
+    # the automatic mode lives in its own module, which builds on this one
+    if name in _AUTOMATIC:
+        from carapost.algorithms import stabilise_auto
+
+        return getattr(stabilise_auto, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

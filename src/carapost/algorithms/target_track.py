@@ -498,7 +498,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                  keyframes: Mapping[int, Any], *, start: int, stop: int, direction: int,
                  params: TargetTrackerParameters | None = None,
                  start_xy: Any = None, start_velocity: Any = None,
-                 progress: ProgressFn = None) -> TargetTrackResult:
+                 progress: ProgressFn = None,
+                 on_frame: Callable[[int, NDArray[np.float64], float], None] | None = None
+                 ) -> TargetTrackResult:
     """Track one marker in one camera from ``start`` towards ``stop``.
 
     Parameters
@@ -523,6 +525,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
         else none).
     progress : callable, optional
         ``progress(done, total)`` after each frame; returning False cancels.
+    on_frame : callable, optional
+        ``on_frame(frame, xy, score)`` after each frame given a position (tracked or a
+        keyframe passed through), before ``progress``: for showing a run as it goes.
 
     Returns
     -------
@@ -693,6 +698,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             pos = xy
             moving = True
             xys.append(xy.copy())
+        if on_frame is not None:
+            on_frame(f, xys[-1], scores[-1])
         if progress is not None and progress(done, total) is False:
             reason = STOP_CANCELLED if f != start + total * direction else reason
             break

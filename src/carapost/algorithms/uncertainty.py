@@ -11,10 +11,20 @@ frame's brim dots) while real rig flex is smooth (it follows the head's motion),
 smoothed cameras.
 
 :func:`sample_sigma` gives each triangulated sample the standard deviation of its 3D
-error expected from its observation geometry (which cameras, at what angles and
-depths) and the 2D noise of each camera, estimated from the take itself by
-:func:`noise_from_residuals` (the reprojection residuals of points seen by three or
-more cameras, which also carry the remaining camera pose error).
+error expected from three sources, each measured on the take itself:
+
+- the 2D noise of each camera (:func:`noise_from_residuals`: the reprojection residuals
+  of points seen by three or more cameras), through the sample's observation geometry
+  (which cameras, at what angles and depths);
+- how much worse than that a point's own observations are (:func:`point_noise_factor`:
+  a marker half hidden by a fold or seen at a grazing angle keeps larger residuals over
+  the whole take);
+- the error of the cameras' poses, solved from the brim (:func:`brim_pose_covariance`:
+  the covariance of each camera's resection from its brim dots and their residuals).
+  The brim is seen alike by every camera, so what its centroid errors do to one camera
+  they do to the others: the error moves the rig as a whole against the helmet and
+  every point with it, which no residual of the face points can reveal. It is carried
+  as the shift it gives the point (the mean over the cameras that see it).
 
 Units: mm in 3D, raw pixels in 2D. Shapes: ``F`` frames, ``P`` points, ``C`` cameras.
 """
@@ -29,8 +39,10 @@ from carapost.algorithms.triangulation import TriangulationParameters, triangula
 
 __all__ = [
     "POSE_SMOOTHING_FRAMES",
+    "brim_pose_covariance",
     "noise_from_residuals",
     "pair_holdout_scale",
+    "point_noise_factor",
     "retriangulate",
     "sample_sigma",
     "smooth_camera_poses",
@@ -272,13 +284,20 @@ def _project_per_frame(X: NDArray[np.float64], R: NDArray[np.float64], t: NDArra
 
 
 def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
-                 intr: CameraIntrinsics, noise_px: ArrayLike) -> NDArray[np.float32]:
+                 intr: CameraIntrinsics, noise_px: ArrayLike,
+                 pose_cov: ArrayLike | None = None, point_factor: ArrayLike | None = None,
+                 chunk: int = 256) -> NDArray[np.float32]:
     """Standard deviation (mm) of each triangulated sample's 3D error.
 
     First-order propagation: with ``J_c`` the 2x3 Jacobian of camera ``c``'s pixel
-    projection at the point, the covariance is ``(sum_c J_c^T J_c / s_c^2)^-1`` over the
-    cameras that observe it (``s_c`` = ``noise_px[c]``). The value stored is the root of
-    its trace: the RMS length of the error vector, which is the standard deviation
+    projection at the point, the covariance of the 2D noise's effect is
+    ``phi_p (sum_c J_c^T J_c / s_c^2)^-1`` over the cameras that observe it (``s_c`` =
+    ``noise_px[c]``, ``phi_p`` = ``point_factor[p]``, 1 without it). With ``pose_cov``,
+    the shift of the point by each observing camera's pose error is added (the mean
+    over those cameras of ``M_c Cov_c M_c^T``, ``M_c`` = ``R_c^T [-[X_c]x, I]`` the
+    point's displacement per pose parameter, ``X_c`` the point in camera coordinates;
+    see the module docstring for why the shift is shared). The value stored is the root
+    of the trace: the RMS length of the error vector, which is the standard deviation
     along the worst direction when one direction dominates (depth along a short caddy
     baseline) and never less than it.
 
@@ -292,6 +311,13 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     intr : CameraIntrinsics
     noise_px : array_like, shape (C,)
         Per-axis 2D noise of each camera (px).
+    pose_cov : array_like, shape (F, C, 6, 6), optional
+        Covariance of each camera's pose per frame (`brim_pose_covariance`: rotation
+        (rad) then translation (mm), camera coordinates); NaN or zero where unknown.
+    point_factor : array_like, shape (P,), optional
+        Variance factor of each point's 2D noise (`point_noise_factor`).
+    chunk : int
+        Frames per block (bounds the memory of long takes).
 
     Returns
     -------
@@ -313,10 +339,26 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     0.13
     """
     Xm = np.asarray(X, dtype=np.float64)
-    o = np.asarray(obs, dtype=np.float64)
+    o = np.asarray(obs)
     Rm = np.asarray(R, dtype=np.float64)
     tm = np.asarray(t, dtype=np.float64)
     s = np.asarray(noise_px, dtype=np.float64)
+    pc = None if pose_cov is None else np.asarray(pose_cov, dtype=np.float64)
+    phi = (np.ones(Xm.shape[1]) if point_factor is None
+           else np.asarray(point_factor, dtype=np.float64))
+    out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
+    for a in range(0, Xm.shape[0], max(1, int(chunk))):
+        b = slice(a, a + max(1, int(chunk)))
+        out[b] = _sigma_block(Xm[b], o[b].astype(np.float64), Rm[b], tm[b], intr, s,
+                              None if pc is None else pc[b], phi)
+    return out
+
+
+def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np.float64],
+                 tm: NDArray[np.float64], intr: CameraIntrinsics, s: NDArray[np.float64],
+                 pc: NDArray[np.float64] | None, phi: NDArray[np.float64]
+                 ) -> NDArray[np.float32]:
+    """`sample_sigma` of a block of frames."""
     has = np.isfinite(o).all(-1) & np.isfinite(Xm).all(-1)[..., None]  # (F, P, C)
     Xc = np.einsum("fcij,fpj->fpci", Rm, np.nan_to_num(Xm)) + tm[:, None]  # (F, P, C, 3)
     z = Xc[..., 2]
@@ -334,11 +376,177 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     info = np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J)
     out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
     two = ok.sum(-1) >= 2
-    if two.any():
-        A = info[two]
-        det = np.linalg.det(A)
-        good = det > 1e-12 * np.einsum("nii->n", A) ** 3
-        cov = np.full_like(A, np.nan)
-        cov[good] = np.linalg.inv(A[good])
-        out[two] = np.sqrt(np.einsum("nii->n", cov)).astype(np.float32)
+    if not two.any():
+        return out
+    A = info[two]
+    det = np.linalg.det(A)
+    good = det > 1e-12 * np.einsum("nii->n", A) ** 3
+    var = np.full(A.shape[0], np.nan)
+    var[good] = np.einsum("nii->n", np.linalg.inv(A[good]))
+    var *= np.broadcast_to(phi[None, :], two.shape)[two]
+    if pc is not None:
+        var += _pose_shift_variance(Xc[two], ok[two], Rm, np.nonzero(two)[0], pc)
+    out[two] = np.sqrt(var).astype(np.float32)
+    return out
+
+
+def _pose_shift_variance(Xc: NDArray[np.float64], ok: NDArray[np.bool_], R: NDArray[np.float64],
+                         frame: NDArray[np.intp], pc: NDArray[np.float64]
+                         ) -> NDArray[np.float64]:
+    """Trace of the point's shift covariance from its cameras' pose errors (mm^2), the
+    mean over the cameras that see it. ``Xc`` (N, C, 3) camera coordinates, ``ok``
+    (N, C), ``frame`` (N,) the block frame of each sample, ``pc`` (F, C, 6, 6)."""
+    N, C, _ = Xc.shape
+    # displacement of a point fixed to camera c per pose parameter (omega, delta), in c
+    M = np.zeros((N, C, 3, 6))
+    M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
+    M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
+    M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
+    M[..., 3:] = np.eye(3)
+    # the rotation to world keeps the trace, so it is left out
+    cov = np.nan_to_num(pc[frame])  # (N, C, 6, 6)
+    tr = np.einsum("ncik,nckl,ncil->nc", M, cov, M)
+    use = ok & np.isfinite(pc[frame]).all((-1, -2))
+    n = use.sum(-1)
+    return np.where(n > 0, np.where(use, tr, 0.0).sum(-1) / np.maximum(n, 1), 0.0)
+
+
+def brim_pose_covariance(brim_xyz: ArrayLike, brim_obs: ArrayLike, R: ArrayLike,
+                         t: ArrayLike, intr: CameraIntrinsics, min_dots: int = 4
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Covariance of every camera's pose resected from its brim dots, per frame.
+
+    Each camera's pose is solved from the brim dots it sees, so its uncertainty is that
+    of a resection: ``s_b^2 (G^T G)^-1`` with ``G`` (2N x 6) the Jacobian of the dots'
+    pixels with respect to a small rotation and translation of the camera, and ``s_b``
+    the camera's brim reprojection residual (RMS per axis over the take, ``2N - 6``
+    degrees of freedom per frame). The residual is measured on the poses given (fitted
+    over time or not); the fit over time removes white scatter but not the part of the
+    dots' centroid error that stays the same from frame to frame, so no reduction is
+    assumed (on rendered takes the error of the fitted poses at the face matched this
+    single-frame figure; docs/algorithms.md).
+
+    Parameters
+    ----------
+    brim_xyz : array_like, shape (F, N, 3)
+        The brim dots (mm, world), NaN where unknown.
+    brim_obs : array_like, shape (F, N, C, 2)
+        Their observations (raw pixels), NaN where none.
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    min_dots : int
+        Fewer dots seen by a camera in a frame leave its covariance NaN there.
+
+    Returns
+    -------
+    cov : ndarray, shape (F, C, 6, 6)
+        Rotation (rad) then translation (mm), in camera coordinates.
+    residual_px : ndarray, shape (C,)
+        ``s_b`` of each camera (NaN without brim observations).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from carapost.algorithms.camera import CameraIntrinsics, project
+    >>> intr = CameraIntrinsics(focal=np.array([800.0]), principal_point=np.array([[640.0, 360.0]]))
+    >>> g = np.stack(np.meshgrid(np.linspace(-60, 60, 5), np.linspace(-20, 20, 3)), -1)
+    >>> B = np.c_[g.reshape(-1, 2), np.full(15, 120.0)][None].repeat(10, 0)
+    >>> R = np.tile(np.eye(3), (10, 1, 1, 1)); t = np.zeros((10, 1, 3))
+    >>> uv = project(B, R, t, intr)[0] + np.random.default_rng(0).normal(0, 0.05, (10, 15, 1, 2))
+    >>> cov, s_b = brim_pose_covariance(B, uv, R, t, intr)
+    >>> bool(0.03 < s_b[0] < 0.08), cov.shape
+    (True, (10, 1, 6, 6))
+    """
+    B = np.asarray(brim_xyz, dtype=np.float64)
+    ob = np.asarray(brim_obs, dtype=np.float64)
+    Rm = np.asarray(R, dtype=np.float64)
+    tm = np.asarray(t, dtype=np.float64)
+    F, N, C, _ = ob.shape
+    has = np.isfinite(ob).all(-1) & np.isfinite(B).all(-1)[..., None]  # (F, N, C)
+    cov = np.full((F, C, 6, 6), np.nan)
+    s_b = np.full(C, np.nan)
+    if N == 0 or not has.any():
+        return cov, s_b
+    Bz = np.nan_to_num(B)
+    uv = project(Bz, Rm, tm, intr)[0]  # (F, N, C, 2)
+    r2 = np.where(has, np.sum((ob - uv) ** 2, -1), 0.0)
+    n = has.sum(1)  # (F, C)
+    solved = n >= min_dots
+    dof = np.where(solved, 2 * n - 6, 0).sum(0)
+    ss = np.where(solved[:, None, :], r2, 0.0).sum((0, 1))
+    s_b = np.where(dof > 0, np.sqrt(ss / np.maximum(dof, 1)), np.nan)
+    f = np.asarray(intr.focal, dtype=np.float64)[None, None, :]
+    info = np.zeros((F, C, 6, 6))
+    for a in range(0, F, 256):  # blocks of frames bound the memory of long takes
+        b = slice(a, a + 256)
+        Xc = np.einsum("fcij,fnj->fnci", Rm[b], Bz[b]) + tm[b][:, None]  # (f, N, C, 3)
+        zs = np.where(has[b] & (Xc[..., 2] > 1e-6), Xc[..., 2], 1.0)
+        Jp = np.zeros(Xc.shape[:-1] + (2, 3))
+        Jp[..., 0, 0] = Jp[..., 1, 1] = f / zs
+        Jp[..., 0, 2] = -f * Xc[..., 0] / zs ** 2
+        Jp[..., 1, 2] = -f * Xc[..., 1] / zs ** 2
+        M = np.zeros(Xc.shape[:-1] + (3, 6))
+        M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
+        M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
+        M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
+        M[..., 3:] = np.eye(3)
+        G = np.where(has[b][..., None, None], Jp @ M, 0.0)  # (f, N, C, 2, 6)
+        info[b] = np.einsum("fncai,fncaj->fcij", G, G)
+    good = solved & np.isfinite(s_b)[None, :]
+    good[good] = np.linalg.cond(info[good]) < 1e12
+    cov[good] = np.linalg.inv(info[good]) * (s_b ** 2)[None, :, None, None].repeat(F, 0)[good]
+    return cov, s_b
+
+
+def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
+                       intr: CameraIntrinsics, noise_px: ArrayLike,
+                       min_samples: int = 5) -> NDArray[np.float64]:
+    """Variance factor (>= 1) of each point's 2D noise, from its own residuals.
+
+    A sample seen by ``n >= 3`` cameras leaves ``chi2 = sum_c |r_c|^2 / s_c^2`` with
+    ``2n - 3`` degrees of freedom; divided by the median of that chi-square it is about
+    1 for a point whose observations are as good as the camera's typical ones. The
+    factor is the median of this ratio over the point's samples (robust to a few
+    frames with a wrong blob), at least 1: a marker whose blobs are consistently off
+    (half hidden by a fold, seen edge-on, merged with a neighbour) is trusted less in
+    every frame, including those where only two cameras see it.
+
+    Parameters
+    ----------
+    obs : array_like, shape (F, P, C, 2)
+    X : array_like, shape (F, P, 3)
+    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    noise_px : array_like, shape (C,)
+    min_samples : int
+        A point with fewer over-determined samples keeps 1.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    from scipy.stats import chi2
+
+    # at most ~600 frames spread over the take (a median needs no more)
+    step = max(1, np.shape(X)[0] // 600)
+    o = np.asarray(obs)[::step].astype(np.float64)
+    Xm = np.asarray(X)[::step].astype(np.float64)
+    s = np.asarray(noise_px, dtype=np.float64)
+    has = np.isfinite(o).all(-1)
+    n = has.sum(-1)
+    use = (n >= 3) & np.isfinite(Xm).all(-1)
+    out = np.ones(Xm.shape[1])
+    if not use.any():
+        return out
+    fi, pi = np.nonzero(use)
+    uv = _project_per_frame(Xm[fi, pi], np.asarray(R, dtype=np.float64)[::step][fi],
+                            np.asarray(t, dtype=np.float64)[::step][fi], intr)
+    r2 = np.where(has[fi, pi], np.sum((uv - o[fi, pi]) ** 2, -1), 0.0) / s[None, :] ** 2
+    q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
+    order = np.argsort(pi, kind="stable")
+    pi_s, q_s = pi[order], q[order]
+    starts = np.flatnonzero(np.r_[True, pi_s[1:] != pi_s[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], pi_s.size], strict=True):
+        if b - a >= min_samples:
+            out[pi_s[a]] = max(1.0, float(np.median(q_s[a:b])))
     return out

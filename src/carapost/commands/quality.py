@@ -11,10 +11,12 @@ import logging
 
 import numpy as np
 
+from carapost.algorithms.codes import KIND_BRIM, RECON_NONE
 from carapost.algorithms.spurious import (
     SpuriousParameters,
     blob_sizes_mm,
     find_spurious_points,
+    ray_misfit,
 )
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import Project
@@ -29,8 +31,19 @@ def spurious_points(project: Project, params: SpuriousParameters | None = None
     """``(point id, label, reason)`` of every face point judged not to be a marker."""
     pts = project.points
     found = find_spurious_points(pts.positions, pts.recon, pts.kind, params,
-                                 blob_size_mm=_blob_sizes(project))
+                                 blob_size_mm=_blob_sizes(project), misfit=_misfit(project))
     return [(int(pts.ids[s.index]), project.point_label(s.index), s.reason) for s in found]
+
+
+def _misfit(project: Project) -> np.ndarray | None:
+    """Each point's `ray_misfit`; None without a calibration."""
+    cal = project.calibration
+    if cal.intrinsics is None or not cal.solved.any():
+        return None
+    pts = project.points
+    # the face points' own noise: the brim dots are rounder and sharper
+    recon = np.where(pts.kind[None, :] == KIND_BRIM, RECON_NONE, pts.recon)
+    return ray_misfit(pts.obs, pts.positions, recon, cal.R, cal.t, cal.intrinsics)
 
 
 def _blob_sizes(project: Project) -> np.ndarray | None:

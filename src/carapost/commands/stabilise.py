@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from carapost.algorithms import stabilise as algo
 from carapost.algorithms.params import from_mapping, to_mapping
+from carapost.algorithms.stabilise_auto import stabilise_auto
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.model.project import KIND_BRIM, KIND_FACE, Project
@@ -159,8 +160,8 @@ class StabiliseJob(Job):
                                             params=self.params, candidates=self.candidates,
                                             progress=progress)
             else:
-                r = algo.stabilise_auto(X, params=self.params, candidates=self.candidates,
-                                        progress=progress)
+                r = stabilise_auto(X, params=self.params, candidates=self.candidates,
+                                   progress=progress)
         except ValueError as exc:
             raise CommandError(f"{self.description}: {exc}") from None
         T = np.full((self.n_frames, 4, 4), np.nan)

@@ -45,6 +45,7 @@ from carapost.algorithms.target_track import (
 )
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
+from carapost.commands.target_sizes import track_parameters
 from carapost.model.project import Project
 
 log = logging.getLogger("carapost.commands")
@@ -261,8 +262,11 @@ class EditTargetTrack(Command):
         params = tracker_parameters(project)
         self.point = int(point)
         _column(project, self.point, what)
+        pattern = params.pattern_size
+        if 0 <= int(camera) < project.n_cameras:   # the track's own box, if it has one
+            pattern = track_parameters(project, self.point, int(camera), params).pattern_size
         self.camera, self.frame, self.xy = _check_image_point(
-            project, camera, frame, xy, what, params.pattern_size)
+            project, camera, frame, xy, what, pattern)
         self.single = params.allow_single_sensor_tracking
         self.description = (f"Edit Target Track [point {self.point}, camera {self.camera}, "
                             f"frame {self.frame}]")
@@ -375,6 +379,8 @@ class _Track:
     start_xy: NDArray[np.float64]
     velocity: NDArray[np.float64] | None
     stop: int
+    #: the run's settings with this track's own pattern and search sizes (None: the run's)
+    params: TargetTrackerParameters | None = None
 
 
 @dataclass
@@ -418,6 +424,10 @@ class TargetTrackJob(Job):
     intr: CameraIntrinsics | None
     auto_keys: list[tuple[int, int]]       # (point index, camera) keyed at start
     description: str
+    #: What the run has tracked so far, appended on the worker as it goes: (point id,
+    #: camera, frame, score) per tracked frame (the window draws the span growing, and
+    #: shows the frame being tracked). Read it from another thread by slicing.
+    live: list[tuple[int, int, int, float]] = field(default_factory=list, repr=False)
 
     @property
     def stop(self) -> int:
@@ -454,10 +464,15 @@ class TargetTrackJob(Job):
                     return True
                 return progress(base + done, total) is not False
 
+            def seen(f: int, _xy: NDArray, score: float, tr: _Track = tr) -> None:
+                if f not in tr.keys:
+                    self.live.append((tr.point, tr.camera, int(f), float(score)))
+
             res = track_target(lambda f, c=tr.camera: self.get_image(f, c), tr.keys,
-                               start=self.start, stop=tr.stop, direction=d, params=P,
+                               start=self.start, stop=tr.stop, direction=d,
+                               params=tr.params if tr.params is not None else P,
                                start_xy=tr.start_xy, start_velocity=tr.velocity,
-                               progress=step)
+                               progress=step, on_frame=seen)
             done_before += n
             reasons[(tr.point, tr.camera)] = res.reason
             cancelled = res.reason == STOP_CANCELLED
@@ -568,12 +583,14 @@ def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *
                 if params.auto_add_keyframes:
                     auto.append((i, int(c)))
             w, h = project.take.cameras[c].image_size
-            if params.pattern_size + 4 > min(w, h):
-                raise CommandError(f"{what}: the Pattern Size ({params.pattern_size} px) "
+            tp = track_parameters(project, int(pid), int(c), params,
+                                  keep=frozenset(overrides))
+            if tp.pattern_size + 4 > min(w, h):
+                raise CommandError(f"{what}: the Pattern Size ({tp.pattern_size} px) "
                                    f"is larger than the {w} x {h} image of camera {c}")
             for kf, kxy in keys.items():
                 try:
-                    check_keyframe(kxy, (h, w), params.pattern_size)
+                    check_keyframe(kxy, (h, w), tp.pattern_size)
                 except ValueError as exc:
                     raise CommandError(f"{what}: point {pid}, camera {c}, keyframe "
                                        f"{kf}: {exc}") from None
@@ -595,7 +612,8 @@ def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *
             if 0 <= prev < F and np.isfinite(pts.obs[prev, col, c]).all():
                 vel = xy - pts.obs[prev, col, c].astype(np.float64)
             if (stop - s) * direction > 0:
-                tracks.append(_Track(int(pid), int(c), keys, xy, vel, int(stop)))
+                tracks.append(_Track(int(pid), int(c), keys, xy, vel, int(stop),
+                                     None if tp is params else tp))
     if not tracks:
         raise CommandError(f"{what}: nothing to track from frame {s} (the next frame is "
                            "a keyframe or already has 2D data; see Overwrite Existing "

@@ -45,6 +45,7 @@ import numpy as np
 from carapost import __version__
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.io.atomic import atomic_output, check_input_file, checked_path, clean_stale_parts
+from carapost.io.cara_target_sizes import read_target_sizes, target_sizes_manifest
 from carapost.io.errors import CaraFileError
 from carapost.io.ziplimits import (
     MANIFEST_LIMIT,
@@ -144,11 +145,13 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
         "active_range": list(project.active_range),
         "view_range": list(project.view_range),
         "selected_cameras": sorted(project.selection.cameras),
-        "selected_points": sorted(project.selection.points),
+        "selected_points": project.selection.ordered_points(),  # in selection order
         "rom": project.rom.path if project.rom else None,
         "imported_blob_parameters": project.imported_blob_parameters,
         # optional: the Session calls that made the project (`carapost history --python`)
         **({"script": project.script} if project.script is not None else {}),
+        # optional: per-track Target Tracker sizes, [point id, camera, pattern, search]
+        **({"target_sizes": target_sizes_manifest(project)} if project.target_sizes else {}),
         "stabilization": None if project.stabilization is None
         else project.stabilization.to_manifest(),
         "alignment": None if project.alignment is None else project.alignment.to_manifest(),
@@ -238,19 +241,20 @@ def save_project(project: Project, path: str | Path, *, autosave: bool = False) 
         project.events.emit("file")
         # the saved file is now the newest: autosave copies of this name, of the name
         # it had before a Save As, and of the never-saved project are all stale
-        stale = [autosave_path(path), getattr(project, "untitled_autosave", None)]
+        stale = [autosave_path(path), project.untitled_autosave]
         if previous and Path(previous).absolute() != path:
             stale.append(autosave_path(previous))
         for copy in stale:
             if copy is not None:
                 with contextlib.suppress(OSError):
                     Path(copy).unlink(missing_ok=True)
-        project.untitled_autosave = None  # type: ignore[attr-defined]
-        source = getattr(project, "mapped_source", None)
+        project.untitled_autosave = None
+        project.session_autosave = None
+        source = project.mapped_source
         if source is not None and Path(source[0]) == path:
             # the mapping keeps the replaced file's data alive, and no one can reach
             # that file by its name any more: nothing left to guard
-            project.mapped_source = None  # type: ignore[attr-defined]
+            project.mapped_source = None
     log.info("Saved %s", path)
     return path
 
@@ -268,7 +272,7 @@ def check_mapped_source(project: Project) -> None:
     CaraFileError
         Naming the file, when its size, modification time or identity changed.
     """
-    source = getattr(project, "mapped_source", None)
+    source = project.mapped_source
     if source is None:
         return
     path, size, mtime_ns, ino = source
@@ -311,13 +315,17 @@ def untitled_autosaves() -> list[Path]:
     return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
 
 
-def discard_untitled_autosave(project: Project) -> None:
-    """Remove the autosave copy of a never-saved project (closed without saving)."""
-    copy = getattr(project, "untitled_autosave", None)
-    if copy is not None:
-        with contextlib.suppress(OSError):
-            Path(copy).unlink(missing_ok=True)
-        project.untitled_autosave = None  # type: ignore[attr-defined]
+def discard_autosaves(project: Project) -> None:
+    """Remove the autosave copies this session wrote for a project whose changes the
+    user discards (closed without saving): the copy of a never-saved project, and the
+    copy beside a saved one. A copy the session did not write (say, one left by a crash
+    that the user declined to recover) stays."""
+    for copy in (project.untitled_autosave, project.session_autosave):
+        if copy is not None:
+            with contextlib.suppress(OSError):
+                Path(copy).unlink(missing_ok=True)
+    project.untitled_autosave = None
+    project.session_autosave = None
 
 
 def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
@@ -329,7 +337,7 @@ def autosave_project(project: Project, path: str | Path | None = None) -> Path |
     """
     target = path or project.path
     if target is None:
-        copy = getattr(project, "untitled_autosave", None)
+        copy = project.untitled_autosave
         if copy is None:
             folder = untitled_autosave_folder()
             try:
@@ -339,9 +347,11 @@ def autosave_project(project: Project, path: str | Path | None = None) -> Path |
             name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
                            (project.take.name or "untitled"))[:80]
             copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
-            project.untitled_autosave = copy  # type: ignore[attr-defined]
+            project.untitled_autosave = copy
         return save_project(project, copy, autosave=True)
-    return save_project(project, autosave_path(target), autosave=True)
+    written = save_project(project, autosave_path(target), autosave=True)
+    project.session_autosave = written
+    return written
 
 
 def recoverable_autosave(path: str | Path) -> Path | None:
@@ -665,7 +675,7 @@ def load_project(path: str | Path, *, relocate: RelocateCallback | None = None,
                 # check_mapped_source)
                 st = os.stat(path)
                 source = (str(path.absolute()), st.st_size, st.st_mtime_ns, st.st_ino)
-                project.mapped_source = source  # type: ignore[attr-defined]
+                project.mapped_source = source
             return project
         except CaraFileError:
             raise
@@ -754,9 +764,11 @@ def _build(
     project.current_frame = int(m.get("current_frame", 0))
     project.active_range = tuple(m.get("active_range", project.active_range))  # type: ignore[assignment]
     project.view_range = tuple(m.get("view_range", project.view_range))  # type: ignore[assignment]
+    selected = tuple(dict.fromkeys(int(p) for p in m.get("selected_points", [])))
     project.selection = Selection(
-        points=frozenset(int(p) for p in m.get("selected_points", [])),
+        points=frozenset(selected),
         cameras=frozenset(int(c) for c in m.get("selected_cameras", [])),
+        order=selected,
     )
     if m.get("rom"):
         project.rom = RomReference(path=str(m["rom"]))
@@ -764,6 +776,7 @@ def _build(
     script = m.get("script")
     project.script = list(script) if isinstance(script, list) else None
     _build_stabilization(project, members, m, path)
+    read_target_sizes(project, m.get("target_sizes"))
     project.path = str(path.absolute())
     project.modified = False
     return project

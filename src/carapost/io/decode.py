@@ -67,6 +67,9 @@ class KeyframeIndex:
         Presentation timestamp of frame ``i`` (stream time base), increasing.
     keyframe : ndarray, shape (N,) bool
         Whether frame ``i`` is a keyframe (decoding can start there).
+    decodable : int, optional
+        Frames known to decode (the last one was decoded once: `AVReader.verify`);
+        None until checked. A file cut mid-packet lists a last frame that does not.
 
     Examples
     --------
@@ -76,8 +79,10 @@ class KeyframeIndex:
     (5, 0, 3)
     """
 
-    def __init__(self, pts: NDArray[np.int64], keyframe: NDArray[np.bool_]) -> None:
+    def __init__(self, pts: NDArray[np.int64], keyframe: NDArray[np.bool_],
+                 decodable: int | None = None) -> None:
         self.pts = np.asarray(pts, np.int64)
+        self.decodable = None if decodable is None else int(decodable)
         self.keyframe = np.asarray(keyframe, bool)
         if len(self.keyframe):
             self.keyframe[0] = True  # decoding always starts at the first frame
@@ -133,7 +138,9 @@ class KeyframeIndex:
                 if (int(stamp[0]) != _INDEX_VERSION or int(stamp[1]) != st.st_size
                         or int(stamp[2]) != st.st_mtime_ns):
                     return None
-                return cls(z["pts"], z["keyframe"])
+                # "decodable" is optional: indexes stored before it was kept lack it
+                decodable = int(z["decodable"]) if "decodable" in z.files else None
+                return cls(z["pts"], z["keyframe"], decodable)
         except (OSError, KeyError, ValueError):
             return None
 
@@ -145,7 +152,8 @@ class KeyframeIndex:
             file.parent.mkdir(parents=True, exist_ok=True)
             tmp = file.with_name(f"{file.stem}.{os.getpid()}.tmp.npz")
             stamp = np.array([_INDEX_VERSION, st.st_size, st.st_mtime_ns], np.int64)
-            np.savez(tmp, stamp=stamp, pts=self.pts, keyframe=self.keyframe)
+            extra = {} if self.decodable is None else {"decodable": np.int64(self.decodable)}
+            np.savez(tmp, stamp=stamp, pts=self.pts, keyframe=self.keyframe, **extra)
             os.replace(tmp, file)
         except OSError as exc:
             log.debug("cannot store the keyframe index of %s: %s", path, exc)
@@ -176,6 +184,8 @@ class AVReader:
     ----------
     index : KeyframeIndex
     n_frames : int
+    size : tuple of int
+        (width, height) of the stream in pixels.
     fps : float
         Average frame rate of the stream (0.0 when unknown).
     seeks, decoded : int
@@ -206,8 +216,32 @@ class AVReader:
             raise CaraFileError(self.path, "no frame with a timestamp could be read")
         self.index = index
         self.n_frames = index.n_frames
+        if index.decodable is not None:
+            self.n_frames = max(min(index.decodable, index.n_frames), 1)
         rate = self._stream.average_rate or self._stream.guessed_rate
         self.fps = float(rate) if rate else 0.0
+        self.size = (int(self._stream.width), int(self._stream.height))
+
+    def verify(self) -> int:
+        """Check that the last frame decodes, dropping trailing frames that do not.
+
+        The result is kept in the stored index, so a file is checked once, not on
+        every opening (the check decodes up to a keyframe interval). Returns
+        ``n_frames``.
+        """
+        if self.index.decodable is not None:
+            return self.n_frames
+        while self.n_frames > 1:
+            try:
+                self.read(self.n_frames - 1)
+                break
+            except CaraFileError:
+                self.n_frames -= 1
+                log.warning("%s: the last frame does not decode; using %d frames",
+                            self.path.name, self.n_frames)
+        self.index.decodable = self.n_frames
+        self.index.save(self.path)
+        return self.n_frames
 
     def _open(self) -> None:
         try:

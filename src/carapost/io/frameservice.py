@@ -14,7 +14,8 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
 - **Read-ahead** in the direction of travel while a thread is idle: forward in decode
   order, backward a keyframe interval at a time (the frames from the keyframe before the
   wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
-  current one and never more than half the cache.
+  current one and never more than half the cache; then, unless playing, a third of that
+  the other way (a step back after a jump or a change of direction is a cache hit).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
@@ -28,6 +29,8 @@ Nothing here imports Qt; `carapost.ui.frames` adapts ``on_ready`` to a queued si
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import threading
 from collections import deque
 from concurrent.futures import Future
@@ -45,6 +48,14 @@ __all__ = ["DEFAULT_CACHE_MB", "FrameService"]
 
 #: Default size of the image cache (about 500 frames of four 1280x720 cameras).
 DEFAULT_CACHE_MB = 1500.0
+
+#: Nice increment of the decoder threads (Linux: per thread; FFmpeg's own decoding
+#: threads inherit it). The GUI thread needs a core at once when a frame lands or the
+#: user acts; four busy decoders at the same priority would make it wait in the run
+#: queue behind them for tens of milliseconds on a 2-core machine. With +4 the GUI
+#: thread weighs 2.4x a decoder, so it runs first, and the decoders still get every
+#: cycle the GUI does not use.
+DECODER_NICE = 4
 
 _Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
 _UNOPENED: Any = object()
@@ -96,7 +107,9 @@ class FrameService(TakeFrames):
         self._service_threads: set[int] = set()
         self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
         self._playing = False
-        self._proxies: dict[int, VideoSource] = {}
+        self._proxies: dict[int, Any] = {}  # camera -> ProxyReader
+        # cameras whose last frame was never checked to decode (see `_verify`)
+        self._unverified: set[int] = set()
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -117,8 +130,15 @@ class FrameService(TakeFrames):
             try:
                 if not cam.video_path:
                     raise CaraFileError(f"<{cam.name}>", "the camera has no video file")
-                src = VideoSource(cam.video_path)
-                src.verify_frame_count()
+                # Opened without decoding: the first frame wanted is decoded next.
+                src = VideoSource(cam.video_path, probe=False)
+                reader = src._reader
+                if reader is not None and reader.index.decodable is None:
+                    # checked when the decoder is idle or nears the end (`_verify`):
+                    # it costs up to a keyframe interval of decodes
+                    self._unverified.add(camera)
+                else:
+                    src.verify_frame_count()  # known from the stored index: free
             except CaraFileError as exc:
                 self._errors[camera] = str(exc)
                 log.warning("Camera %s shows no images: %s", cam.name, exc)
@@ -146,7 +166,7 @@ class FrameService(TakeFrames):
     def attach_proxies(self) -> int:
         """Open the complete, current proxies of the take's videos (see
         `carapost.io.proxy`); returns how many cameras have one."""
-        from carapost.io.proxy import existing_proxy
+        from carapost.io.proxy import ProxyReader, existing_proxy
 
         for c, cam in enumerate(self.take.cameras):
             if c in self._proxies or not cam.video_path:
@@ -155,7 +175,7 @@ class FrameService(TakeFrames):
             if path is None:
                 continue
             try:
-                proxy = VideoSource(path)
+                proxy = ProxyReader(path)  # opens the container: no decode on the GUI thread
             except CaraFileError as exc:
                 log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
                 continue
@@ -316,19 +336,26 @@ class FrameService(TakeFrames):
         if src is None:  # no video: nothing to read ahead (and no busy loop)
             return None
         offset = int(self.take.cameras[camera].frame_offset)
-        for k in range(1, limit + 1):
-            f = state.origin + step * k
-            if not 0 <= f < self.take.n_frames:
-                return None
-            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
-                continue  # outside a short video: blank, nothing to decode
-            if (self._cache_get((f, key_cam)) is None and self._cache_get((f, camera)) is None
-                    and (f, camera) not in self._frame_errors):
-                return f
+        # The direction of travel first; then, unless playing, a third as far the other
+        # way, so that a step back after a jump (or after stepping forwards) is a cache
+        # hit too (with a keyframe on every frame, a jump decodes no frame before it).
+        runs = [(step, limit)] if self._playing else [(step, limit), (-step, limit // 3)]
+        for sign, count in runs:
+            for k in range(1, count + 1):
+                f = state.origin + sign * k
+                if not 0 <= f < self.take.n_frames:
+                    break
+                if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
+                    continue  # outside a short video: blank, nothing to decode
+                if (self._cache_get((f, key_cam)) is None
+                        and self._cache_get((f, camera)) is None
+                        and (f, camera) not in self._frame_errors):
+                    return f
         return None
 
     def _run(self, camera: int) -> None:
         self._service_threads.add(threading.get_ident())
+        _lower_priority(DECODER_NICE)
         state = self._cams[camera]
         while True:
             with self._cond:
@@ -345,11 +372,17 @@ class FrameService(TakeFrames):
                         frame, fut = state.jobs.popleft()
                         kind = "job"
                         break
+                    if camera in self._unverified:
+                        frame, kind, fut = -1, "verify", None
+                        break
                     ahead = self._ahead_frame(camera)
                     if ahead is not None:
                         frame, kind, fut = ahead, "ahead", None
                         break
                     self._cond.wait()
+            if kind == "verify":
+                self._verify(camera)
+                continue
             if kind != "job" and self._use_proxy(camera):
                 state.target = None
                 self._decode_proxy(frame, camera)
@@ -404,10 +437,28 @@ class FrameService(TakeFrames):
                 return "stop"
             return "go"
 
+    def _verify(self, camera: int) -> None:
+        """Check once that the camera's last frame decodes (its own thread only; the
+        stored index keeps the answer, so a file is checked once, not per opening)."""
+        self._unverified.discard(camera)
+        src = self._sources.get(camera)
+        if src is None:
+            return
+        try:
+            src.verify_frame_count()
+        except CaraFileError as exc:
+            log.warning("Camera %s: %s", self.take.cameras[camera].name, exc)
+
     def _decode_to(self, frame: int, camera: int, kind: str) -> NDArray[np.uint8] | None:
         """Decode ``frame`` of ``camera`` into the cache, with every frame decoded on
         the way (from the keyframe before it, or from the decoder's position)."""
         index = self._video_index(frame, camera)
+        if camera in self._unverified and index is not None:
+            reader = getattr(self._sources.get(camera), "_reader", None)
+            if reader is not None and index >= reader.index.keyframe_before(
+                    reader.n_frames - 1):
+                self._verify(camera)  # near the end: the frame count must be right
+                index = self._video_index(frame, camera)
         if index is None:
             self._notify(frame, camera)
             return self._blank_image(camera) if camera not in self._errors else None
@@ -486,3 +537,16 @@ class FrameService(TakeFrames):
         for proxy in self._proxies.values():
             proxy.close()
         self._proxies.clear()
+
+
+def _lower_priority(increment: int) -> None:
+    """Raise the calling thread's nice value by ``increment`` (Linux; no-op elsewhere,
+    where PRIO_PROCESS would renice the whole program)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid)
+                                                 + increment, 19))
+    except (AttributeError, OSError):  # not Linux, or not permitted: same priority
+        pass

@@ -429,6 +429,30 @@ def _import_blob_parameters(project: Project, given: object) -> None:
     project.imported_blob_parameters = project.properties.section(BLOB)
 
 
+
+def _open_videos(videos: list[Path]) -> list[VideoSource]:
+    """Open and check every camera video at once (closed again on return).
+
+    Opening builds each video's keyframe index (a pass over the file that FFmpeg does
+    without holding Python's GIL: ~3 s of CPU for 36,000 frames of 1280x720) and checks
+    that its last frame decodes, so the cameras are done on parallel threads. The first
+    camera in order that fails raises its `CaraFileError`.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(video: Path) -> VideoSource:
+        src = VideoSource(video)
+        try:
+            src.verify_frame_count()
+        finally:
+            src.close()
+        return src
+
+    with ThreadPoolExecutor(max_workers=max(1, min(len(videos), 4)),
+                            thread_name_prefix="carapost-import") as pool:
+        futures = [pool.submit(one, v) for v in videos]
+    return [f.result() for f in futures]
+
 def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -> Project:
     """Import Camera Files: a new project from the camera files of one take.
 
@@ -465,15 +489,7 @@ def import_take(path: str | Path, *, relocate: RelocateCallback | None = None) -
     meta = read_take_metadata(files.json) if files.json else {}
     cam_meta: dict[str, dict[str, Any]] = meta.get("cameras", {})
 
-    sources: list[VideoSource] = []
-    try:
-        for video in files.videos:
-            src = VideoSource(video)
-            sources.append(src)
-            src.verify_frame_count()
-    finally:
-        for src in sources:
-            src.close()
+    sources = _open_videos(files.videos)
     counts = [s.n_frames for s in sources]
     n_frames = min(counts)
     if isinstance(meta.get("frames"), int) and meta["frames"] != max(counts):

@@ -122,6 +122,10 @@ class VideoSource:
         How frames other than the next one are reached: ``"auto"`` checks once that
         seeking is exact and falls back to decoding forward when it is not; ``"seek"``
         trusts seeking; ``"decode"`` never seeks (always exact, slow backwards).
+    probe : bool
+        Decode frame 0 while opening, so a file that cannot be decoded at all fails
+        here (importing a take). False opens without decoding (the frame service: the
+        first frame wanted is rarely frame 0, and a read error says the same later).
 
     Attributes
     ----------
@@ -142,7 +146,7 @@ class VideoSource:
         frame, or is an image folder without images.
     """
 
-    def __init__(self, path: str | Path, *, seek: str = "auto") -> None:
+    def __init__(self, path: str | Path, *, seek: str = "auto", probe: bool = True) -> None:
         if seek not in ("auto", "seek", "decode"):
             raise ValueError(f"seek must be 'auto', 'seek' or 'decode', got {seek!r}")
         self.path = Path(path)
@@ -175,6 +179,9 @@ class VideoSource:
             self.n_frames = self._reader.n_frames
             self.fps = self._reader.fps
             self._seek_ok = True
+            if not probe:
+                self.size = self._reader.size
+                return
             first = self._reader.read(0)
             self._frame0 = first
         else:
@@ -362,17 +369,9 @@ class VideoSource:
             return self.n_frames
         if self._reader is not None:
             # The keyframe index counted the packets; a file cut mid-packet leaves a
-            # last frame that does not decode.
+            # last frame that does not decode (checked once per file: the index keeps it).
             with self._lock:
-                while self.n_frames > 1:
-                    try:
-                        self._reader.read(self.n_frames - 1)
-                        break
-                    except CaraFileError:
-                        self.n_frames -= 1
-                        self._reader.n_frames = self.n_frames
-                        log.warning("%s: the last frame does not decode; using %d frames",
-                                    self.path.name, self.n_frames)
+                self.n_frames = self._reader.verify()
             return self.n_frames
         with self._lock:
             if self._cap is None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy as _copy
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -390,12 +391,20 @@ class Selection:
 
     ``points`` are point ids; ``detections`` are (frame, camera, index) triples;
     ``cameras`` is the explicit camera selection used by processing and detach commands
-    (empty = all cameras).
+    (empty = all cameras). ``order`` holds the selected point ids in the order they were
+    selected (Align Data takes origin, direction and plane in click order).
     """
 
     points: frozenset[int] = frozenset()
     detections: frozenset[tuple[int, int, int]] = frozenset()
     cameras: frozenset[int] = frozenset()
+    order: tuple[int, ...] = ()
+
+    def ordered_points(self) -> list[int]:
+        """The selected point ids, oldest selection first (ids without a recorded order,
+        e.g. from an older file, follow in id order)."""
+        known = [p for p in self.order if p in self.points]
+        return known + sorted(self.points.difference(known))
 
 
 @dataclass
@@ -442,8 +451,20 @@ class Project:
         # Stabilize Data / Align Data (carapost.model.stabilization): never raw positions
         self.stabilization: Any = None
         self.alignment: Any = None
+        # Target Tracker pattern (blue box) and search (green cross) sizes the artist set
+        # for one point in one camera: (point id, camera) -> (pattern px, search px);
+        # a track without an entry uses the Target Tracker's defaults
+        self.target_sizes: dict[tuple[int, int], tuple[int, int]] = {}
         self.show_stabilized = False
         self.modified = False
+        # file bookkeeping kept by carapost.io.cara and the recovery code: the newer
+        # autosave found beside the file when it was opened, the autosave of an untitled
+        # project, the autosave this session wrote beside a saved one, and (path, size,
+        # mtime_ns, inode) of a file whose arrays are still memory-mapped
+        self.newer_autosave: Path | None = None
+        self.untitled_autosave: Path | None = None
+        self.session_autosave: Path | None = None
+        self.mapped_source: tuple[str, int, int, int] | None = None
 
     # -- sizes ---------------------------------------------------------------------------
     @property
@@ -499,12 +520,18 @@ class Project:
     ) -> None:
         """Replace parts of the selection (None keeps that part)."""
         sel = self.selection
+        order = sel.order
+        if points is not None:
+            given = list(dict.fromkeys(int(p) for p in points))
+            kept = [p for p in sel.ordered_points() if p in set(given)]
+            order = tuple(kept + [p for p in given if p not in set(kept)])
         new = Selection(
-            frozenset(int(p) for p in points) if points is not None else sel.points,
+            frozenset(order) if points is not None else sel.points,
             frozenset(tuple(int(x) for x in d) for d in detections)
             if detections is not None
             else sel.detections,
             frozenset(int(c) for c in cameras) if cameras is not None else sel.cameras,
+            order,
         )
         if new != sel:
             self.selection = new

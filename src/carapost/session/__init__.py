@@ -63,6 +63,7 @@ from carapost.session.quality import QualityActions
 from carapost.session.script import ScriptActions
 from carapost.session.stabilise import StabiliseActions
 from carapost.session.target import TargetActions
+from carapost.session.target_sizes import TargetSizeActions
 
 log = logging.getLogger("carapost.session")
 
@@ -103,7 +104,8 @@ def read_take(path: str | Path, *, relocate: RelocateCallback | None = None,
 
 
 class Session(ScriptActions, ProcessActions, QualityActions, StabiliseActions,
-              TargetActions, GapFillActions, LabellingActions):
+              TargetActions, GapFillActions, LabellingActions,
+              TargetSizeActions):
     """A project with its undo History and images, with one method per menu action.
 
     The Process methods and the two-step form (`prepare`, `apply`, `run`) come from

@@ -59,6 +59,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", type=int, default=0,
                    help="0: the standard rig; N > 0: another rig, brim layout and marker "
                         "placement drawn from N")
+    p.add_argument("--partial-occlusion", action="store_true",
+                   help="an eyelid fold and curling lips cover part of the lid and lip "
+                        "markers (truth: the visible part's centroid)")
+    p.add_argument("--missed-markers", type=int, default=0, metavar="N",
+                   help="N markers fade to a low contrast over one stretch each (the blob "
+                        "detector misses them there)")
     p.add_argument("--take", default="synth", help="take name (file stem)")
     p.add_argument("--workers", type=int, default=2, help="processes rendering in parallel")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -78,6 +84,7 @@ def main_synth(argv: list[str]) -> int:
         blur=args.blur, motion_blur=args.motion_blur, highlights=args.highlights,
         merge_pair=args.merge_pair, out_of_sync_camera=args.out_of_sync, codec=args.codec,
         timecode_start=args.timecode, take_name=args.take, variant=args.variant,
+        partial_occlusion=args.partial_occlusion, missed_markers=args.missed_markers,
     )
     try:
         config.validate()
@@ -100,6 +107,14 @@ def main_synth(argv: list[str]) -> int:
     except (CaraFileError, SynthCancelled) as exc:
         print(f"\ncarapost synth: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        # the same one line as every other subcommand (an unwritable or full folder)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"\ncarapost synth: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\ncarapost: cancelled", file=sys.stderr)
+        return 130
     if not args.quiet:
         print(f"\nwrote {path} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
     print(path)

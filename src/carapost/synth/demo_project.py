@@ -238,9 +238,13 @@ def render_dots(project: Project, frame: int, camera: int, *, noise: bool = True
 
 
 def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
-                  preset: str = "speech", seed: int = 3
+                  preset: str = "speech", seed: int = 3, decorate: bool = True,
+                  **options: object
                   ) -> tuple[Project, SynthScene, Callable[[int, int], NDArray[np.uint8]]]:
     """A project from a rendered synthetic take.
+
+    ``decorate`` adds gaps and edited stretches (as `demo_project` does); ``options``
+    are further `SynthConfig` fields (``missed_markers=4``).
 
     Returns
     -------
@@ -252,7 +256,8 @@ def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
         ``get_image(frame, camera) -> grey image [H, W] uint8`` rendering the take
         (slow: wrap it in a caching frame source).
     """
-    scene = build_scene(SynthConfig(frames=frames, size=size, preset=preset, seed=seed))
+    scene = build_scene(SynthConfig(frames=frames, size=size, preset=preset, seed=seed,
+                                    **options))  # type: ignore[arg-type]
     F, M, C = scene.visible.shape
     B = scene.brim3d.shape[0]
     p = new_project(F, C, name="synth", image_size=size, fps=scene.config.fps)
@@ -271,6 +276,7 @@ def scene_project(frames: int = 120, size: tuple[int, int] = (1280, 720), *,
     radius = np.concatenate([scene.marker_radius_mm, scene.brim_radius_mm]) * size[1] / 260
     rng = np.random.default_rng(seed)
     _fill_observations(p, uv, vis, rng, radius_px=radius)
-    _decorate(p, rng)
+    if decorate:
+        _decorate(p, rng)
     p.modified = False
     return p, scene, partial(render_frame, scene)

@@ -302,14 +302,18 @@ def _background(scene: SynthScene, camera: int) -> dict:
 
 def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArray, t: NDArray,
               centres: NDArray, normals: NDArray, radii: NDArray,
-              strength: float | NDArray) -> None:
+              strength: float | NDArray, cover: tuple[NDArray, NDArray] | None = None
+              ) -> None:
     """Accumulate the coverage of discs into ``ink`` (H, W) in place.
 
     ``centres``/``normals`` are (S, J, 3): S time samples (motion blur) of J discs in the
     helmet frame; the coverage is averaged over the samples. Pixels whose centre is far
     inside or outside a disc (by more than the pixel's footprint on the disc's plane) are
     classified from that one sample; only pixels near the rim are super-sampled.
-    ``strength`` is the ink's opacity, one value or one per disc (J,).
+    ``strength`` is the ink's opacity, one value or one per disc (J,). ``cover`` is an
+    optional occluding edge per disc, ``(directions (J, 3) helmet frame, offsets (J,) mm)``:
+    the part of a disc beyond the offset along the direction is not drawn (an offset at
+    or above the radius hides nothing).
     """
     S, J, _ = centres.shape
     strength = np.broadcast_to(np.asarray(strength, dtype=np.float64), (J,))
@@ -354,6 +358,16 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
         e = (lam * xn - P[..., 0]) ** 2 + (lam * yn - P[..., 1]) ** 2 + (lam - P[..., 2]) ** 2
         return np.where(lam > 0, e, np.inf)
 
+    if cover is not None:
+        cover_c = np.einsum("ij,dj->di", R, np.asarray(cover[0], dtype=np.float64))
+        cover_o = np.asarray(cover[1], dtype=np.float64)
+
+    def beyond(xn: NDArray, yn: NDArray, P: NDArray, N: NDArray, U: NDArray) -> NDArray:
+        # coordinate (mm) along the cover direction U of the ray's hit on the disc plane
+        lam = np.einsum("...i,...i->...", N, P) / (N[..., 0] * xn + N[..., 1] * yn + N[..., 2])
+        return (lam * xn - P[..., 0]) * U[..., 0] + (lam * yn - P[..., 1]) * U[..., 1] + \
+            (lam - P[..., 2]) * U[..., 2]
+
     ss = _SUBSAMPLES
     sub = (np.arange(ss) + 0.5) / ss - 0.5
     for hb in np.unique(half[ok]):
@@ -378,13 +392,22 @@ def _disc_ink(ink: NDArray[np.float32], scene: SynthScene, camera: int, R: NDArr
             foot = 0.75 * P[..., 2] / f / np.maximum(cosv, 0.05)
             c_s = (d < 0).astype(np.float64)
             rim = np.abs(d) < foot
+            if cover is not None:
+                U = cover_c[sel][:, None, None, :]
+                o = cover_o[sel][:, None, None]
+                g = beyond(xn, yn, P, N, U) - o
+                c_s *= g < 0
+                rim = (rim | (np.abs(g) < foot)) & (d < foot)
             j, yy, xx = np.nonzero(rim)
             if j.size:
                 sxs = xs[j, yy, xx][:, None, None] + sub[None, None, :]
                 sys = ys[j, yy, xx][:, None, None] + sub[None, :, None]
                 sxn, syn = rays(*np.broadcast_arrays(sxs, sys))
-                inside = dist2(sxn, syn, P[j, 0, 0][:, None, None, :],
-                               N[j, 0, 0][:, None, None, :]) < (radii[sel][j] ** 2)[:, None, None]
+                Pj, Nj = P[j, 0, 0][:, None, None, :], N[j, 0, 0][:, None, None, :]
+                inside = dist2(sxn, syn, Pj, Nj) < (radii[sel][j] ** 2)[:, None, None]
+                if cover is not None:
+                    inside &= beyond(sxn, syn, Pj, Nj, U[j, 0, 0][:, None, None, :]) < \
+                        o[j, 0, 0][:, None, None]
                 c_s[j, yy, xx] = inside.mean(axis=(1, 2))
             cov += c_s
         cov *= strength[sel][:, None, None] / S
@@ -478,8 +501,14 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
         cen = scene.seen_points[frame, camera][None, vis]
         nor = scene.seen_normals[frame, camera][None, vis]
     marker_ink = _SKIN_INK if scene.marker_ink is None else scene.marker_ink[vis]
+    strength = 1 - marker_ink
+    if scene.contrast is not None:   # markers fading over a stretch (missed markers)
+        strength = strength * scene.contrast[frame, vis]
+    cover = None
+    if scene.cover_dir is not None:  # an eyelid fold or a curling lip over part of a disc
+        cover = (scene.cover_dir[frame, vis], scene.cover_offset[frame, vis])
     _disc_ink(ink, scene, camera, R, t, cen, nor, scene.marker_radius_mm[vis],
-              1 - marker_ink)
+              strength, cover)
     bvis = scene.brim_visible[frame, :, camera]
     _disc_ink(ink, scene, camera, R, t, scene.brim3d[None, bvis], scene.brim_normals[None, bvis],
               scene.brim_radius_mm[bvis], 1 - _BRIM_INK)

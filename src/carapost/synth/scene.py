@@ -20,7 +20,7 @@ from carapost.algorithms.camera import (
     project,
     rodrigues_to_matrix,
 )
-from carapost.synth import face, rig
+from carapost.synth import face, occlusion, rig
 from carapost.synth.motion import PRESETS, ExpressionMotion, RigidJitter
 
 __all__ = ["SynthConfig", "SynthScene", "build_scene"]
@@ -103,6 +103,13 @@ class SynthConfig:
         each camera of a caddy flexing on its own).
     slip_scale : float
         Scale of the helmet slip on the head (1: about 0.35 deg and 0.45 mm RMS).
+    partial_occlusion : bool
+        An eyelid fold covers part of each upper-lid marker while the eye closes (before
+        it hides it), and a curling lip part of each lip marker
+        (`carapost.synth.occlusion`); the truth gains the visible part's centroid.
+    missed_markers : int
+        Markers (visible throughout) whose ink fades to a low contrast over one stretch
+        each, so that the blob detector misses them there; the truth gains the stretches.
     """
 
     preset: str = "speech"
@@ -130,6 +137,8 @@ class SynthConfig:
     caddy_separation_mm: float = 128.0
     flex_scale: float = 1.0
     slip_scale: float = 1.0
+    partial_occlusion: bool = False
+    missed_markers: int = 0
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad parameter."""
@@ -177,6 +186,8 @@ class SynthConfig:
                              "in 60..300")
         if not (0.0 <= self.flex_scale <= 10.0 and 0.0 <= self.slip_scale <= 10.0):
             raise ValueError("flex_scale and slip_scale must be in 0..10")
+        if int(self.missed_markers) < 0:
+            raise ValueError(f"missed_markers must be >= 0, got {self.missed_markers}")
         if not self.take_name or re.search(r"[\\/:*?\"<>|\s]", self.take_name):
             raise ValueError(f"take_name must be a plain file stem, got {self.take_name!r}")
 
@@ -260,6 +271,18 @@ class SynthScene:
     #: Head shape scale along x, y, z (see `SynthConfig.head_scale`).
     head_scale: NDArray[np.float64] = field(
         default_factory=lambda: np.ones(3), repr=False)
+    #: Partial occlusion (`SynthConfig.partial_occlusion`, else None): per frame and
+    #: marker the occluder's direction in the disc plane (F, M, 3), its edge's offset from
+    #: the centre (F, M) mm (inf: nothing covered), the visible part's centroid in 3D
+    #: (F, M, 3) and projected as each camera sees it (F, M, C, 2).
+    cover_dir: NDArray[np.float64] | None = field(default=None, repr=False)
+    cover_offset: NDArray[np.float64] | None = field(default=None, repr=False)
+    visible_points3d: NDArray[np.float64] | None = field(default=None, repr=False)
+    visible_uv: NDArray[np.float64] | None = field(default=None, repr=False)
+    #: Missed markers (`SynthConfig.missed_markers`, else None): ink contrast factor
+    #: (F, M) and the stretches where it is faded (F, M) bool.
+    contrast: NDArray[np.float64] | None = field(default=None, repr=False)
+    missed: NDArray[np.bool_] | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -547,6 +570,17 @@ def build_scene(config: SynthConfig) -> SynthScene:
         tb = times[:, :, None] + BLUR_OFFSETS[None, None, :] / config.fps  # (F, C, S)
         blur_points, blur_normals, *_ = markers_at(tb)
 
+    extras: dict[str, Any] = {}
+    if config.partial_occlusion:
+        extras.update(_partial_occlusion(labels, eyelid, radii, normals, head_R,
+                                         act_true, points3d, seen_points, cam_R, cam_t,
+                                         intr))
+    if config.missed_markers:
+        rng_missed = np.random.default_rng([int(config.seed), int(config.variant), 6151])
+        cand = np.flatnonzero(visible.all(axis=(0, 2)) & ~eyelid)
+        extras["contrast"], extras["missed"] = occlusion.missed_stretches(
+            cand, int(config.missed_markers), len(labels), F, rng_missed)
+
     return SynthScene(
         config=config, intrinsics=intr, cam_R=cam_R, cam_t=cam_t, points3d=points3d,
         marker_radius_mm=radii, marker_normals=normals, labels=labels, eyelid=eyelid,
@@ -557,5 +591,27 @@ def build_scene(config: SynthConfig) -> SynthScene:
         seen_normals=np.ascontiguousarray(seen_normals),
         seen_head_R=np.ascontiguousarray(seen_hR), seen_head_t=np.ascontiguousarray(seen_ht),
         blur_points=blur_points, blur_normals=blur_normals, nominal_R=R0, nominal_t=t0,
-        marker_ink=ink, head_scale=head_scale,
+        marker_ink=ink, head_scale=head_scale, **extras,
     )
+
+
+def _partial_occlusion(labels: list[str], eyelid: NDArray,
+                       radii: NDArray, normals: NDArray, head_R: NDArray, act: NDArray,
+                       points3d: NDArray, seen_points: NDArray, cam_R: NDArray,
+                       cam_t: NDArray, intr: CameraIntrinsics) -> dict[str, NDArray]:
+    """The partial-occlusion members of a scene (see `SynthScene.cover_dir`)."""
+    blink, curl = act[:, face.MODES.index("blink")], act[:, face.MODES.index("lip_curl")]
+    cdir, coff = occlusion.partial_cover(labels, eyelid, radii, normals, head_R, blink,
+                                         curl, BLINK_HIDE)
+    shift = occlusion.segment_centroid_offset(np.broadcast_to(radii, coff.shape), coff)
+    F, M = coff.shape
+    C = cam_R.shape[1]
+    vuv = np.empty((F, M, C, 2))
+    for c in range(C):
+        # where the camera sees the disc (a lagging camera one frame late)
+        pc = np.asarray(seen_points)[:, c] + cdir * shift[..., None]
+        u, _ = project(pc, cam_R[:, c:c + 1], cam_t[:, c:c + 1], intr.subset([c]))
+        vuv[:, :, c] = u[:, :, 0]
+    vis3d = points3d + cdir * shift[..., None]
+    return {"cover_dir": cdir, "cover_offset": coff, "visible_points3d": vis3d,
+            "visible_uv": vuv}

@@ -61,12 +61,18 @@ def write_truth(path: str | os.PathLike[str], scene: SynthScene) -> None:
     VICON_RADIAL2), ``distortion_centre`` (C, 2), ``image_size`` (C, 2), ``channels``,
     ``marker_radius_mm``, ``marker_normals``, ``brim_normals``, ``brim_radius_mm``,
     ``eyelid``, ``activations`` (F, K) with ``modes``, ``head_R``, ``head_t``,
-    ``camera_lag`` (C,), ``merge_pair`` (2,) (-1 when absent), ``fps``, ``seed``.
+    ``camera_lag`` (C,), ``merge_pair`` (2,) (-1 when absent), ``fps``, ``seed``; with
+    partial occlusion also ``cover_dir`` (F, M, 3), ``cover_offset`` (F, M) (inf: nothing
+    covered), ``visible_points3d`` (F, M, 3) and ``visible_uv`` (F, M, C, 2) (the visible
+    part's centroid); with missed markers ``contrast`` (F, M) and ``missed`` (F, M).
     """
     import io
 
     intr = scene.intrinsics
     buf = io.BytesIO()
+    optional = {k: getattr(scene, k) for k in ("cover_dir", "cover_offset", "visible_points3d",
+                                              "visible_uv", "contrast", "missed")
+                if getattr(scene, k) is not None}
     np.savez_compressed(
         buf,
         points3d=scene.points3d, brim3d=scene.brim3d, labels=np.array(scene.labels),
@@ -80,7 +86,7 @@ def write_truth(path: str | os.PathLike[str], scene: SynthScene) -> None:
         activations=scene.activations, modes=np.array(MODES), head_R=scene.head_R,
         head_t=scene.head_t, camera_lag=scene.camera_lag,
         merge_pair=np.array(scene.merge_pair if scene.merge_pair else (-1, -1)),
-        fps=np.float64(scene.config.fps), seed=np.int64(scene.config.seed),
+        fps=np.float64(scene.config.fps), seed=np.int64(scene.config.seed), **optional,
     )
     _atomic_bytes(Path(path), buf.getvalue())
 
@@ -104,6 +110,8 @@ def _metadata(scene: SynthScene, videos: list[str]) -> dict:
             "noise": cfg.noise, "blur": cfg.blur, "motion_blur": cfg.motion_blur,
             "highlights": cfg.highlights, "merge_pair": list(scene.merge_pair or []),
             "out_of_sync_camera": cfg.out_of_sync_camera, "codec": cfg.codec,
+            **({"partial_occlusion": True} if cfg.partial_occlusion else {}),
+            **({"missed_markers": int(cfg.missed_markers)} if cfg.missed_markers else {}),
             "truth": TRUTH_FILE,
         },
     }
@@ -120,6 +128,17 @@ def _write_camera(scene: SynthScene, c: int, path: Path, fourcc: str,
     """Render and encode one camera's video; ``tick()`` after each image returns False to
     stop. Returns False if stopped."""
     w, h = scene.size
+    if fourcc == "FFV1":
+        # Every frame a keyframe (FFV1's archival setting): a jump anywhere in the take
+        # decodes one frame per camera (OpenCV's writer puts a keyframe every 12).
+        from carapost.io.encode import FFV1Writer
+
+        with FFV1Writer(path, (w, h), float(scene.config.fps)) as ffv1:
+            for f in range(scene.n_frames):
+                ffv1.write(render_frame(scene, f, c))
+                if not tick():
+                    return False
+        return True
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc),
                              float(scene.config.fps), (w, h), False)
     if not writer.isOpened():

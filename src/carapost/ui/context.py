@@ -68,6 +68,7 @@ class DisplayOptions:
     recon_colours: bool = True
     cameras: bool = True
     rays: bool = True
+    uncertainty: bool = False
 
     def to_dict(self) -> dict[str, bool]:
         """Plain dict for settings."""
@@ -91,7 +92,7 @@ OPTION_TITLES_2D = (
 OPTION_TITLES_3D = (
     ("face_points", "Face Points"), ("brim_points", "Calibration Brim Points"),
     ("recon_colours", "Reconstruction Type Colors"), ("cameras", "Cameras"),
-    ("rays", "Rays"), ("rom", "ROM"), ("sticks", "Sticks"),
+    ("rays", "Rays"), ("rom", "ROM"), ("sticks", "Sticks"), ("uncertainty", "Uncertainty"),
 )
 
 
@@ -119,6 +120,9 @@ class ViewContext(QObject):
         A click at image (x, y) of a camera in Add / Edit Target Track mode.
     keyframe_moved(int, int, float, float)
         A selected keyframe (camera, point id) was dragged to image (x, y).
+    target_resized(int, int, str, float)
+        A handle of a selected keyframe (camera, point id) was dragged: its pattern box
+        or search cross ("pattern" / "search") is now this size (image px).
     """
 
     changed = Signal(object)
@@ -129,6 +133,7 @@ class ViewContext(QObject):
     range_requested = Signal(int, int)
     point_clicked = Signal(int, float, float)
     keyframe_moved = Signal(int, int, float, float)
+    target_resized = Signal(int, int, str, float)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -141,6 +146,8 @@ class ViewContext(QObject):
         self.active_camera: int | None = None
         self.lock_to_point = False
         self.show_stabilized = False
+        #: playback runs (panes that follow the frame refresh less often meanwhile)
+        self.playing = False
         self._proj_cache: dict[int, NDArray[np.float64] | None] = {}
         self._preview_cache: dict[tuple[int, int], Any] = {}
         #: the user settings the Display preferences are read from (the owner's, when
@@ -349,6 +356,7 @@ class ActionContext(QObject):
         self.view.properties_requested.connect(self.set_properties)
         self.view.point_clicked.connect(self._point_clicked)
         self.view.keyframe_moved.connect(self._keyframe_moved)
+        self.view.target_resized.connect(self._target_resized)
         self.runner.failed.connect(self._job_failed)
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
@@ -362,6 +370,10 @@ class ActionContext(QObject):
     def _keyframe_moved(self, camera: int, point: int, x: float, y: float) -> None:
         self.act("Drag Keyframe", self.session.edit_target_track, point, camera,
                  self.project.current_frame, (x, y))
+
+    def _target_resized(self, camera: int, point: int, kind: str, size: float) -> None:
+        self.act("Target Track Size", self.session.set_target_track_size, point, camera,
+                 **{kind: size})
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -540,7 +552,8 @@ class ActionContext(QObject):
             return
         for view in self.shell.all_views():
             if view.kind == "sensor" and view.camera == camera:
-                view.refresh(None)
+                landed = getattr(view, "image_landed", None)
+                landed(frame) if landed is not None else view.refresh(None)
 
     def flush(self) -> None:
         """Deliver pending model changes now (tests and benchmarks)."""

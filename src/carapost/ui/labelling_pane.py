@@ -30,6 +30,7 @@ from carapost.session import Session
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import GREY, RED, YELLOW
+from carapost.ui.throttle import FrameThrottle
 
 __all__ = ["LabellingPane"]
 
@@ -120,6 +121,9 @@ class LabellingPane(QWidget):
         self.filter.textChanged.connect(self._apply_filter)
         ctx.view.changed.connect(self._changed)
         self._last_selection: frozenset[int] = frozenset()
+        self._drawn_states: list[str] = []  # state each row is coloured for
+        # the colours follow the frame: a few times a second while playing
+        self._throttle = FrameThrottle(ctx.view, self.refresh)
 
     # -- state -----------------------------------------------------------------------------
     def selected_labels(self) -> list[str]:
@@ -141,6 +145,19 @@ class LabellingPane(QWidget):
         if p.n_frames and np.isnan(p.points.positions[p.current_frame, col, 0]):
             return "absent"
         return "assigned"
+
+    def label_states(self, names: list[str]) -> list[str]:
+        """`label_state` of every name at once (one array lookup for the frame)."""
+        p = self.ctx.project
+        col_of: dict[str, int] = {}
+        for k, name in enumerate(p.points.labels):
+            col_of.setdefault(name, k)  # the first column, as `label_state`
+        cols = np.array([col_of.get(n, -1) for n in names], np.intp)
+        out = np.where(cols >= 0, "assigned", "unassigned").astype(object)
+        if p.n_frames and (cols >= 0).any():
+            absent = np.isnan(p.points.positions[p.current_frame, cols[cols >= 0], 0])
+            out[np.flatnonzero(cols >= 0)[absent]] = "absent"
+        return [str(x) for x in out]
 
     def visible_rows(self) -> list[int]:
         """Rows the filter shows."""
@@ -206,6 +223,8 @@ class LabellingPane(QWidget):
         self._update_status()
 
     def _changed(self, change: Change) -> None:
+        if self._throttle.defer(change):
+            return
         if change.parts is None or change.parts & self.PARTS:
             self.refresh()
         if (self.next_box.isChecked() and (change.parts is None or "selection" in
@@ -227,16 +246,22 @@ class LabellingPane(QWidget):
         if [self.list.item(i).text() for i in range(self.list.count())] != names:
             current = self.current_label()
             self.list.clear()
+            self._drawn_states = []
             self.list.addItems(names)
             self._apply_filter(self.filter.text())
             if current in names:
                 self.list.setCurrentRow(names.index(current))
         colours = {"unassigned": RED, "assigned": GREY, "absent": YELLOW}
-        for i in range(self.list.count()):
+        states = self.label_states([self.list.item(i).text() for i in range(self.list.count())])
+        if len(self._drawn_states) != len(states):
+            self._drawn_states = [""] * len(states)
+        for i, state in enumerate(states):
+            if state == self._drawn_states[i]:
+                continue  # the colours follow the frame: touch only the rows that change
             item = self.list.item(i)
-            state = self.label_state(item.text())
             item.setForeground(QBrush(colours[state]))
             item.setToolTip(f"{item.text()}: {state}")
+            self._drawn_states[i] = state
         self._update_status()
 
     def _update_status(self) -> None:
@@ -245,7 +270,7 @@ class LabellingPane(QWidget):
             self.status.setText("No labels yet: File > Import Labels, or Process > Label "
                                 "From Template")
             return
-        todo = sum(1 for n in names if self.label_state(n) == "unassigned")
+        todo = self.label_states(names).count("unassigned")
         shown = len(self.visible_rows())
         text = f"{len(names) - todo} of {len(names)} labels assigned"
         if shown != len(names):

@@ -213,8 +213,13 @@ class MainWindow(QMainWindow):
         redo.setEnabled(st.can_redo)
         undo.setText(f"Undo {st.undo_text()}" if st.can_undo else "Undo")
         redo.setText(f"Redo {st.redo_text()}" if st.can_redo else "Redo")
-        self.setWindowTitle(f"carapost - {self.context.project_name()}[*]")
-        self.setWindowModified(self.context.is_modified)
+        title = f"carapost - {self.context.project_name()}[*]"
+        if title != self.windowTitle():
+            self.setWindowTitle(title)
+        # Qt re-sends the title to the window system on every call (an X11 round trip
+        # per frame while playing): only when it changes
+        if self.isWindowModified() != self.context.is_modified:
+            self.setWindowModified(self.context.is_modified)
 
     def _changed(self, change: Change) -> None:
         self.timebar.refresh()

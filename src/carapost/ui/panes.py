@@ -52,6 +52,7 @@ from carapost.ui.settings import (
     preference_signals,
     set_preference,
 )
+from carapost.ui.throttle import FrameThrottle
 from carapost.ui.views.continuity import ContinuityView
 
 
@@ -492,9 +493,13 @@ class SelectedPointPane(QWidget):
         self.ctx = ctx
         ctx.view.changed.connect(self.refresh)
         self.sample.setText(sample_text(ctx.project))
+        # the sample text follows the frame: a few times a second while playing
+        self._throttle = FrameThrottle(ctx.view, lambda: self.refresh(None))
 
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
+        if self._throttle.defer(change):
+            return
         if change is not None and change.parts & {"selection"}:
             self.chart.refresh(None)
         else:

@@ -54,6 +54,7 @@ class Playback(QObject):
         self.dropped = 0
         self._window: list[int] = [0, 0]  # shown, dropped since the last report
         self._last_report = 0.0
+        self._requested = -1  # frame the decoders were last sent to
 
     @property
     def playing(self) -> bool:
@@ -78,11 +79,14 @@ class Playback(QObject):
             self.shown = self.dropped = 0
             self._window = [0, 0]
             self._last_report = self._t0
+            self._requested = -1
             self.ctx.frames.set_playing(self._fps)
+            self.ctx.view.playing = True
             # Ticks at twice the frame rate so a frame is at most half a frame late.
             self.timer.start(max(int(500 / self._fps), 1))
         else:
             self.timer.stop()
+            self.ctx.view.playing = False
             self.ctx.frames.set_playing(None)
             # back to the original images (the views may show a proxy frame)
             shell = self.ctx.shell
@@ -124,8 +128,11 @@ class Playback(QObject):
             self.dropped += skipped
             self._window[1] += skipped
             self.ctx.set_frame(show)
-        # the decoders head for the clock, not for the frame on screen
-        self.ctx.frames.request(due, None, direction=1)
+        # the decoders head for the clock, not for the frame on screen; once per frame
+        # due (the timer ticks twice as often, and every request wakes every decoder)
+        if due != self._requested:
+            self._requested = due
+            self.ctx.frames.request(due, None, direction=1)
         if now - self._last_report >= REPORT_EVERY_S:
             self._report()
             self._last_report = now

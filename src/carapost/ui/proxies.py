@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import threading
 from typing import TYPE_CHECKING, Any
 
@@ -84,7 +85,8 @@ class ProxyBuilder(QObject):
         from carapost.io.proxy import write_proxy
 
         try:  # interactive decoding comes first (Linux: per-thread nice value)
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 15)
+            if sys.platform.startswith("linux"):  # elsewhere it would renice the program
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 15)
         except (AttributeError, OSError):
             pass
         total = len(todo)

@@ -87,8 +87,8 @@ PREFERENCES: tuple[Preference, ...] = (
                "At start-up, say when a newer release is available. Kept for Help > Check For "
                "Updates, which carapost does not have yet: nothing reads it today."),
     Preference("tracker_update_timeline_every_frame", "Update Timeline Every Frame", True,
-               "Refresh the continuity chart and Selected Point pane while target tracking."
-               " For the Target Tracker, which is not available yet: nothing reads it today."
+               "Refresh the continuity chart and Selected Point pane while target tracking"
+               " (a few times a second); off, they change when the run ends."
                " Default is our choice (the guide gives none)."),
     Preference("tracker_update_2d_view_every_frame", "Update 2D View Every Frame", False,
                "Show each tracked frame in the views while target tracking (slower)."

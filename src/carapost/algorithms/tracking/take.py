@@ -32,8 +32,9 @@ from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
 from carapost.algorithms.uncertainty import (
+    brim_pose_covariance,
     noise_from_residuals,
-    pair_holdout_scale,
+    point_noise_factor,
     retriangulate,
     sample_sigma,
     smooth_camera_poses,
@@ -298,7 +299,8 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        frames and found points far from every other point (:func:`drop_isolated`).
     4. Fit the cameras' poses over time (:func:`smooth_camera_poses`, the start frame's
        kept), triangulate the face samples again with them and estimate each
-       triangulated sample's sigma (:func:`sample_sigma`).
+       triangulated sample's sigma (:func:`sample_sigma`, with the cameras' pose
+       covariance from the brim and each point's noise factor).
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -336,8 +338,10 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     noise = noise_from_residuals(obs_t, X, R, t, intr)
-    noise = noise * pair_holdout_scale(obs_t, X, R, t, intr, noise)
-    sigma = sample_sigma(X, obs, R, t, intr, noise)
+    phi = point_noise_factor(obs_t, X, R, t, intr, noise)
+    brim = ~face
+    pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
+    sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov, point_factor=phi)
     return R, t, sigma
 
 

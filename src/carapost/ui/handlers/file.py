@@ -27,20 +27,20 @@ EXPORT_FILTERS = {"c3d": "C3D (*.c3d)", "fbx": "FBX (*.fbx)", "xcp": "XCP (*.xcp
 def maybe_save(ctx: ActionContext) -> bool:
     """Ask about unsaved changes; False if the user cancelled.
 
-    When the project is left (saved or discarded), the autosave copy of a never-saved
-    project goes with it.
+    When the project is left (saved or discarded), the autosave copies this session
+    wrote go with it.
     """
-    from carapost.io.cara import discard_untitled_autosave
+    from carapost.io.cara import discard_autosaves
 
     if not ctx.is_modified or ctx.project.n_frames == 0:
-        discard_untitled_autosave(ctx.project)
+        discard_autosaves(ctx.project)
         return True
     answer = ctx.dialogs.ask_save(ctx.project_name())
     if answer == "cancel":
         return False
     if answer == "save":
         return save_project(ctx)
-    discard_untitled_autosave(ctx.project)
+    discard_autosaves(ctx.project)
     return True
 
 
@@ -59,7 +59,7 @@ def offer_untitled_recovery(ctx: ActionContext) -> bool:
     if session is None:
         return False
     session.project.path = None
-    session.project.untitled_autosave = found[0]  # type: ignore[attr-defined]
+    session.project.untitled_autosave = found[0]
     session.stack.mark_unsaved()
     ctx.set_session(session)
     log.info("Recovered the unsaved project from %s", found[0])

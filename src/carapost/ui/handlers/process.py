@@ -29,13 +29,21 @@ def follow_tracking(ctx: ActionContext, job: Job) -> Callable[[], None]:
     (the current frame follows the job's progress); returns the function that stops it.
 
     Slower, as the guide says: every frame's images are decoded for the views too.
+    A Target Tracker run (a job with a ``live`` list) tracks one camera after the other:
+    the views show the frame each camera's track has reached, so every camera being
+    tracked is followed, not just the first.
     """
     start, stop = getattr(job, "start", None), getattr(job, "stop", None)
     if start is None or stop is None or not preference(ctx.settings, FOLLOW_TRACKING):
         return lambda: None
     step, span = (1 if stop >= start else -1), abs(stop - start)
+    live = getattr(job, "live", None)
 
     def show(done: int, total: int) -> None:
+        if live is not None:
+            if live:
+                ctx.set_frame(int(live[-1][2]))
+            return
         ctx.set_frame(start + step * min(int(done), span))
 
     ctx.runner.progressed.connect(show)
@@ -117,10 +125,13 @@ def load_rom(ctx: ActionContext) -> None:
 
 
 def align_data(ctx: ActionContext) -> bool:
-    """Process > Align Data: the three selected points (in id order: origin, direction,
-    plane) define the coordinate frame; the dialog asks which axes they give."""
+    """Process > Align Data: the three selected points, in the order they were selected
+    (origin, direction, plane), define the coordinate frame; the dialog asks which axes
+    they give."""
     p = ctx.project
-    cols = p.selected_columns()
+    present = set(p.points.ids.tolist())
+    ordered = [i for i in p.selection.ordered_points() if i in present]
+    cols = p.points.index_of(ordered) if ordered else []
     if len(cols) != 3:
         ctx.report_error("Align Data", f"Align Data: select exactly 3 points (got {len(cols)})",
                          show=False)
@@ -133,8 +144,7 @@ def align_data(ctx: ActionContext) -> bool:
         "Axes (two of x, y, z, '-' flips one; e.g. xy, zx, x-z):", "xy")
     if axes is None:
         return False
-    ids = [int(i) for i in p.points.ids[cols]]
-    return ctx.act("Align Data", ctx.session.align, ids, axes.strip() or "xy") is not None
+    return ctx.act("Align Data", ctx.session.align, ordered, axes.strip() or "xy") is not None
 
 
 def remove_stabilization(ctx: ActionContext) -> bool:

@@ -4,7 +4,9 @@ Every item calls a :class:`~carapost.session.Session` Target Tracker method. A t
 run is prepared on the GUI thread (``session.prepare_target_track``), computed on the
 worker with a worker copy of the window's frame source, and applied as one History
 entry; pressing the running track button again (it reads Pause) cancels, which keeps
-what was tracked. With Update 2D View Every Frame the views follow the tracked frame.
+what was tracked. With Update 2D View Every Frame the views follow the tracked frame of
+every camera; with Update Timeline Every Frame the charts draw the tracked span as it
+grows (:mod:`carapost.ui.handlers.target_live`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from carapost.algorithms.codes import SOURCE_KEYFRAME, SOURCE_TARGET
 from carapost.commands.stack import CommandError
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.process import follow_tracking
+from carapost.ui.handlers.target_live import live_timeline
 
 log = logging.getLogger("carapost.ui")
 
@@ -57,9 +60,11 @@ def track(ctx: ActionContext, direction: int, single_frame: bool = False,
         ctx.report_error(title, str(exc), show=False)
         return False
     unfollow = follow_tracking(ctx, job)
+    unlive = live_timeline(ctx, job)
 
     def finished(*_: Any) -> None:
         unfollow()
+        unlive()
         if source is not frames:
             source.close()
 

@@ -229,6 +229,8 @@ class ContinuityView(BaseView):
         self.vb.sigYRangeChanged.connect(self._y_changed)
         self.redraw_count = 0
         self.partial_updates = 0  # code updates limited to the changed point-frames
+        self._live: dict[int, tuple[int, int]] = {}  # column -> frames drawn from a run
+        self.live_draws = 0  # redraws of a Target Tracker run in progress
         self.refresh(None)
 
     def title(self) -> str:
@@ -442,6 +444,40 @@ class ContinuityView(BaseView):
         axis.setStyle(textFillLimits=[(0, 1.0)])
         axis.setTicks([ticks, []])
         axis.setWidth(width)
+
+    # -- a Target Tracker run drawn as it goes -----------------------------------------------
+    def show_live(self, column: int, camera: int, frames: NDArray, scores: NDArray) -> None:
+        """Draw frames a Target Tracker run has tracked but not yet written to the model
+        (Update Timeline Every Frame): the camera's row coloured by score, the point's row
+        counting the camera. :meth:`clear_live` (or the run's result) puts the model's
+        codes back."""
+        p = self.ctx.project
+        fr = np.asarray(frames, dtype=np.intp)
+        if (self._codes is None or not len(fr) or not 0 <= column < p.n_points
+                or not 0 <= camera < p.n_cameras
+                or self._codes.shape != (p.n_points, p.n_frames)):
+            return
+        fr = fr[(fr >= 0) & (fr < p.n_frames)]
+        self.row_codes((column, camera))          # the camera codes of the column, cached
+        cams = self._cam_codes[column]
+        q = np.clip(np.nan_to_num(np.asarray(scores, np.float64)[:len(fr)]), 0, 1)
+        cams[camera, fr] = TARGET0 + np.round(q * (N_QUALITY - 1)).astype(np.uint8)
+        if p.points.kind[column] != KIND_BRIM:
+            count = (cams[:, fr] != NONE2D).sum(axis=0)
+            self._codes[column, fr] = CAM1 - 1 + np.minimum(count, 4)
+        lo, hi = self._live.get(column, (int(fr.min()), int(fr.max())))
+        self._live[column] = (min(lo, int(fr.min())), max(hi, int(fr.max())))
+        self.live_draws += 1
+        self.render()
+
+    def clear_live(self) -> None:
+        """Forget what :meth:`show_live` drew: the model's codes of those frames again."""
+        live, self._live = self._live, {}
+        for column, span in live.items():
+            if self._codes is not None and column < self._codes.shape[0]:
+                self._update_codes(span, np.array([column]))
+        if live:
+            self.render()
 
     def row_codes(self, row: tuple[int, int]) -> NDArray[np.uint8]:
         """Codes of one row over every frame."""

@@ -31,6 +31,7 @@ from carapost.model.stabilization import (
 )
 from carapost.ui.context import OPTION_TITLES_3D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.sigma_colours import draw_sigma_legend, sigma_rgb
 
 RECON_COLOURS = {
     RECON_TRIANGULATED: QColor(255, 230, 0),  # matched detections: yellow
@@ -207,7 +208,9 @@ class View3D(BaseView):
             if opts.brim_points and brim.any():
                 self._dots(painter, xy[brim], BRIM_COLOUR, 6)
             if opts.face_points and face.any():
-                if opts.recon_colours:
+                if opts.uncertainty:
+                    self._draw_sigma(painter, xy, face)
+                elif opts.recon_colours:
                     for code, colour in RECON_COLOURS.items():
                         m = face & (recon == code)
                         if m.any():
@@ -236,6 +239,31 @@ class View3D(BaseView):
         n_present = int(present.sum()) if len(X) else 0
         painter.drawText(8, self.height() - 8,
                          f"frame {p.current_frame}   {n_present} of {p.n_points} points")
+
+    def _draw_sigma(self, painter: QPainter, xy: NDArray, face: NDArray) -> None:
+        """Face points coloured by their sample's sigma, a 2-sigma disc where it is larger
+        than the dot, the selected points' sigma beside them, and the colour bar."""
+        p = self.ctx.project
+        f = p.current_frame
+        sig = p.points.arrays["sigma"][f].astype(np.float64)
+        rgb = sigma_rgb(sig)
+        radius = 2.0 * np.nan_to_num(sig) * self.scale  # px, at the target's depth
+        painter.setPen(Qt.PenStyle.NoPen)
+        for col in np.flatnonzero(face & (radius > 3.5)):
+            painter.setBrush(QColor(*(int(v) for v in rgb[col]), 60))
+            painter.drawEllipse(QPointF(*xy[col]), radius[col], radius[col])
+        painter.setBrush(Qt.BrushStyle.NoBrush)
+        cols = np.flatnonzero(face)
+        for key in np.unique(rgb[cols], axis=0):
+            m = cols[(rgb[cols] == key).all(-1)]
+            self._dots(painter, xy[m], QColor(*(int(v) for v in key)), 7)
+        painter.setPen(QColor(230, 230, 230))
+        painter.setFont(QFont(painter.font().family(), 9))
+        for col in p.selected_columns():
+            if face[col]:
+                text = f"{sig[col]:.3f} mm" if np.isfinite(sig[col]) else "sigma unknown"
+                painter.drawText(QPointF(xy[col, 0] + 8, xy[col, 1] + 14), text)
+        draw_sigma_legend(painter, self.width() - 10.0, 8.0)
 
     def _dots(self, painter: QPainter, xy: NDArray, colour: QColor, size: float) -> None:
         pen = QPen(colour, size)

@@ -1,0 +1,160 @@
+"""Update Timeline Every Frame and Update 2D View Every Frame during a Target Tracker run.
+
+The window's real Tracker pane buttons on a rendered synthetic take; the frame source
+is slowed down a little so that a run lasts long enough for the worker's progress to
+reach the GUI thread several times.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from carapost.algorithms.codes import SOURCE_TARGET
+from carapost.ui.frames import ArrayFrameSource
+from carapost.ui.handlers import target_live
+from carapost.ui.settings import set_preference
+from carapost.ui.views.continuity import KEYFRAME, N_QUALITY, TARGET0, camera_codes
+from tests.commands.test_edit_commands import snapshot
+from tests.ui.test_target_tracker_ui import _click_image, take  # noqa: F401 (fixture)
+
+
+def _slow_window(make_window, take, qtbot, delay: float = 0.01):  # noqa: F811
+    import copy
+
+    project, scene, get = take
+    p = copy.deepcopy(project)
+
+    def slow(f: int, c: int):
+        time.sleep(delay)
+        return get(f, c)
+
+    w = make_window(p, ArrayFrameSource(slow))
+    w.show()
+    qtbot.wait(30)
+    return w, p, scene
+
+
+def _keyed_point(w, scene, cameras=(0, 1), label="Cheek_L") -> tuple[int, int, int]:
+    m = list(scene.labels).index(label)
+    w.action("edit.add_target_track").trigger()
+    _click_image(w, cameras[0], scene.uv[0, m, cameras[0]])
+    (pid,) = w.context.project.selection.points
+    w.action("edit.edit_target_track").trigger()
+    for c in cameras[1:]:
+        _click_image(w, c, scene.uv[0, m, c])
+    w.action("edit.stop_point_edit").trigger()
+    col = int(w.context.project.points.index_of([pid])[0])
+    return pid, col, m
+
+
+@pytest.mark.parametrize("live", [True, False])
+def test_timeline_draws_the_tracked_span_while_tracking(make_window, take, qtbot,  # noqa: F811
+                                                        monkeypatch, live):
+    monkeypatch.setattr(target_live, "INTERVAL", 0.0)
+    w, p, scene = _slow_window(make_window, take, qtbot)
+    set_preference(w.context.settings, target_live.LIVE_TIMELINE, live)
+    pid, col, m = _keyed_point(w, scene)
+    chart = w.pane("Selected Point").chart
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    real = chart.show_live
+
+    def spy(column, camera, frames, scores):
+        real(column, camera, frames, scores)
+        if column == col and camera == 0:
+            # what the chart draws now, and what the model holds now (nothing tracked)
+            seen.append((chart.row_codes((col, 0)).copy(), p.points.source[:, col, 0].copy()))
+
+    monkeypatch.setattr(chart, "show_live", spy)
+    before = snapshot(p)
+    w.pane("Tracker").buttons["forward_to_end"].click()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    w.flush()
+    codes = chart.row_codes((col, 0))
+    if live:
+        assert len(seen) >= 2
+        drawn, model = seen[-1]
+        tracked = np.flatnonzero((drawn >= TARGET0) & (drawn < TARGET0 + N_QUALITY))
+        assert len(tracked) >= 3 and (model[tracked] != SOURCE_TARGET).all()
+        assert drawn[0] == KEYFRAME
+        # the span grew from the start frame, in order
+        assert tracked[0] == 1 and np.all(np.diff(tracked) == 1)
+        assert len(np.flatnonzero(seen[0][0] >= TARGET0)) <= len(tracked)
+    else:
+        assert seen == [] and chart.live_draws == 0
+    # at the end the chart shows the model (the result), drawn or not while running
+    assert (p.points.source[1:, col, 0] == SOURCE_TARGET).all()
+    np.testing.assert_array_equal(codes, camera_codes(p, col)[0])
+    w.action("edit.undo").trigger()
+    w.flush()
+    assert snapshot(p) == before
+    np.testing.assert_array_equal(chart.row_codes((col, 0)), camera_codes(p, col)[0])
+
+
+def test_a_paused_run_leaves_the_charts_showing_the_model(make_window, take, qtbot,  # noqa: F811
+                                                          monkeypatch):
+    monkeypatch.setattr(target_live, "INTERVAL", 0.0)
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.03)
+    set_preference(w.context.settings, target_live.LIVE_TIMELINE, True)
+    pid, col, m = _keyed_point(w, scene, cameras=(0,))
+    chart = w.pane("Selected Point").chart
+    pane = w.pane("Tracker")
+    pane.buttons["forward_to_end"].click()
+    qtbot.waitUntil(lambda: chart.live_draws >= 2, timeout=60_000)
+    pane.buttons["forward_to_end"].click()      # Pause
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    w.flush()
+    kept = np.flatnonzero(p.points.source[:, col, 0] == SOURCE_TARGET)
+    assert 0 < len(kept) < p.n_frames - 1        # paused part-way, what was tracked is kept
+    np.testing.assert_array_equal(chart.row_codes((col, 0)), camera_codes(p, col)[0])
+    np.testing.assert_array_equal(chart.row_codes((col, -1)), chart._codes[col])
+
+
+def test_views_follow_every_camera_being_tracked(make_window, take, qtbot,  # noqa: F811
+                                                 monkeypatch):
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.015)
+    set_preference(w.context.settings, "tracker_update_2d_view_every_frame", True)
+    set_preference(w.context.settings, target_live.LIVE_TIMELINE, False)
+    pid, col, m = _keyed_point(w, scene, cameras=(0, 1, 2))
+    shown: list[int] = []
+    real = w.context.set_frame
+
+    def spy(frame, *a, **k):
+        shown.append(int(frame))
+        return real(frame, *a, **k)
+
+    monkeypatch.setattr(w.context, "set_frame", spy)
+    w.pane("Tracker").buttons["forward_to_end"].click()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    w.flush()
+    last = p.n_frames - 1
+    assert (p.points.source[1:, col, :3] == SOURCE_TARGET).all()
+    # each camera's track is followed from near the start to the end: the frame shown
+    # goes back to the start twice (cameras 1 and 2), not only camera 0's pass
+    drops = [i for i in range(1, len(shown)) if shown[i] < shown[i - 1] - last // 2]
+    assert len(drops) >= 2, shown
+    assert shown.count(last) >= 1 and max(shown) == last
+
+
+def test_live_redraws_are_throttled():
+    """However often the worker reports progress, the charts redraw at most every
+    INTERVAL seconds (the GUI thread is not kept busy redrawing)."""
+    from types import SimpleNamespace
+
+    from carapost.synth.demo_project import demo_project
+
+    p = demo_project(50, 4, 2, size=(160, 90))
+    pid = int(p.points.ids[1])
+    job = SimpleNamespace(live=[])
+    live = target_live._Live(SimpleNamespace(project=p, shell=None), job)
+    for f in range(1, 40):
+        job.live.append((pid, 0, f, 0.95))
+        live.tick(f, 40)
+    assert live.redraws == 1                  # all 39 ticks came within INTERVAL
+    assert live.read == 1
+    live.last -= target_live.INTERVAL         # INTERVAL later: one more, with the rest
+    live.tick(40, 40)
+    assert live.redraws == 2 and live.read == 39
+    assert live.tracks[(pid, 0)][0] == list(range(1, 40))
