@@ -167,3 +167,53 @@ def test_pattern_larger_than_search_or_image_is_refused(scene):
     p = TargetTrackerParameters(pattern_size=131, search_size=131)
     with pytest.raises(ValueError, match="larger than the"):
         track_target(scene.image, {0: scene.xy[0]}, start=0, stop=3, direction=1, params=p)
+
+
+def _static_scene(centres: list[np.ndarray], radii: list[float], ramp: float = 0.0
+                  ) -> np.ndarray:
+    """Discs on a background that does not move with them (smooth shading, a ramp of
+    ``ramp`` grey levels per pixel along x), as when a marker slides over shading."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    img = 120.0 + ramp * (xx - W / 2) + 15.0 * np.sin(yy / 17.0)
+    for c, r in zip(centres, radii, strict=True):
+        img -= 90.0 * _disc(*c, r=r)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_a_neighbour_moving_into_the_markers_place_is_never_taken_for_it():
+    # marker A jumps 16 px down on the first frame and its neighbour B, a slightly
+    # smaller disc 16 px above it, arrives where A was: without a motion history the
+    # first step is checked against every candidate, and the track never reports B
+    a0, step = np.array([80.3, 50.6]), np.array([0.4, 16.0])
+    drift = np.array([0.3, 0.2])
+
+    def centres(f: int) -> tuple[np.ndarray, np.ndarray]:
+        a = a0 + (step if f else 0) + f * drift
+        return a, a - np.array([0.0, 16.0])
+
+    def image(f: int) -> np.ndarray:
+        a, b = centres(f)
+        return _static_scene([a, b], [4.0, 3.6])
+
+    res = track_target(image, {0: a0}, start=0, stop=12, direction=1,
+                       params=TargetTrackerParameters(search_size=61))
+    ok = np.isfinite(res.xy[:, 0])
+    for f, xy in zip(res.frames[ok], res.xy[ok], strict=True):
+        a, b = centres(int(f))
+        assert np.linalg.norm(xy - a) < np.linalg.norm(xy - b), f"frame {f} on the neighbour"
+    if res.reason == STOP_END:   # followed: then accurately
+        err = np.linalg.norm(res.xy[1:] - [centres(int(f))[0] for f in res.frames[1:]], axis=1)
+        assert err.max() < 0.1
+
+
+def test_a_marker_sliding_over_static_shading_is_tracked_without_bias():
+    # a marker moving 0.35 px per frame over shading that stays put (a ramp and a
+    # curved band): the refinement's gain, bias and shading terms absorb the change of
+    # the background inside the pattern
+    xy = np.array([60.2, 58.4]) + np.arange(25)[:, None] * np.array([0.35, 0.1])
+    res = track_target(lambda f: _static_scene([xy[f]], [4.0], ramp=1.0), {0: xy[0]},
+                       start=0, stop=24, direction=1,
+                       params=TargetTrackerParameters(break_threshold=0.0))
+    assert res.reason == STOP_END
+    err = np.linalg.norm(res.xy - xy[res.frames], axis=1)
+    assert err.max() < 0.05

@@ -152,7 +152,10 @@ def test_frame_by_frame_with_a_keyframe_added_at_the_failure(make_window, take, 
     ok = np.isfinite(pts.obs[8, col, :, 0])
     assert ok.any()
     err = np.linalg.norm(pts.obs[8, col][ok] - scene.uv[8, col][ok], axis=-1)
-    assert err.max() < 0.2
+    # the keyframe at 9 is the artist's key of a tracked position (up to 0.1 px off the
+    # truth here): one frame tracked from it adds little to its own error
+    key_err = np.linalg.norm(pts.obs[9, col][ok] - scene.uv[9, col][ok], axis=-1)
+    assert (err < key_err + 0.15).all() and err.max() < 0.25
     w.action("edit.undo").trigger()
     assert snapshot(p) == before
 
