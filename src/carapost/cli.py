@@ -328,8 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
              "fill the gaps of a .c3d or .cara file (any vendor's C3D) and write one")
     sp.add_argument("input", help="a .c3d or .cara file")
     sp.add_argument("-o", "--output", required=True, help=".c3d or .cara file to write")
-    sp.add_argument("--method", choices=("auto", "guide", "lowrank", "spline"), default=None,
-                    help="fill method (default: the project's Gap-Filling Method, auto)")
+    sp.add_argument("--method", choices=("auto", "guide", "lowrank", "spline"), default="guide",
+                    help="fill method (default: guide, the neighbour prediction; auto, the "
+                         "best method per gap by a hold-out test, is recommended for faces)")
     sp.add_argument("--max-gap", type=int, default=None, metavar="N",
                     help="leave gaps longer than N frames (default: fill all)")
     sp.add_argument("--report", metavar="REPORT.json",

@@ -199,8 +199,11 @@ def test_v1_points_labels_and_sticks(project):
     assert pts.kind.tolist() == POINT_KINDS
     assert pts.next_id == NEXT_ID
     expected = expected_point_arrays()
-    # sigma came after format 1's first files: they open with it unknown (NaN).
-    assert set(pts.arrays) == set(expected) | {"sigma"}
+    # sigma and the raw values of filtered samples came after format 1's first files:
+    # they open with them unknown (NaN).
+    raw = {"raw_positions", "raw_recon", "raw_sigma"}
+    assert set(pts.arrays) == set(expected) | {"sigma"} | raw
+    assert np.isnan(pts.arrays["raw_positions"]).all()
     assert pts.arrays["sigma"].shape == expected["recon"].shape
     assert pts.arrays["sigma"].dtype == np.float32
     assert np.isnan(pts.arrays["sigma"]).all()

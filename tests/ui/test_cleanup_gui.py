@@ -1,5 +1,6 @@
 """The clean-up items through the real window actions: Import C3D, Interpolate Gaps,
-Filter Trajectories, Find Problems (the pane, jump-to-frame, one-click repair)."""
+Filter Trajectories, Remove Filtering, Find Problems (the pane, jump-to-frame, one-click
+repair)."""
 
 from __future__ import annotations
 
@@ -58,9 +59,16 @@ def test_import_c3d_interpolate_filter_from_the_menus(make_window, qtbot, tmp_pa
     xs = graph.bands[0].opts["x"]
     assert len(xs) == 40 and xs.min() == 200 and xs.max() == 239
     assert np.allclose(graph.bands[0].opts["height"], 2 * p.points.sigma[200:240, 3])
+    unfiltered = p.points.positions.copy()
     _run(qtbot, w, "process.filter")
     assert len(w.stack.history()) == 2
     assert (p.points.recon[:200, 3] == RECON_FILTERED).all()
+    # Remove Filtering (the selected point): one History entry, raw data back
+    _run(qtbot, w, "process.remove_filter")
+    assert len(w.stack.history()) == 3
+    assert np.array_equal(p.points.positions[:, 3], unfiltered[:, 3], equal_nan=True)
+    assert (p.points.recon[:200, 3] != RECON_FILTERED).all()
+    w.stack.undo()
     w.stack.undo()
     w.stack.undo()
     assert np.isnan(p.points.positions[200:240, 3]).all()

@@ -111,14 +111,27 @@ def test_playback_sends_the_decoders_once_per_frame_due(make_window, demo, qtbot
             super().__init__(render)
             self.requests: list[int] = []
 
+            self.moving = False
+
         def request(self, frame, camera=None, direction=0):
-            if camera is None and direction == 1:  # playback's own requests
+            if not self.moving:  # playback's own requests, not those of moving to a frame
                 self.requests.append(frame)
 
     project, frames = demo
     source = Counting(frames._render)
     w = make_window(project, source)
-    pb = w.context.playback
+    ctx = w.context
+    set_frame = ctx.set_frame
+
+    def moving_to(frame):
+        source.moving = True
+        try:
+            set_frame(frame)
+        finally:
+            source.moving = False
+
+    ctx.set_frame = moving_to
+    pb = ctx.playback
     pb.toggle(True)
     assert w.view_context.playing
     qtbot.waitUntil(lambda: not pb.playing, timeout=20000)  # plays the take to its end
@@ -126,3 +139,18 @@ def test_playback_sends_the_decoders_once_per_frame_due(make_window, demo, qtbot
     assert source.requests, "playback asks the decoders for the frames due"
     # the timer ticks at twice the frame rate: each frame due is asked for once
     assert len(source.requests) == len(set(source.requests))
+
+
+def test_images_other_than_uint8_keep_their_levels(make_window, demo, qtbot):
+    from carapost.ui.frames import ArrayFrameSource
+
+    project, _ = demo
+    img = np.linspace(0, 255, 360 * 640, dtype=np.float32).reshape(360, 640)
+    w = make_window(project, ArrayFrameSource(lambda f, c: img))
+    view = next(v for v in w.workspace.views() if v.kind == "sensor")
+    w.flush()
+    qtbot.wait(20)
+    item = view.image
+    assert tuple(item.levels) == (0, 255)
+    item.render()
+    assert item.qimage is not None and item.qimage.width() == 640

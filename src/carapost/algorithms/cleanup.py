@@ -49,10 +49,11 @@ class CleanupParameters:
     :class:`FilterParameters`, :class:`ProblemParameters`), which take the same keys."""
 
     gap_fill_method: str = param(
-        "auto", label="Gap-Filling Method", section=CLEAN_UP, choices=METHODS,
-        help="auto: per gap, the method with the lowest error on a hold-out test near it; "
-             "guide: neighbour prediction; lowrank: all-marker correlations; spline: short "
-             "gaps. Default is our choice.")
+        "guide", label="Gap-Filling Method", section=CLEAN_UP, choices=METHODS,
+        help="guide (default, the reference workflow's): neighbour prediction; auto "
+             "(recommended for faces): per gap, the method with the lowest error on a "
+             "hold-out test near it, with an estimated error per sample; lowrank: "
+             "all-marker correlations; spline: short gaps.")
     max_gap_frames: int = param(
         0, label="Max Gap Length", section=CLEAN_UP, unit="frames", min=0, max=10_000_000,
         help="Longer gaps are left unfilled; 0 fills every gap. Default is our choice.")

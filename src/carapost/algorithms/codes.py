@@ -26,6 +26,7 @@ __all__ = [
     "KIND_FACE",
     "OPTIONAL_POINT_ARRAYS",
     "POINT_ARRAYS",
+    "RAW_POINT_ARRAYS",
     "POINT_FILLS",
     "PointArrays",
     "RECON_FILTERED",
@@ -81,17 +82,27 @@ POINT_ARRAYS: dict[str, tuple[str, Any]] = {
     "detection": ("int32", -1),
     "quality": ("float16", 0.0),
     "keyframe": ("bool", False),
+    # the samples' values before Filter Trajectories changed them (Remove Filtering
+    # restores them); blank where the sample was never filtered
+    "raw_positions": ("float32", np.nan),
+    "raw_recon": ("int8", RECON_NONE),
+    "raw_sigma": ("float32", np.nan),
 }
 
 #: Arrays with a camera axis.
 CAMERA_ARRAYS = ("obs", "source", "detection", "quality", "keyframe")
 
-#: Arrays a project file may lack (written by an older carapost): read as blank.
-OPTIONAL_POINT_ARRAYS = ("sigma",)
+#: The raw values kept by Filter Trajectories (a project file holds them only when some
+#: sample is filtered).
+RAW_POINT_ARRAYS = ("raw_positions", "raw_recon", "raw_sigma")
 
-#: Fill value of each array the algorithms produce (all but ``keyframe`` and ``sigma``).
+#: Arrays a project file may lack (written by an older carapost): read as blank.
+OPTIONAL_POINT_ARRAYS = ("sigma",) + RAW_POINT_ARRAYS
+
+#: Fill value of each array the algorithms produce (all but ``keyframe``, ``sigma`` and
+#: the raw values).
 POINT_FILLS: dict[str, Any] = {k: fill for k, (_, fill) in POINT_ARRAYS.items()
-                               if k not in ("keyframe", "sigma")}
+                               if k not in ("keyframe", "sigma") + RAW_POINT_ARRAYS}
 
 
 
@@ -118,7 +129,8 @@ def blank_point_array(name: str, n_frames: int, n_points: int,
     """
     dt, fill = POINT_ARRAYS[name]
     trailing = {"positions": (3,), "recon": (), "residual": (), "sigma": (),
-                "obs": (n_cameras, 2)}.get(name, (n_cameras,))
+                "obs": (n_cameras, 2), "raw_positions": (3,), "raw_recon": (),
+                "raw_sigma": ()}.get(name, (n_cameras,))
     return np.full((n_frames, n_points) + trailing, fill, dtype=dt)
 
 class PointArrays(NamedTuple):

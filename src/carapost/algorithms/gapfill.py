@@ -106,7 +106,7 @@ class GapFillParameters:
         help="Where one camera still has a detection attached, put the filled point on "
              "that detection's ray.")
     # set from the Clean-up Parameters section (carapost.algorithms.cleanup)
-    method: str = param("auto", key="gap_fill_method", choices=METHODS)
+    method: str = param("guide", key="gap_fill_method", choices=METHODS)
     max_gap_frames: int = param(0, min=0, max=10_000_000)
     fill_ends: bool = param(True)
     spline_max_frames: int = param(10, min=1, max=10_000)

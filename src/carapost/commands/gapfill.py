@@ -31,8 +31,10 @@ from numpy.typing import NDArray
 
 from carapost.algorithms.cleanup import FilterParameters, lowpass
 from carapost.algorithms.codes import (
+    RAW_POINT_ARRAYS,
     RECON_FILTERED,
     RECON_INTERPOLATED,
+    RECON_NONE,
     RECON_SINGLE_SENSOR,
 )
 from carapost.algorithms.gapfill import GapFillParameters, GapTable, fill_gaps
@@ -43,8 +45,9 @@ from carapost.model.project import Project
 
 log = logging.getLogger("carapost.gapfill")
 
-__all__ = ["FilterJob", "FilterResult", "GapFillJob", "GapFillResult", "SwapIdentities",
-           "prepare_filter_trajectories", "prepare_interpolate_gaps"]
+__all__ = ["FilterJob", "FilterResult", "GapFillJob", "GapFillResult", "RemoveFilteringJob",
+           "RemoveFilteringResult", "SwapIdentities", "prepare_filter_trajectories",
+           "prepare_interpolate_gaps", "prepare_remove_filtering"]
 
 _FILL_ARRAYS = ("positions", "recon", "residual", "sigma")
 
@@ -155,7 +158,11 @@ class GapFillJob(Job):
         values = {"positions": pos,
                   "recon": np.full(len(pos), RECON_INTERPOLATED, np.int8),
                   "residual": np.full(len(pos), np.nan, np.float32),
-                  "sigma": sig.astype(np.float32)}
+                  "sigma": sig.astype(np.float32),
+                  # a filled sample is new data: no raw value of an earlier filtering
+                  "raw_positions": np.full((len(pos), 3), np.nan, np.float32),
+                  "raw_recon": np.full(len(pos), RECON_NONE, np.int8),
+                  "raw_sigma": np.full(len(pos), np.nan, np.float32)}
         samples = SparseSamples(first, self.point_ids[cols].copy(), mask, values)
         n = int(mask.sum())
         gaps = out.gaps
@@ -275,6 +282,8 @@ class FilterJob(Job):
     fps: float
     params: FilterParameters
     description: str
+    #: the range's sigma and raw arrays (kept so that Remove Filtering can restore)
+    raw: dict[str, NDArray] | None = None
 
     def compute(self, progress: Progress = None) -> FilterResult:
         out, changed = lowpass(self.positions, self.fps, self.params)
@@ -282,6 +291,16 @@ class FilterJob(Job):
                   "recon": np.where(self.recon[changed] == RECON_INTERPOLATED,
                                     RECON_INTERPOLATED, RECON_FILTERED).astype(np.int8),
                   "sigma": np.full(int(changed.sum()), np.nan, np.float32)}
+        if self.raw is not None:
+            # the raw values: a sample filtered again keeps those from before its first
+            # filtering
+            had = np.isfinite(self.raw["raw_positions"][..., 0])[changed]
+            now = {"raw_positions": self.positions[changed], "raw_recon": self.recon[changed],
+                   "raw_sigma": self.raw["sigma"][changed]}
+            for name, v in now.items():
+                old = self.raw[name][changed]
+                values[name] = np.where(had.reshape((-1,) + (1,) * (v.ndim - 1)), old,
+                                        v).astype(old.dtype)
         s = SparseSamples(self.first, self.point_ids, changed, values)
         msg = (f"{self.description}: {int(changed.sum())} samples of "
                f"{int(changed.any(0).sum())} point(s) filtered")
@@ -313,9 +332,71 @@ def prepare_filter_trajectories(project: Project, cutoff_hz: float | None = None
         raise CommandError(f"Filter Trajectories: the cut-off ({params.filter_cutoff_hz:g} Hz) "
                            f"must be below half the frame rate ({fps / 2:g} Hz)")
     block = pts.positions[a:b + 1][:, cols]
+    raw = {name: pts.arrays[name][a:b + 1][:, cols] for name in ("sigma",) + RAW_POINT_ARRAYS}
     return FilterJob(block, pts.recon[a:b + 1][:, cols], pts.ids[cols].copy(), a, fps, params,
                      f"Filter Trajectories [{params.filter_cutoff_hz:g} Hz, order "
-                     f"{params.filter_order}, frames {a}-{b}]")
+                     f"{params.filter_order}, frames {a}-{b}]", raw)
+
+
+@dataclass
+class RemoveFilteringResult(Result):
+    """The raw samples Remove Filtering puts back."""
+
+    samples: SparseSamples
+    description: str = "Remove Filtering"
+    message: str = ""
+    cancelled: bool = False
+
+    def write(self, project: Project, journal: Journal) -> None:
+        self.samples.write(project, journal)
+
+    def changes_nothing(self) -> bool:
+        return not self.samples.mask.any()
+
+
+@dataclass
+class RemoveFilteringJob(Job):
+    """Restores the raw values kept by Filter Trajectories (a quick job: masks only)."""
+
+    arrays: dict[str, NDArray]              # recon, raw_* of the (n, p) block
+    point_ids: NDArray[np.int64]
+    first: int
+    description: str
+
+    def compute(self, progress: Progress = None) -> RemoveFilteringResult:
+        a = self.arrays
+        raw = np.isfinite(a["raw_positions"][..., 0])
+        # only samples still holding the filter's output: a sample tracked, edited or
+        # filled since (its reconstruction kind changed) keeps its newer value
+        still = (a["recon"] == RECON_FILTERED) | ((a["recon"] == RECON_INTERPOLATED)
+                                                  & (a["raw_recon"] == RECON_INTERPOLATED))
+        mask = raw & still
+        n = int(mask.sum())
+        values = {"positions": a["raw_positions"][mask], "recon": a["raw_recon"][mask],
+                  "sigma": a["raw_sigma"][mask],
+                  "raw_positions": np.full((n, 3), np.nan, np.float32),
+                  "raw_recon": np.full(n, RECON_NONE, np.int8),
+                  "raw_sigma": np.full(n, np.nan, np.float32)}
+        s = SparseSamples(self.first, self.point_ids, mask, values)
+        msg = (f"{self.description}: {n} raw samples of {int(mask.any(0).sum())} point(s) "
+               "restored" if n else f"{self.description}: no filtered samples there")
+        log.info(msg)
+        return RemoveFilteringResult(s, self.description, msg)
+
+
+def prepare_remove_filtering(project: Project, point_ids: Any = None, *,
+                             frames: tuple[int, int] | None = None) -> RemoveFilteringJob:
+    """Process > Remove Filtering: the raw values of the filtered samples of the selected
+    (or all) points over the active range, as before Filter Trajectories (positions,
+    reconstruction kind, sigma)."""
+    pts = project.points
+    if pts.count == 0 or project.n_frames == 0:
+        raise CommandError("Remove Filtering: the project has no points")
+    a, b = _range(project, frames, "Remove Filtering")
+    cols = _columns(project, point_ids)
+    arrays = {name: pts.arrays[name][a:b + 1][:, cols] for name in ("recon",) + RAW_POINT_ARRAYS}
+    return RemoveFilteringJob(arrays, pts.ids[cols].copy(), a,
+                              f"Remove Filtering [frames {a}-{b}]")
 
 
 class SwapIdentities(Command):

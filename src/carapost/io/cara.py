@@ -59,6 +59,7 @@ from carapost.io.ziplimits import (
 from carapost.model.project import (
     OPTIONAL_POINT_ARRAYS,
     POINT_ARRAYS,
+    RAW_POINT_ARRAYS,
     CameraChannel,
     Detections,
     Project,
@@ -162,6 +163,9 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
 def _arrays(project: Project) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for name, arr in project.points.arrays.items():
+        if name in RAW_POINT_ARRAYS and not np.isfinite(project.points.arrays[
+                "raw_positions"][..., 0]).any():
+            continue                     # nothing filtered: the file stays as it was
         out[f"points/{name}.npy"] = arr
     out["detections/offsets.npy"] = project.detections.offsets
     for name, arr in project.detections.arrays.items():

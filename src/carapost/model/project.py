@@ -33,6 +33,7 @@ from carapost.algorithms.codes import (  # defined once there, re-exported here
     KIND_FACE,
     OPTIONAL_POINT_ARRAYS,  # noqa: F401
     POINT_ARRAYS,
+    RAW_POINT_ARRAYS,  # noqa: F401
     RECON_FILTERED,  # noqa: F401
     RECON_INTERPOLATED,  # noqa: F401
     RECON_NAMES,  # noqa: F401

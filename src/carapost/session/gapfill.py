@@ -3,7 +3,8 @@ Find Problems and its repairs (mixed into the Session, on the processing recipe)
 
 Each action is one History entry; undo restores the project bit for bit::
 
-    s.interpolate_gaps()                         # all points, active range, auto method
+    s.interpolate_gaps()                         # all points, active range, guide method
+    s.interpolate_gaps(method="auto")            # per gap, the best method by self-test
     s.gap_report()["gaps"][0]                    # method, estimated error (mm), status
     s.filter_trajectories(8.0, order=4)
     for problem in s.find_problems():
@@ -59,7 +60,8 @@ class GapFillActions:
         return prepare_interpolate_gaps(self.project, points, frames=frames, method=method,
                                         max_gap=max_gap, **options)
 
-    def interpolate_gaps(self, points: Iterable[int] | None = None, method: str | None = None,
+    def interpolate_gaps(self, points: Iterable[int] | None = None,
+                         method: str | None = "guide",
                          *, max_gap: int | None = None, frames: tuple[int, int] | None = None,
                          progress: Any = None, report: str | Path | None = None,
                          **options: Any) -> ApplyResult | None:
@@ -69,8 +71,11 @@ class GapFillActions:
         ----------
         points : iterable of int, optional
             Point ids (default: the selected points, or all).
-        method : {"auto", "guide", "lowrank", "spline"}, optional
-            Default: the Gap-Filling Method property ("auto").
+        method : {"guide", "auto", "lowrank", "spline"} or None
+            Default "guide", the reference workflow's neighbour prediction; "auto"
+            (recommended for faces) picks per gap the method with the lowest hold-out
+            error. None: the project's Gap-Filling Method property (what Process >
+            Interpolate Gaps uses; "guide" unless changed).
         max_gap : int, optional
             Longest gap filled (frames; 0 = all). Default: Max Gap Length.
         frames : (int, int), optional
@@ -145,6 +150,30 @@ class GapFillActions:
         job = self.prepare_filter_trajectories(cutoff_hz, order, points, frames=frames)
         return self.run(job, progress)  # type: ignore[attr-defined]
 
+    def prepare_remove_filtering(self, points: Iterable[int] | None = None, *,
+                                 frames: tuple[int, int] | None = None) -> Job:
+        """Prepare :meth:`remove_filtering`."""
+        from carapost.commands.gapfill import prepare_remove_filtering
+
+        return prepare_remove_filtering(self.project, points, frames=frames)
+
+    def remove_filtering(self, points: Iterable[int] | None = None, *,
+                         frames: tuple[int, int] | None = None) -> ApplyResult | None:
+        """Process > Remove Filtering: the filtered samples of the selected (or all)
+        points over the active range get back their raw values from before Filter
+        Trajectories (positions, reconstruction kind, sigma), as one History entry. The
+        raw values are kept in the project (and its file), so this works after undo
+        history is gone; samples tracked, edited or filled since keep their newer values.
+
+        Returns None (a warning logged) when there is no filtered sample to restore.
+        """
+        job = self.prepare_remove_filtering(points, frames=frames)
+        result = job.compute(None)
+        if result.changes_nothing():
+            log.warning(result.message)
+            return None
+        return self.apply(result)  # type: ignore[attr-defined]
+
     def find_problems(self, points: Iterable[int] | None = None,
                       frames: tuple[int, int] | None = None) -> list:
         """Find Problems: gaps, spikes and suspected identity swaps (see
@@ -184,7 +213,7 @@ class GapFillActions:
         return self.apply(result)  # type: ignore[attr-defined]
 
 
-def fill_gaps_file(source: str | Path, output: str | Path, *, method: str | None = None,
+def fill_gaps_file(source: str | Path, output: str | Path, *, method: str | None = "guide",
                    max_gap: int | None = None, report: str | Path | None = None,
                    progress: Any = None) -> dict[str, Any]:
     """``carapost fill-gaps``: fill every gap of a ``.c3d`` or ``.cara`` file and write

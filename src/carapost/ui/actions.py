@@ -273,6 +273,8 @@ ACTIONS: tuple[ActionSpec, ...] = (
        process_menu.remove_stabilization),
     _proc("process.interpolate", "Interpolate Gaps", "interpolate_gaps", separator=True),
     _proc("process.filter", "Filter Trajectories", "filter_trajectories"),
+    _A("process.remove_filter", "Process", "Remove Filtering", "", cleanup.remove_filtering,
+       tip="Restore the raw data of the filtered samples (selected points, active range)"),
     _A("process.find_problems", "Process", "Find Problems", "", cleanup.find_problems,
        tip="List gaps, spikes and suspected identity swaps (Find Problems pane)"),
     _A("process.label_template", "Process", "Label From Template...", "",

@@ -1,4 +1,5 @@
-"""Clean-up items: File > Import C3D and Process > Find Problems (the pane)."""
+"""Clean-up items: File > Import C3D, Process > Remove Filtering and Process > Find
+Problems (the pane)."""
 
 from __future__ import annotations
 
@@ -29,6 +30,17 @@ def import_c3d(ctx: ActionContext, path: str | None = None) -> bool:
     return ctx.run_job("Import C3D", lambda progress: project_from_c3d(src),
                        lambda project, cancelled: project is not None
                        and ctx.set_session(Session(project)))
+
+
+def remove_filtering(ctx: ActionContext) -> bool:
+    """Process > Remove Filtering: the raw data of the filtered samples of the selected
+    (or all) points over the active range (one History entry)."""
+    scope = ctx.selection.points
+    done = ctx.act("Remove Filtering", ctx.session.remove_filtering,
+                   sorted(scope) if scope else None)
+    if done is None:
+        ctx.status("Remove Filtering: no filtered samples there")
+    return done is not None
 
 
 def find_problems(ctx: ActionContext) -> None:
