@@ -112,3 +112,30 @@ def test_a_ghost_matched_across_caddies_is_removed_with_its_reason():
     found = spurious_points(project)
     assert [lab for _, lab, _ in found] == ["Ghost"], found
     assert found[0][2].startswith("rays do not meet")
+
+
+def test_points_without_camera_observations_are_not_judged():
+    """Imported points (a C3D, no 2D) are never removed: the rules are for points
+    tracked on this rig (a head-rig marker moves unlike the skin around it)."""
+    project, _, _ = scene_project(frames=60, size=(640, 360))
+    pts = project.points
+    pts.obs[:] = np.nan
+    pts.positions[5:, 3] = np.nan   # would be "too few frames" if it were tracked here
+    pts.recon[5:, 3] = 0
+    session = Session(project)
+    with pytest.raises(CommandError, match="no tracked point to judge"):
+        session.remove_spurious_points()
+
+
+def test_no_marker_of_a_facial_c3d_fixture_is_judged_spurious():
+    import os
+    from pathlib import Path
+
+    from carapost.commands.quality import spurious_points
+
+    root = os.environ.get("CARAPOST_FIXTURES")
+    path = Path(root or "/nonexistent") / "c3d" / "facial_Sing_sample29.c3d"
+    if not path.is_file():
+        pytest.skip("CARAPOST_FIXTURES not set or the facial C3D fixture is absent")
+    session = Session.import_c3d(path)
+    assert spurious_points(session.project) == []

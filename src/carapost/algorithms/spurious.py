@@ -92,7 +92,8 @@ class SpuriousPoint:
 def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike,
                          params: SpuriousParameters | None = None,
                          blob_size_mm: ArrayLike | None = None,
-                         misfit: ArrayLike | None = None) -> list[SpuriousPoint]:
+                         misfit: ArrayLike | None = None,
+                         observed: ArrayLike | None = None) -> list[SpuriousPoint]:
     """Face points of a tracked take that are not markers (see the module docstring).
 
     Parameters
@@ -109,6 +110,12 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
         unknown. Without it the blob test is skipped.
     misfit : array_like, shape (P,), optional
         Each point's `ray_misfit`; NaN where unknown. Without it the ray test is skipped.
+    observed : array_like of bool, shape (P,), optional
+        Points with camera observations (made by tracking here). Only these are judged:
+        a point imported from a C3D or typed in has no 2D evidence of how it was made,
+        and the rules are for facial points tracked on this rig (the limbs of a body
+        take move unlike their neighbours, a head-rig marker unlike the skin around it).
+        Without it every face point is judged.
 
     Returns
     -------
@@ -132,7 +139,10 @@ def find_spurious_points(positions: ArrayLike, recon: ArrayLike, kind: ArrayLike
     X = np.asarray(positions, dtype=np.float64)
     rc = np.asarray(recon)
     kd = np.asarray(kind)
-    face = np.flatnonzero(kd != KIND_BRIM)
+    judge = kd != KIND_BRIM
+    if observed is not None:
+        judge &= np.asarray(observed, dtype=bool)
+    face = np.flatnonzero(judge)
     present = np.isfinite(X[..., 0])
     n_tri = (rc == RECON_TRIANGULATED).sum(0)
     n_single = (rc == RECON_SINGLE_SENSOR).sum(0)

@@ -211,6 +211,10 @@ def pair_holdout_scale(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
                        max_samples: int = 4000) -> float:
     """Scale of `sample_sigma` that the take's own camera pairs bear out (>= 1).
 
+    A diagnostic (Track Take no longer applies it): it sees what makes a take's cameras
+    disagree, not the pose error they share (`brim_pose_covariance` carries that), and
+    its mean of ratios follows a few wrong blobs.
+
     The 2D residuals see the centroid noise but only part of the camera pose error
     (a pose error along a caddy's baseline leaves a two-camera point on both rays, only
     at another depth). A hold-out test measures it: a sample seen by three or more

@@ -31,8 +31,14 @@ def spurious_points(project: Project, params: SpuriousParameters | None = None
     """``(point id, label, reason)`` of every face point judged not to be a marker."""
     pts = project.points
     found = find_spurious_points(pts.positions, pts.recon, pts.kind, params,
-                                 blob_size_mm=_blob_sizes(project), misfit=_misfit(project))
+                                 blob_size_mm=_blob_sizes(project), misfit=_misfit(project),
+                                 observed=_observed(project))
     return [(int(pts.ids[s.index]), project.point_label(s.index), s.reason) for s in found]
+
+
+def _observed(project: Project) -> np.ndarray:
+    """Points with a camera observation in some frame (tracked here, not imported)."""
+    return np.isfinite(project.points.obs[..., 0]).any(axis=(0, 2))
 
 
 def _misfit(project: Project) -> np.ndarray | None:
@@ -82,6 +88,11 @@ class RemoveSpuriousPoints(Command):
         super().__init__()
         self.found = spurious_points(project, params)
         if not self.found:
+            face = project.points.kind != KIND_BRIM
+            if not (_observed(project) & face).any():
+                raise CommandError("Remove Spurious Points: no tracked point to judge (the "
+                                   "points have no camera observations, e.g. imported "
+                                   "from a C3D)")
             raise CommandError("Remove Spurious Points: every point moves like a marker")
 
     @property
