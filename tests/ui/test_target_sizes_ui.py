@@ -49,19 +49,19 @@ def test_dragging_the_handles_sets_this_tracks_sizes(make_window, take, qtbot): 
     assert p.target_sizes[(pid, 0)] == (21, 121)
     assert len(w.stack.history()) == n + 1
     assert w.stack.history()[-1].description.startswith("Target Track Size")
-    # a corner of the blue box, dragged in: a smaller pattern; the keyframe did not move
-    _drag(view, centre + [-10.5, 10.5], centre + [-7.0, 7.0])
-    assert p.target_sizes[(pid, 0)] == (15, 121)
+    # a corner of the blue box, dragged out: a larger pattern; the keyframe did not move
+    _drag(view, centre + [-10.5, 10.5], centre + [-12.5, 12.0])
+    assert p.target_sizes[(pid, 0)] == (25, 121)
     assert np.array_equal(p.points.obs[0, col, 0], centre.astype(np.float32))
     w.flush()
-    assert _extent(view.targets.box) == 15.0 and _extent(view.targets.cross) == 121.0
+    assert _extent(view.targets.box) == 25.0 and _extent(view.targets.cross) == 121.0
     assert track_sizes(p, 1)[0][col] == 21.0        # the other camera's track: unchanged
     assert _extent(_view(w, 1).targets.box) == 21.0
     after = snapshot(p)
     # the next run tracks camera 0 with its own sizes, camera 1 with the defaults
     job = w.context.session.prepare_target_track(+1, True, get_image=w.context.frames.require)
     sizes = {tr.camera: (tr.params or job.params) for tr in job.tracks}
-    assert (sizes[0].pattern_size, sizes[0].search_size) == (15, 121)
+    assert (sizes[0].pattern_size, sizes[0].search_size) == (25, 121)
     assert (sizes[1].pattern_size, sizes[1].search_size) == (21, 81)
     w.pane("Tracker").buttons["forward_one"].click()
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
