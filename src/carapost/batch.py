@@ -38,7 +38,8 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,15 +57,17 @@ __all__ = [
     "BatchSettings",
     "TakeTask",
     "discover_takes",
+    "local_cluster",
     "plan",
     "process_one",
     "run",
+    "start_fork_server",
 ]
 
 #: The manifest of finished takes, in OUTDIR.
 MANIFEST_NAME = "batch_manifest.json"
 #: The columns of ``batch_report.csv`` (and the keys of each take in the JSON report).
-REPORT_FIELDS = ("take", "status", "error", "seconds", "frames", "points",
+REPORT_FIELDS = ("take", "status", "error", "seconds", "cpu_seconds", "frames", "points",
                  "tracked_fraction", "mean_residual", "attempts", "project", "c3d", "fbx")
 
 _WILDCARD = frozenset("*?[")
@@ -379,19 +382,25 @@ def process_one(take: str, outputs: dict[str, str], settings: BatchSettings) -> 
     stops the batch. Runs single-threaded: the parallelism of a batch is its takes.
     """
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from carapost.pipeline import process_take
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
+    c0 = time.process_time()
     row: dict[str, Any] = {"take": take, "status": "done", "error": ""}
     for kind in outputs:
         Path(outputs[kind]).parent.mkdir(parents=True, exist_ok=True)
     try:
-        result = process_take(take, output=outputs["project"], rom=settings.rom,
-                              brim=settings.brim, c3d=outputs.get("c3d"),
-                              fbx=outputs.get("fbx"), patch_tracking=settings.patch_tracking,
-                              stabilize=settings.stabilize, workers=1)
+        # one BLAS/OpenMP thread whatever the worker was started with (a worker of an
+        # external cluster, a fork server started by someone else)
+        with threadpool_limits(1):
+            result = process_take(take, output=outputs["project"], rom=settings.rom,
+                                  brim=settings.brim, c3d=outputs.get("c3d"),
+                                  fbx=outputs.get("fbx"),
+                                  patch_tracking=settings.patch_tracking,
+                                  stabilize=settings.stabilize, workers=1)
     except Exception as exc:  # every failure of a take is a report row
         row.update(status="failed", error=_message(exc))
         log.info("%s failed: %s", take, row["error"])
@@ -401,6 +410,7 @@ def process_one(take: str, outputs: dict[str, str], settings: BatchSettings) -> 
                    mean_residual=_finite(result.get("mean_residual")),
                    project=result["project"], c3d=result["c3d"], fbx=result["fbx"])
     row["seconds"] = round(time.perf_counter() - t0, 3)
+    row["cpu_seconds"] = round(time.process_time() - c0, 3)
     return row
 
 
@@ -438,8 +448,86 @@ def _connect(scheduler: str, timeout: float) -> Any:
                          f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
 
 
-def _local_cluster(workers: int) -> tuple[Any, Any]:
+#: Modules a take imports (the pipeline imports its machinery lazily, so that
+#: ``carapost --help`` stays instant), imported once by the fork server the workers are
+#: forked from instead of by each worker's first take: about 1.5 s of CPU per worker.
+#: A name that no longer exists is skipped by the fork server.
+WORKER_PRELOAD = (
+    "carapost.parallel", "distributed", "numpy", "cv2", "av", "lxml.etree", "numba",
+    "scipy.fft", "scipy.integrate", "scipy.interpolate", "scipy.linalg", "scipy.ndimage",
+    "scipy.optimize", "scipy.signal", "scipy.sparse", "scipy.special", "scipy.stats",
+    "carapost.batch", "carapost.pipeline", "carapost.session", "carapost.io.cara",
+    "carapost.io.c3d", "carapost.io.fbx", "carapost.io.take_import", "carapost.io.decode",
+    "carapost.io.video", "carapost.commands.process", "carapost.commands.tracking",
+    "carapost.commands.stabilise", "carapost.algorithms.blobs.detect",
+    "carapost.algorithms.tracking.take", "carapost.algorithms.init3d",
+    "carapost.algorithms.bundle", "carapost.algorithms.gapfill",
+    "carapost.algorithms.uncertainty", "carapost.algorithms.stabilise_auto",
+)
+#: The environment numeric libraries read when they load: one thread each in a worker,
+#: whose parallelism is its neighbours' takes (oversubscribed cores slow every take).
+WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                      "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
+                      "VECLIB_MAXIMUM_THREADS": "1", "NUMEXPR_NUM_THREADS": "1"}
+#: Seconds to wait for the first local worker.
+WORKER_START_TIMEOUT = 120.0
+
+
+def _start_method() -> str:
+    """How local workers start: forked from a fork server where it exists (POSIX),
+    else spawned (each worker then imports everything itself)."""
+    import multiprocessing
+
+    return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() \
+        else "spawn"
+
+
+def start_fork_server() -> bool:
+    """Start the fork server of local batch workers now, if there is none yet.
+
+    It imports `WORKER_PRELOAD` in the background with `WORKER_THREADS_ENV` set (the
+    libraries size their thread pools when they load, so the environment must be right
+    in the server, not later in each worker), while this process goes on. Every worker
+    forked from it starts with the take's modules imported. The fork server is one per
+    program (`carapost.parallel` pools use it too; it follows the program with their
+    watchdog): when one already runs, it is used as it is. Returns True when this call
+    started it (False also where there is no fork server: the workers are spawned).
+    """
+    if _start_method() != "forkserver":
+        return False
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    from carapost import parallel
+
+    if getattr(forkserver._forkserver, "_forkserver_pid", None) is not None:
+        return False  # running: the preload of whoever started it stays
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(WORKER_PRELOAD))
+    os.environ[parallel.PARENT_PID_ENV] = str(os.getpid())
+    saved = {k: os.environ.get(k) for k in WORKER_THREADS_ENV}
+    os.environ.update(WORKER_THREADS_ENV)
+    try:
+        forkserver.ensure_running()
+    finally:  # this process keeps its own settings
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return True
+
+
+def _local_cluster(workers: int) -> tuple[Any, Any, Any]:
     """An in-process cluster of single-threaded worker processes.
+
+    The workers are forked from a fork server that has already imported the pipeline
+    (`start_fork_server`), so a worker is up in a fraction of a second and its first
+    take does not pay the imports; where there is no fork server they are spawned. The
+    cluster starts with no worker and asks for ``workers``; this returns as soon as the
+    first one has joined, so takes start while the others are still starting.
+    Returns the cluster, its client and the Dask settings held while it lives (for
+    `_close`).
 
     The scheduler is told that a task whose worker dies has failed at once (allowed
     failures 0): `run` then resubmits it itself, so ``retries`` means the same on a
@@ -448,18 +536,45 @@ def _local_cluster(workers: int) -> tuple[Any, Any]:
     having died with it, and the takes, which last seconds to minutes, go to the
     worker that is free first.
     """
+    start_fork_server()
     import dask
     from distributed import Client, LocalCluster
 
     _quiet_distributed()
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
-                          "distributed.scheduler.worker-saturation": 1.0}):
+    # held while the cluster lives: workers start (and restart) after this returns, and
+    # each reads the start method then
+    config = dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                              "distributed.scheduler.worker-saturation": 1.0,
+                              "distributed.worker.multiprocessing-method": _start_method()})
+    cluster = client = None
+    try:
         # ":0": the HTTP server (dashboard, health checks) on a free port, so two batches
         # on one machine never contend for 8787
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
-    _quiet_distributed()
-    return cluster, Client(cluster, set_as_default=False)
+        cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR,
+                               env=dict(WORKER_THREADS_ENV))
+        cluster.scale(workers)
+        _quiet_distributed()
+        client = Client(cluster, set_as_default=False)
+        client.wait_for_workers(1, timeout=WORKER_START_TIMEOUT)
+    except BaseException as exc:
+        _close((cluster, client, config))
+        if isinstance(exc, TimeoutError | OSError):
+            raise BatchError(f"no local Dask worker started in {WORKER_START_TIMEOUT:.0f} s "
+                             f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+        raise
+    return cluster, client, config
+
+
+@contextmanager
+def local_cluster(workers: int) -> Iterator[Any]:
+    """``with local_cluster(2) as client:``: the LocalCluster `run` makes for itself
+    (see `_local_cluster`), to share between several `run` calls; closed on exit."""
+    own = _local_cluster(workers)
+    try:
+        yield own[1]
+    finally:
+        _close(own)
 
 
 def _quiet_distributed() -> None:
@@ -553,7 +668,7 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
     started = time.perf_counter()
     tasks = plan(inputs, out, settings)
     outdir = Path(out).absolute()
-    own: tuple[Any, Any] | None = None
+    own: tuple[Any, ...] | None = None
     if client is None and scheduler:
         client = _connect(scheduler, connect_timeout)
         own = (None, client)
@@ -596,7 +711,9 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
             n = min(int(workers or os.cpu_count() or 1), len(todo))
             own = _local_cluster(n)
             client = own[1]
-        n_workers = len(client.scheduler_info().get("workers", {}))
+            n_workers = n  # the first is up; the others join while takes run
+        else:
+            n_workers = len(client.scheduler_info().get("workers", {}))
         _run_tasks(client, tasks, todo, settings, outdir, manifest, rows, state, retries,
                    task, progress, started)
     except KeyboardInterrupt:
@@ -614,16 +731,22 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
     return report()
 
 
-def _close(own: tuple[Any, Any] | None) -> None:
+def _close(own: tuple[Any, ...] | None) -> None:
+    """Close a client and the cluster it was made with (either may be None), then
+    restore the Dask settings held for it."""
     if own is None:
         return
-    cluster, client = own
+    cluster, client, *config = own
     try:
-        client.close()
+        if client is not None:
+            client.close()
         if cluster is not None:
             cluster.close()
     except Exception as exc:  # closing must not hide the outcome
         log.debug("closing the Dask cluster: %s", exc)
+    finally:
+        for c in config:
+            c.__exit__(None, None, None)
 
 
 def _run_tasks(client: Any, tasks: list[TakeTask], todo: list[int], settings: BatchSettings,
