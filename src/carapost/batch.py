@@ -4,9 +4,10 @@ Every take found in the inputs (take files, folders searched recursively, wildca
 one task that runs the headless pipeline (`carapost.pipeline.process_take`) on a Dask
 worker and writes ``OUTDIR/<take>.cara`` (and ``.c3d``/``.fbx`` when asked). By default
 the tasks run on an in-process ``LocalCluster`` with one single-threaded worker process
-per core; ``scheduler="tcp://host:8786"`` (or a ``dask.distributed.Client``) uses an
-existing cluster, whose workers need the package and read access to the take paths and
-write access to OUTDIR.
+per core (on Linux forked from a fork server that has imported the pipeline once);
+``scheduler="tcp://host:8786"`` (or a ``dask.distributed.Client``) uses an existing
+cluster, whose workers need the package and read access to the take paths and write
+access to OUTDIR.
 
 - A take that fails is reported with its error; the others go on.
 - A worker that dies mid-task has its task run again (``retries`` times) on a worker
