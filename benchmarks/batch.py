@@ -13,7 +13,11 @@ Metrics (one JSON object per line):
 - ``batch_overhead_cpu_s``: the same difference in CPU seconds (driver, scheduler and
   workers against the ``carapost process`` processes and their detector processes);
 - ``process_take_s``: median wall time of ``carapost process`` on one take (the
-  reference), and the CPU seconds of every configuration.
+  reference), and the CPU seconds of every configuration (the workers' included: the
+  fork server they are forked from is stopped and waited for at the end of each batch);
+- with each ``batch_takes_per_min``: ``take_s_median`` / ``take_cpu_s_median``, the
+  wall and CPU seconds of one take on its worker (from the report), and ``fixed_s``, the
+  batch's wall time that is not its takes (start-up, scheduling, shutdown).
 
 Usage: ``python benchmarks/batch.py [--takes 6] [--frames 40] [--repeats 2]``.
 Medians over the repeats; the configurations are interleaved so that a change of the
@@ -66,9 +70,10 @@ def direct(takes: list[Path], out: Path) -> tuple[float, float, list[float]]:
     return time.perf_counter() - t0, _children_cpu() - c0, per
 
 
-def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float]:
+def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float, dict]:
     """`carapost.batch.run` in a fresh process (so its CPU time is measurable): wall s,
-    CPU s of the driver and its workers."""
+    CPU s of the driver and its workers, and the per-take figures of its report (wall
+    and CPU seconds of each take on its worker)."""
     code = ("import sys, json, time, resource\n"
             "from carapost.batch import run\n"
             "if __name__ == '__main__':\n"
@@ -77,12 +82,20 @@ def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float]:
             " force=True)\n"
             "    wall = time.perf_counter() - t\n"
             "    assert rep['summary']['done'] == len(rep['takes']), rep['takes']\n"
-            "    print(json.dumps({'wall': wall}))\n")
+            # the workers are children of the fork server: stop it and wait for it, so
+            # that their CPU time reaches this process's children's (private API,
+            # as multiprocessing's own tests use it)
+            "    from multiprocessing import forkserver\n"
+            "    if getattr(forkserver._forkserver, '_forkserver_pid', None):\n"
+            "        forkserver._forkserver._stop()\n"
+            "    rows = rep['takes']\n"
+            "    print(json.dumps({'wall': wall, 'take_s': [r['seconds'] for r in rows],"
+            " 'take_cpu_s': [r['cpu_seconds'] for r in rows]}))\n")
     c0 = _children_cpu()
     res = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
                          text=True)
-    wall = json.loads(res.stdout.strip().splitlines()[-1])["wall"]
-    return wall, _children_cpu() - c0
+    out_ = json.loads(res.stdout.strip().splitlines()[-1])
+    return out_["wall"], _children_cpu() - c0, out_
 
 
 def main() -> None:
@@ -100,15 +113,19 @@ def main() -> None:
         walls: dict[str, list[float]] = {"direct": [], "1": [], "2": []}
         cpus: dict[str, list[float]] = {"direct": [], "1": [], "2": []}
         per_take: list[float] = []
+        take_s: dict[str, list[float]] = {"1": [], "2": []}
+        take_cpu: dict[str, list[float]] = {"1": [], "2": []}
         for _ in range(args.repeats):
             w, c, per = direct(takes, root / "direct")
             walls["direct"].append(w)
             cpus["direct"].append(c)
             per_take.extend(per)
             for n in (1, 2):
-                w, c = batch(takes, root / f"batch{n}", n)
+                w, c, rep = batch(takes, root / f"batch{n}", n)
                 walls[str(n)].append(w)
                 cpus[str(n)].append(c)
+                take_s[str(n)].extend(rep["take_s"])
+                take_cpu[str(n)].extend(rep["take_cpu_s"])
     med = {k: statistics.median(v) for k, v in walls.items()}
     cpu = {k: statistics.median(v) for k, v in cpus.items()}
     n = args.takes
@@ -118,12 +135,15 @@ def main() -> None:
     rows = [
         {"metric": "process_take_s", "value": round(statistics.median(per_take), 3),
          "unit": "s", "cpu_s_per_take": round(cpu["direct"] / n, 3), **common},
-        {"metric": "batch_takes_per_min", "value": round(60 * n / med["1"], 2),
-         "unit": "takes/min", "workers": 1, "wall_s": round(med["1"], 2),
-         "cpu_s": round(cpu["1"], 2), **common},
-        {"metric": "batch_takes_per_min", "value": round(60 * n / med["2"], 2),
-         "unit": "takes/min", "workers": 2, "wall_s": round(med["2"], 2),
-         "cpu_s": round(cpu["2"], 2), **common},
+        *({"metric": "batch_takes_per_min", "value": round(60 * n / med[k], 2),
+           "unit": "takes/min", "workers": int(k), "wall_s": round(med[k], 2),
+           "cpu_s": round(cpu[k], 2),
+           # each take on its worker: does the second worker slow the first one's takes?
+           "take_s_median": round(statistics.median(take_s[k]), 3),
+           "take_cpu_s_median": round(statistics.median(take_cpu[k]), 3),
+           # what is not the takes: start-up, scheduling, shutdown (wall)
+           "fixed_s": round(med[k] - sum(take_s[k]) / args.repeats / int(k), 2),
+           **common} for k in ("1", "2")),
         {"metric": "batch_scaling_2w", "value": round(med["1"] / med["2"], 3),
          "unit": "ratio", "target": 1.7, **common},
         {"metric": "batch_overhead_s", "value": round((med["1"] - med["direct"]) / n, 3),

@@ -47,12 +47,38 @@ def shoot(tmp_path_factory, source_take) -> Path:
 @pytest.fixture(scope="module")
 def client():
     """One 2-worker LocalCluster, set up as `run` sets up its own, for the module."""
-    from carapost.batch import _local_cluster
+    global _FORK_SERVER_IS_OURS
+    from carapost.batch import local_cluster, start_fork_server
 
-    cluster, client = _local_cluster(2)
-    yield client
-    client.close()
-    cluster.close()
+    _FORK_SERVER_IS_OURS = start_fork_server()
+    with local_cluster(2) as client:
+        client.wait_for_workers(2, timeout=120)
+        yield client
+
+
+def _worker_state() -> dict:
+    import sys
+
+    import numba
+
+    return {"pipeline": "carapost.pipeline" in sys.modules and "scipy.signal" in sys.modules,
+            "threads": (os.environ.get("OMP_NUM_THREADS"),
+                        os.environ.get("OPENBLAS_NUM_THREADS"),
+                        numba.config.NUMBA_NUM_THREADS)}
+
+
+def test_workers_start_with_the_pipeline_imported_and_one_thread_each(client):
+    state = client.run(_worker_state)
+    assert len(state) == 2
+    for s in state.values():
+        assert s["threads"][:2] == ("1", "1")
+        # forked from the fork server that imported the take's modules once, with one
+        # numba thread (unless a detector pool of an earlier test started the program's
+        # fork server first: then numba keeps its own count; no kernel is parallel)
+        assert (s["pipeline"] and s["threads"][2] == 1) or not _FORK_SERVER_IS_OURS
+
+
+_FORK_SERVER_IS_OURS = False
 
 
 def _mtimes(folder: Path) -> dict[str, int]:
@@ -88,7 +114,7 @@ def test_batch_isolates_failures_reports_resumes_and_forces(shoot, client, tmp_p
         assert row["tracked_fraction"] > 0.8
         assert 0 < row["mean_residual"] < 1.0  # mm, noise-level reprojection
         assert row["project"] == str(out / f"{name}.cara")
-        assert row["seconds"] > 0
+        assert row["seconds"] > 0 and 0 < row["cpu_seconds"] < 10 * row["seconds"]
     # the report files: the JSON equals the returned report, the CSV has every row
     assert json.loads((out / "batch_report.json").read_text())["takes"] == rep["takes"]
     with open(out / "batch_report.csv", newline="") as f:
@@ -156,12 +182,13 @@ def kill_worker_once(take: str, outputs: dict[str, str], settings: BatchSettings
 
 
 def test_a_task_that_kills_its_worker_is_retried(shoot, tmp_path):
+    """On the batch's own LocalCluster (the default path of ``carapost batch``): the
+    worker is killed mid-task, started again, and the take is run again on it."""
     out = tmp_path / "out"
-    rep = run([shoot / "day1/Take00", shoot / "day1/Take01"], out, workers=2,
-              task=kill_worker_once)
-    assert rep["summary"]["done"] == 2
-    assert [r["attempts"] for r in rep["takes"]] == [2, 2]
-    assert (out / "Take00.cara").is_file() and (out / "Take01.cara").is_file()
+    rep = run([shoot / "day1/Take00"], out, workers=2, task=kill_worker_once)
+    assert rep["summary"]["done"] == 1 and rep["workers"] == 1  # one take, one worker
+    assert [r["attempts"] for r in rep["takes"]] == [2]
+    assert (out / "Take00.cara").is_file() and (out / "Take00.killed").is_file()
 
 
 def test_without_retries_a_dead_worker_fails_only_its_take(shoot, client, tmp_path):

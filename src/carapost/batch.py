@@ -4,9 +4,10 @@ Every take found in the inputs (take files, folders searched recursively, wildca
 one task that runs the headless pipeline (`carapost.pipeline.process_take`) on a Dask
 worker and writes ``OUTDIR/<take>.cara`` (and ``.c3d``/``.fbx`` when asked). By default
 the tasks run on an in-process ``LocalCluster`` with one single-threaded worker process
-per core; ``scheduler="tcp://host:8786"`` (or a ``dask.distributed.Client``) uses an
-existing cluster, whose workers need the package and read access to the take paths and
-write access to OUTDIR.
+per core (on Linux forked from a fork server that has imported the pipeline once);
+``scheduler="tcp://host:8786"`` (or a ``dask.distributed.Client``) uses an existing
+cluster, whose workers need the package and read access to the take paths and write
+access to OUTDIR.
 
 - A take that fails is reported with its error; the others go on.
 - A worker that dies mid-task has its task run again (``retries`` times) on a worker
@@ -44,6 +45,14 @@ from pathlib import Path
 from typing import Any
 
 from carapost import __version__
+from carapost.batch_cluster import (
+    WORKER_PRELOAD,
+    WORKER_THREADS_ENV,
+    _close,
+    _local_cluster,
+    local_cluster,
+    start_fork_server,
+)
 from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
 
@@ -52,19 +61,23 @@ log = logging.getLogger("carapost.batch")
 __all__ = [
     "MANIFEST_NAME",
     "REPORT_FIELDS",
+    "WORKER_PRELOAD",
+    "WORKER_THREADS_ENV",
     "BatchError",
     "BatchSettings",
     "TakeTask",
     "discover_takes",
+    "local_cluster",
     "plan",
     "process_one",
     "run",
+    "start_fork_server",
 ]
 
 #: The manifest of finished takes, in OUTDIR.
 MANIFEST_NAME = "batch_manifest.json"
 #: The columns of ``batch_report.csv`` (and the keys of each take in the JSON report).
-REPORT_FIELDS = ("take", "status", "error", "seconds", "frames", "points",
+REPORT_FIELDS = ("take", "status", "error", "seconds", "cpu_seconds", "frames", "points",
                  "tracked_fraction", "mean_residual", "attempts", "project", "c3d", "fbx")
 
 _WILDCARD = frozenset("*?[")
@@ -379,19 +392,25 @@ def process_one(take: str, outputs: dict[str, str], settings: BatchSettings) -> 
     stops the batch. Runs single-threaded: the parallelism of a batch is its takes.
     """
     import cv2
+    from threadpoolctl import threadpool_limits
 
     from carapost.pipeline import process_take
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
+    c0 = time.process_time()
     row: dict[str, Any] = {"take": take, "status": "done", "error": ""}
     for kind in outputs:
         Path(outputs[kind]).parent.mkdir(parents=True, exist_ok=True)
     try:
-        result = process_take(take, output=outputs["project"], rom=settings.rom,
-                              brim=settings.brim, c3d=outputs.get("c3d"),
-                              fbx=outputs.get("fbx"), patch_tracking=settings.patch_tracking,
-                              stabilize=settings.stabilize, workers=1)
+        # one BLAS/OpenMP thread whatever the worker was started with (a worker of an
+        # external cluster, a fork server started by someone else)
+        with threadpool_limits(1):
+            result = process_take(take, output=outputs["project"], rom=settings.rom,
+                                  brim=settings.brim, c3d=outputs.get("c3d"),
+                                  fbx=outputs.get("fbx"),
+                                  patch_tracking=settings.patch_tracking,
+                                  stabilize=settings.stabilize, workers=1)
     except Exception as exc:  # every failure of a take is a report row
         row.update(status="failed", error=_message(exc))
         log.info("%s failed: %s", take, row["error"])
@@ -401,6 +420,7 @@ def process_one(take: str, outputs: dict[str, str], settings: BatchSettings) -> 
                    mean_residual=_finite(result.get("mean_residual")),
                    project=result["project"], c3d=result["c3d"], fbx=result["fbx"])
     row["seconds"] = round(time.perf_counter() - t0, 3)
+    row["cpu_seconds"] = round(time.process_time() - c0, 3)
     return row
 
 
@@ -437,36 +457,6 @@ def _connect(scheduler: str, timeout: float) -> Any:
         raise BatchError(f"{scheduler}: no Dask scheduler answers at this address "
                          f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
 
-
-def _local_cluster(workers: int) -> tuple[Any, Any]:
-    """An in-process cluster of single-threaded worker processes.
-
-    The scheduler is told that a task whose worker dies has failed at once (allowed
-    failures 0): `run` then resubmits it itself, so ``retries`` means the same on a
-    LocalCluster and on an external cluster. Each worker is given one take at a time
-    (worker saturation 1.0): a take waiting on a worker that dies is not counted as
-    having died with it, and the takes, which last seconds to minutes, go to the
-    worker that is free first.
-    """
-    import dask
-    from distributed import Client, LocalCluster
-
-    _quiet_distributed()
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
-                          "distributed.scheduler.worker-saturation": 1.0}):
-        # ":0": the HTTP server (dashboard, health checks) on a free port, so two batches
-        # on one machine never contend for 8787
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
-    _quiet_distributed()
-    return cluster, Client(cluster, set_as_default=False)
-
-
-def _quiet_distributed() -> None:
-    """The scheduler runs in this process: its INFO lines would drown the progress bar."""
-    for name in list(logging.root.manager.loggerDict):
-        if name == "distributed" or name.startswith("distributed."):
-            logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def _worker_died(exc: BaseException | None) -> bool:
@@ -553,7 +543,7 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
     started = time.perf_counter()
     tasks = plan(inputs, out, settings)
     outdir = Path(out).absolute()
-    own: tuple[Any, Any] | None = None
+    own: tuple[Any, ...] | None = None
     if client is None and scheduler:
         client = _connect(scheduler, connect_timeout)
         own = (None, client)
@@ -596,7 +586,9 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
             n = min(int(workers or os.cpu_count() or 1), len(todo))
             own = _local_cluster(n)
             client = own[1]
-        n_workers = len(client.scheduler_info().get("workers", {}))
+            n_workers = n  # the first is up; the others join while takes run
+        else:
+            n_workers = len(client.scheduler_info().get("workers", {}))
         _run_tasks(client, tasks, todo, settings, outdir, manifest, rows, state, retries,
                    task, progress, started)
     except KeyboardInterrupt:
@@ -612,18 +604,6 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
     finally:
         _close(own)
     return report()
-
-
-def _close(own: tuple[Any, Any] | None) -> None:
-    if own is None:
-        return
-    cluster, client = own
-    try:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    except Exception as exc:  # closing must not hide the outcome
-        log.debug("closing the Dask cluster: %s", exc)
 
 
 def _run_tasks(client: Any, tasks: list[TakeTask], todo: list[int], settings: BatchSettings,

@@ -107,7 +107,7 @@ def lifeline(parent: int | None = None, every_s: float = 0.5, *,
 # this module (preload) and so follows the program with a watchdog. (No parent-death
 # signal there: the forkserver may be started from a worker thread, and the kernel
 # sends that signal when the starting *thread* ends.)
-_PARENT_ENV = "CARAPOST_PARENT_PID"
+_PARENT_ENV = PARENT_PID_ENV = "CARAPOST_PARENT_PID"
 if os.environ.get(_PARENT_ENV) == str(os.getppid()):
     lifeline(os.getppid(), pdeathsig=False)
 
