@@ -253,6 +253,36 @@ def test_bad_outdir_rom_and_scheduler_are_refused_before_any_work(shoot, tmp_pat
         run([take, tmp_path / "dup"], tmp_path / "out")
 
 
+def test_a_second_batch_into_the_same_outdir_is_refused(shoot, tmp_path, monkeypatch):
+    """Two batches writing one OUTDIR would interleave their manifests: the second is
+    refused in one line naming the first's process, before any work; once the first
+    ends, the folder is free again."""
+    import subprocess
+    import sys
+
+    import carapost.batch as batch
+
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, carapost.batch as b; from pathlib import Path; "
+         "fd = b._lock_outdir(Path(sys.argv[1])); print('held', flush=True); "
+         "sys.stdin.read()", str(out)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        monkeypatch.setattr(batch, "_local_cluster", None)  # would raise if called
+        with pytest.raises(BatchError, match=f"another batch \\(process {holder.pid}\\)"):
+            run([shoot / "day1/Take03"], out)
+        assert sorted(p.name for p in out.iterdir()) == [".batch.lock"]
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)
+        holder.stdout.close()
+    fd = batch._lock_outdir(out)  # free again
+    os.close(fd)
+
+
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["batch", str(tmp_path / "nope*"), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

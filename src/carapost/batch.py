@@ -18,6 +18,9 @@ access to OUTDIR.
 - Every output file is written atomically and a take enters the manifest only once all
   of its outputs are written, so an interrupted batch (Ctrl+C) keeps the finished takes
   and leaves nothing half-written; the next run does the rest.
+- ``OUTDIR/.batch.lock`` (an exclusive ``flock``, released when the batch ends, also
+  when it is killed) keeps a second batch from writing the same OUTDIR at the same time:
+  it is refused before any work, naming the first one's process.
 - ``OUTDIR/batch_report.json`` and ``batch_report.csv``: one row per take (status,
   error, seconds, points, tracked fraction, mean residual, outputs).
 
@@ -548,63 +551,104 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         client = _connect(scheduler, connect_timeout)
         own = (None, client)
     outdir.mkdir(exist_ok=True)
-    manifest = read_manifest(outdir)
-    rows: dict[int, dict[str, Any]] = {}
-    todo: list[int] = []
-    for i, t in enumerate(tasks):
-        entry = manifest.get(t.key(outdir))
-        if not force and _is_current(t, entry):
-            rows[i] = {**entry.get("row", {}), "status": "skipped", "error": "",
-                       "seconds": 0.0, "attempts": 0}
-        else:
-            todo.append(i)
-    state = {"total": len(tasks), "done": 0, "failed": 0, "skipped": len(rows),
-             "running": 0, "elapsed_s": 0.0, "eta_s": None}
-    n_workers = 0
-
-    def report(cancelled: bool = False) -> dict[str, Any]:
-        all_rows = []
-        for i, t in enumerate(tasks):
-            row = rows.get(i) or {"take": str(t.take), "status": "cancelled" if cancelled
-                                  else "pending", "error": "interrupted" if cancelled else ""}
-            all_rows.append({k: row.get(k) for k in REPORT_FIELDS})
-        counts = {s: sum(r["status"] == s for r in all_rows)
-                  for s in ("done", "failed", "skipped", "cancelled")}
-        rep = {"carapost": __version__, "outdir": str(outdir),
-               "settings": asdict(settings), "workers": n_workers,
-               "seconds": round(time.perf_counter() - started, 3),
-               "summary": {"total": len(tasks), **counts}, "takes": all_rows}
-        _write_report(outdir, rep)
-        return rep
-
-    if progress is not None:
-        progress(dict(state))
-    if not todo:
-        return report()
     try:
-        if client is None:
-            n = min(int(workers or os.cpu_count() or 1), len(todo))
-            own = _local_cluster(n)
-            client = own[1]
-            n_workers = n  # the first is up; the others join while takes run
-        else:
-            n_workers = len(client.scheduler_info().get("workers", {}))
-        _run_tasks(client, tasks, todo, settings, outdir, manifest, rows, state, retries,
-                   task, progress, started)
-    except KeyboardInterrupt:
-        log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
-                    state["failed"], len(todo))
+        # one batch per OUTDIR at a time: two would interleave their manifests
+        lock = _lock_outdir(outdir)
+    except BatchError:
         _close(own)
-        own = None
-        for i in todo:
-            if i not in rows:
-                _remove_partials(tasks[i])
-        report(cancelled=True)
         raise
-    finally:
-        _close(own)
-    return report()
+    try:
+        manifest = read_manifest(outdir)
+        rows: dict[int, dict[str, Any]] = {}
+        todo: list[int] = []
+        for i, t in enumerate(tasks):
+            entry = manifest.get(t.key(outdir))
+            if not force and _is_current(t, entry):
+                rows[i] = {**entry.get("row", {}), "status": "skipped", "error": "",
+                           "seconds": 0.0, "attempts": 0}
+            else:
+                todo.append(i)
+        state = {"total": len(tasks), "done": 0, "failed": 0, "skipped": len(rows),
+                 "running": 0, "elapsed_s": 0.0, "eta_s": None}
+        n_workers = 0
 
+        def report(cancelled: bool = False) -> dict[str, Any]:
+            all_rows = []
+            for i, t in enumerate(tasks):
+                row = rows.get(i) or {"take": str(t.take), "status": "cancelled" if cancelled
+                                      else "pending", "error": "interrupted" if cancelled else ""}
+                all_rows.append({k: row.get(k) for k in REPORT_FIELDS})
+            counts = {s: sum(r["status"] == s for r in all_rows)
+                      for s in ("done", "failed", "skipped", "cancelled")}
+            rep = {"carapost": __version__, "outdir": str(outdir),
+                   "settings": asdict(settings), "workers": n_workers,
+                   "seconds": round(time.perf_counter() - started, 3),
+                   "summary": {"total": len(tasks), **counts}, "takes": all_rows}
+            _write_report(outdir, rep)
+            return rep
+
+        if progress is not None:
+            progress(dict(state))
+        if not todo:
+            return report()
+        try:
+            if client is None:
+                n = min(int(workers or os.cpu_count() or 1), len(todo))
+                own = _local_cluster(n)
+                client = own[1]
+                n_workers = n  # the first is up; the others join while takes run
+            else:
+                n_workers = len(client.scheduler_info().get("workers", {}))
+            _run_tasks(client, tasks, todo, settings, outdir, manifest, rows, state, retries,
+                       task, progress, started)
+        except KeyboardInterrupt:
+            log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
+                        state["failed"], len(todo))
+            _close(own)
+            own = None
+            for i in todo:
+                if i not in rows:
+                    _remove_partials(tasks[i])
+            report(cancelled=True)
+            raise
+        finally:
+            _close(own)
+        return report()
+    finally:
+        os.close(lock)  # closing releases the lock
+
+
+LOCK_NAME = ".batch.lock"
+
+
+def _lock_outdir(outdir: Path) -> int:
+    """Take ``OUTDIR/.batch.lock`` (an exclusive ``flock``) for a batch writing there;
+    returns the descriptor whose closing releases it (of the null device where there is no flock).
+
+    Raises
+    ------
+    BatchError
+        Another batch holds it (its process id is in the message).
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - no flock on this platform: no lock
+        return os.open(os.devnull, os.O_RDONLY)
+    path = outdir / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise BatchError(f"{path}: cannot be created ({exc.strerror or exc})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        other = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+        os.close(fd)
+        raise BatchError(f"{outdir}: another batch (process {other}) is writing there; "
+                         "wait for it to end or choose another output folder") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    return fd
 
 def _run_tasks(client: Any, tasks: list[TakeTask], todo: list[int], settings: BatchSettings,
                outdir: Path, manifest: dict[str, Any], rows: dict[int, dict[str, Any]],
