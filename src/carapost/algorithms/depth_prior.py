@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.uncertainty import observation_information
 
 __all__ = ["DEPTH_SMOOTHING_FRAMES", "MOTION_TAU_MM", "sample_covariance",
            "smooth_along_uncertainty"]
@@ -82,20 +83,7 @@ def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     Rm = np.asarray(R, dtype=np.float64)
     tm = np.asarray(t, dtype=np.float64)
     s = np.asarray(noise_px, dtype=np.float64)
-    has = np.isfinite(o).all(-1) & np.isfinite(Xm).all(-1)[..., None]  # (F, P, C)
-    Xc = np.einsum("fcij,fpj->fpci", Rm, np.nan_to_num(Xm)) + tm[:, None]
-    z = Xc[..., 2]
-    ok = has & (z > 1e-6)
-    zs = np.where(ok, z, 1.0)
-    x, y = Xc[..., 0] / zs, Xc[..., 1] / zs
-    Jn = np.zeros(Xc.shape[:-1] + (2, 3))
-    Jn[..., 0, 0] = 1.0 / zs
-    Jn[..., 0, 2] = -x / zs
-    Jn[..., 1, 1] = 1.0 / zs
-    Jn[..., 1, 2] = -y / zs
-    J = np.einsum("fpcak,fckj->fpcaj", Jn, Rm)
-    wgt = np.where(ok, (intr.focal[None, None, :] / s[None, None, :]) ** 2, 0.0)
-    info = np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J)
+    info, ok, _ = observation_information(Xm, o, Rm, tm, intr, s)
     out = np.full(Xm.shape[:2] + (3, 3), np.nan)
     two = ok.sum(-1) >= 2
     if two.any():

@@ -41,6 +41,7 @@ __all__ = [
     "POSE_SMOOTHING_FRAMES",
     "brim_pose_covariance",
     "noise_from_residuals",
+    "observation_information",
     "pair_holdout_scale",
     "point_noise_factor",
     "retriangulate",
@@ -358,13 +359,40 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     return out
 
 
-def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np.float64],
-                 tm: NDArray[np.float64], intr: CameraIntrinsics, s: NDArray[np.float64],
-                 pc: NDArray[np.float64] | None, phi: NDArray[np.float64]
-                 ) -> NDArray[np.float32]:
-    """`sample_sigma` of a block of frames."""
-    has = np.isfinite(o).all(-1) & np.isfinite(Xm).all(-1)[..., None]  # (F, P, C)
-    Xc = np.einsum("fcij,fpj->fpci", Rm, np.nan_to_num(Xm)) + tm[:, None]  # (F, P, C, 3)
+def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
+                            R: NDArray[np.float64], t: NDArray[np.float64],
+                            intr: CameraIntrinsics, noise_px: NDArray[np.float64]
+                            ) -> tuple[NDArray[np.float64], NDArray[np.bool_],
+                                       NDArray[np.float64]]:
+    """Information matrix of each sample's position from its observations.
+
+    ``sum_c J_c^T J_c / s_c^2`` over the cameras that observe the sample in front of
+    them, ``J_c`` the 2x3 Jacobian of camera ``c``'s pinhole projection in pixels at the
+    point, ``s_c = noise_px[c]`` (px); its inverse is the covariance of the 2D noise's
+    effect (mm^2). Shared by `sample_sigma` and
+    `carapost.algorithms.depth_prior.sample_covariance`.
+
+    Parameters
+    ----------
+    X : ndarray, shape (F, P, 3)
+        Positions (mm), NaN where none.
+    obs : ndarray, shape (F, P, C, 2)
+        Observations (px), NaN where none.
+    R, t : ndarray, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    noise_px : ndarray, shape (C,)
+
+    Returns
+    -------
+    info : ndarray, shape (F, P, 3, 3)
+        1/mm^2; zero where no camera counts.
+    ok : ndarray, shape (F, P, C), bool
+        The cameras that count (observed, point in front).
+    Xc : ndarray, shape (F, P, C, 3)
+        The point in each camera's coordinates (mm).
+    """
+    has = np.isfinite(obs).all(-1) & np.isfinite(X).all(-1)[..., None]  # (F, P, C)
+    Xc = np.einsum("fcij,fpj->fpci", R, np.nan_to_num(X)) + t[:, None]  # (F, P, C, 3)
     z = Xc[..., 2]
     ok = has & (z > 1e-6)
     zs = np.where(ok, z, 1.0)
@@ -375,9 +403,18 @@ def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np
     Jn[..., 0, 2] = -x / zs
     Jn[..., 1, 1] = 1.0 / zs
     Jn[..., 1, 2] = -y / zs
-    J = np.einsum("fpcak,fckj->fpcaj", Jn, Rm)
-    wgt = np.where(ok, (intr.focal[None, None, :] / s[None, None, :]) ** 2, 0.0)
+    J = np.einsum("fpcak,fckj->fpcaj", Jn, R)
+    wgt = np.where(ok, (intr.focal[None, None, :] / noise_px[None, None, :]) ** 2, 0.0)
     info = np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J)
+    return info, ok, Xc
+
+
+def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np.float64],
+                 tm: NDArray[np.float64], intr: CameraIntrinsics, s: NDArray[np.float64],
+                 pc: NDArray[np.float64] | None, phi: NDArray[np.float64]
+                 ) -> NDArray[np.float32]:
+    """`sample_sigma` of a block of frames."""
+    info, ok, Xc = observation_information(Xm, o, Rm, tm, intr, s)
     out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
     two = ok.sum(-1) >= 2
     if not two.any():
