@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from carapost.algorithms.camera import CameraIntrinsics
@@ -208,6 +208,8 @@ def test_autosave_and_recovery(rng: np.random.Generator, tmp_path: Path) -> None
     labels=st.lists(st.text(st.characters(min_codepoint=33, max_codepoint=0x2FF), min_size=1,
                             max_size=12), max_size=5),
 )
+# raw values of filtered samples whose positions are blank but recon/sigma not: once lost
+@example(frames=1, cameras=2, points=1, seed=1, fps=1.0, labels=[])
 def test_round_trip_property(tmp_path_factory, frames, cameras, points, seed, fps, labels):
     from carapost.model.project import new_project
 

@@ -160,12 +160,22 @@ def _manifest(project: Project, folder: Path) -> dict[str, Any]:
     }
 
 
+def _is_blank(arr: np.ndarray, fill: Any) -> bool:
+    """Every value of ``arr`` is its array's fill value (NaN counts as NaN)."""
+    if isinstance(fill, float) and math.isnan(fill):
+        return bool(np.isnan(arr).all())
+    return bool((arr == fill).all())
+
+
 def _arrays(project: Project) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
-    for name, arr in project.points.arrays.items():
-        if name in RAW_POINT_ARRAYS and not np.isfinite(project.points.arrays[
-                "raw_positions"][..., 0]).any():
-            continue                     # nothing filtered: the file stays as it was
+    # the raw values of filtered samples only when some are held: a file of a project
+    # never filtered stays as it was (an absent member reads as blank)
+    arrays = project.points.arrays
+    keep_raw = any(not _is_blank(arrays[n], POINT_ARRAYS[n][1]) for n in RAW_POINT_ARRAYS)
+    for name, arr in arrays.items():
+        if name in RAW_POINT_ARRAYS and not keep_raw:
+            continue
         out[f"points/{name}.npy"] = arr
     out["detections/offsets.npy"] = project.detections.offsets
     for name, arr in project.detections.arrays.items():
