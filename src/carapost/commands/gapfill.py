@@ -94,10 +94,23 @@ class SparseSamples:
 
 
 @dataclass
-class GapFillResult(Result):
-    """Filled samples of Interpolate Gaps, and the gap table with its estimates."""
+class SamplesResult(Result):
+    """A result that writes some samples of the point arrays (`SparseSamples`): the
+    shared part of Interpolate Gaps, Filter Trajectories and Remove Filtering."""
 
     samples: SparseSamples
+
+    def write(self, project: Project, journal: Journal) -> None:
+        self.samples.write(project, journal)
+
+    def changes_nothing(self) -> bool:
+        return not self.samples.mask.any()
+
+
+@dataclass
+class GapFillResult(SamplesResult):
+    """Filled samples of Interpolate Gaps, and the gap table with its estimates."""
+
     gaps: GapTable
     messages: list[str]
     labels: list[str]
@@ -106,12 +119,6 @@ class GapFillResult(Result):
     description: str = "Interpolate Gaps"
     message: str = ""
     cancelled: bool = False
-
-    def write(self, project: Project, journal: Journal) -> None:
-        self.samples.write(project, journal)
-
-    def changes_nothing(self) -> bool:
-        return not self.samples.mask.any()
 
     def report(self) -> dict[str, Any]:
         """The gaps as plain data (for the sidecar report and the Find Problems pane):
@@ -260,17 +267,12 @@ def prepare_interpolate_gaps(project: Project, point_ids: Any = None, *,
 
 
 @dataclass
-class FilterResult(Result):
-    samples: SparseSamples
+class FilterResult(SamplesResult):
+    """The filtered samples (and their raw values) of Filter Trajectories."""
+
     description: str = "Filter Trajectories"
     message: str = ""
     cancelled: bool = False
-
-    def write(self, project: Project, journal: Journal) -> None:
-        self.samples.write(project, journal)
-
-    def changes_nothing(self) -> bool:
-        return not self.samples.mask.any()
 
 
 @dataclass
@@ -339,19 +341,12 @@ def prepare_filter_trajectories(project: Project, cutoff_hz: float | None = None
 
 
 @dataclass
-class RemoveFilteringResult(Result):
+class RemoveFilteringResult(SamplesResult):
     """The raw samples Remove Filtering puts back."""
 
-    samples: SparseSamples
     description: str = "Remove Filtering"
     message: str = ""
     cancelled: bool = False
-
-    def write(self, project: Project, journal: Journal) -> None:
-        self.samples.write(project, journal)
-
-    def changes_nothing(self) -> bool:
-        return not self.samples.mask.any()
 
 
 @dataclass
