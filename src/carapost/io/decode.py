@@ -296,12 +296,13 @@ class AVReader:
                 if frame.pts is None or frame.pts < target:
                     continue
                 if frame.pts > target:
-                    raise CaraFileError(self.path, f"frame {index} is missing from the stream")
+                    raise CaraFileError(self.path,
+                                        f"frame {index} is missing from {self._stream_noun}")
                 break
         except StopIteration:
             self._next = -1
-            raise CaraFileError(
-                self.path, f"frame {index} could not be decoded (the file ends early)") from None
+            raise CaraFileError(self.path, f"frame {index} could not be decoded "
+                                f"({self._file_noun} ends early)") from None
         except self._av.error.FFmpegError as exc:
             self._next = -1
             raise CaraFileError(self.path, f"frame {index} could not be decoded ({exc})") from exc
@@ -309,6 +310,15 @@ class AVReader:
             self._next = -1
             raise
         self._next = index + 1
+        return self._to_gray(frame)
+
+    #: how the messages name what is read (a subclass reading another kind of file
+    #: says so)
+    _stream_noun = "the stream"
+    _file_noun = "the file"
+
+    def _to_gray(self, frame: Any) -> NDArray[np.uint8]:
+        """The decoded frame as 8-bit gray ``[H, W]``."""
         return _gray(frame)
 
     def _seek(self, index: int) -> None:

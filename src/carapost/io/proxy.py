@@ -23,6 +23,7 @@ import os
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,31 +63,12 @@ class ProxyReader(AVReader):
         if not 0 <= index < self.n_frames:
             raise CaraFileError(self.path, f"frame {index} is missing from the proxy "
                                 f"(it has frames 0-{self.n_frames - 1})")
-        if self._container is None:
-            self._open()
-        if index != self._next:
-            self._seek(index)
-        target = int(self.index.pts[index])
-        try:
-            while True:
-                frame = next(self._frames)
-                self.decoded += 1
-                if frame.pts is None or frame.pts < target:
-                    continue
-                if frame.pts > target:
-                    raise CaraFileError(self.path, f"frame {index} is missing from the proxy")
-                break
-        except StopIteration:
-            self._next = -1
-            raise CaraFileError(self.path, f"frame {index} could not be decoded (the proxy "
-                                "ends early)") from None
-        except self._av.error.FFmpegError as exc:
-            self._next = -1
-            raise CaraFileError(self.path, f"frame {index} could not be decoded ({exc})") from exc
-        except CaraFileError:
-            self._next = -1
-            raise
-        self._next = index + 1
+        return super().read(index)
+
+    _stream_noun = _file_noun = "the proxy"
+
+    def _to_gray(self, frame: Any) -> NDArray[np.uint8]:
+        """The JPEG luma plane as it is (a proxy of another pixel format: converted)."""
         if frame.format.name in ("yuvj420p", "yuvj422p", "yuvj444p", "gray"):
             return frame.to_ndarray(format="gray")  # the luma plane, copied
         return _gray(frame)
