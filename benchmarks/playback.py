@@ -40,6 +40,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -213,9 +214,14 @@ class Bench:
 
     def playback(self, seconds: float = 6.0) -> None:
         self.stalls.phase = "playback"
-        ctx = self.w.context
         p = self.p
         p.set_view_range((0, p.n_frames - 1)) if hasattr(p, "set_view_range") else None
+        self._play_from_start(seconds, self.shown, "originals")
+
+    def _play_from_start(self, seconds: float, shown: Callable[[int], bool],
+                         source: str) -> None:
+        """Play from frame 0 for ``seconds``; emit the rate of frames ``shown`` drew."""
+        ctx, p = self.w.context, self.p
         self.go(0)
         self.pump(0.5)
         drawn: set[int] = set()
@@ -224,13 +230,13 @@ class Bench:
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
-            if self.shown(p.current_frame):
+            if shown(p.current_frame):
                 drawn.add(p.current_frame)
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
         gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
         ctx.playback.stop()
-        emit("playback_fps", len(drawn) / elapsed, "frames/s", source="originals",
+        emit("playback_fps", len(drawn) / elapsed, "frames/s", source=source,
              take_fps=p.take.fps, seconds=round(elapsed, 2),
              reported_dropped=ctx.playback.dropped,
              gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
@@ -249,27 +255,10 @@ class Bench:
         self.pump(0.2)
         emit("proxy_build_s", time.perf_counter() - t0, "s", cameras=self.p.n_cameras,
              frames=self.p.n_frames)
-        p = self.p
-        self.go(0)
-        self.pump(0.5)
-        drawn: set[int] = set()
-        t0 = time.perf_counter()
-        gui0, cpu0 = time.thread_time(), time.process_time()
-        ctx.playback.toggle(True)
-        while ctx.playback.playing and time.perf_counter() - t0 < seconds:
-            self.app.processEvents()
-            if all(ctx.frames.cached(p.current_frame, c) is not None
-                   for c in range(p.n_cameras)):
-                drawn.add(p.current_frame)
-            time.sleep(0.0005)
-        elapsed = time.perf_counter() - t0
-        gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
-        ctx.playback.stop()
-        emit("playback_fps", len(drawn) / elapsed, "frames/s", source="proxies",
-             take_fps=p.take.fps, seconds=round(elapsed, 2),
-             reported_dropped=ctx.playback.dropped,
-             gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
-             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
+        n_cameras = self.p.n_cameras
+        self._play_from_start(
+            seconds, lambda f: all(ctx.frames.cached(f, c) is not None
+                                   for c in range(n_cameras)), "proxies")
 
     def display_cost(self, count: int = 60) -> None:
         """GUI thread CPU per frame with every image cached (no decoding): what one
