@@ -265,10 +265,7 @@ def ray_misfit(obs: ArrayLike, positions: ArrayLike, recon: ArrayLike, R: ArrayL
     -------
     ndarray, shape (P,)
     """
-    from scipy.stats import chi2
-
-    from carapost.algorithms.camera import project
-    from carapost.algorithms.uncertainty import noise_from_residuals
+    from carapost.algorithms.uncertainty import noise_from_residuals, point_misfit
 
     # at most ~600 frames spread over the take: a median needs no more, and a long
     # take's every sample would cost gigabytes of per-sample cameras
@@ -278,21 +275,7 @@ def ray_misfit(obs: ArrayLike, positions: ArrayLike, recon: ArrayLike, R: ArrayL
     X = np.where(tri[..., None], np.asarray(positions)[::step].astype(np.float64), np.nan)
     Rm = np.asarray(R, dtype=np.float64)[::step]
     tm = np.asarray(t, dtype=np.float64)[::step]
-    out = np.full(X.shape[1], np.nan)
-    has = np.isfinite(o).all(-1)
-    n = has.sum(-1)
-    use = (n >= 2) & np.isfinite(X).all(-1)
-    if not use.any():
-        return out
+    if not ((np.isfinite(o).all(-1).sum(-1) >= 2) & np.isfinite(X).all(-1)).any():
+        return np.full(X.shape[1], np.nan)
     s = noise_from_residuals(o, X, Rm, tm, intr)
-    fi, pi = np.nonzero(use)
-    uv = project(X[fi, pi][:, None, :], Rm[fi], tm[fi], intr)[0][:, 0]  # (N, C, 2)
-    r2 = np.where(has[fi, pi], np.sum((uv - o[fi, pi]) ** 2, -1), 0.0) / s[None, :] ** 2
-    q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
-    order = np.argsort(pi, kind="stable")
-    pi_s, q_s = pi[order], q[order]
-    starts = np.flatnonzero(np.r_[True, pi_s[1:] != pi_s[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], pi_s.size], strict=True):
-        if b - a >= min_samples:
-            out[pi_s[a]] = float(np.median(q_s[a:b]))
-    return out
+    return point_misfit(o, X, Rm, tm, intr, s, min_cameras=2, min_samples=min_samples)

@@ -43,6 +43,7 @@ __all__ = [
     "noise_from_residuals",
     "observation_information",
     "pair_holdout_scale",
+    "point_misfit",
     "point_noise_factor",
     "retriangulate",
     "sample_sigma",
@@ -566,28 +567,61 @@ def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
     -------
     ndarray, shape (P,)
     """
-    from scipy.stats import chi2
-
     # at most ~600 frames spread over the take (a median needs no more)
     step = max(1, np.shape(X)[0] // 600)
     o = np.asarray(obs)[::step].astype(np.float64)
     Xm = np.asarray(X)[::step].astype(np.float64)
-    s = np.asarray(noise_px, dtype=np.float64)
-    has = np.isfinite(o).all(-1)
+    q = point_misfit(o, Xm, np.asarray(R, dtype=np.float64)[::step],
+                     np.asarray(t, dtype=np.float64)[::step], intr,
+                     np.asarray(noise_px, dtype=np.float64), min_cameras=3,
+                     min_samples=min_samples)
+    return np.where(np.isfinite(q), np.maximum(q, 1.0), 1.0)
+
+
+def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np.float64],
+                 t: NDArray[np.float64], intr: CameraIntrinsics,
+                 noise_px: NDArray[np.float64], *, min_cameras: int,
+                 min_samples: int) -> NDArray[np.float64]:
+    """Median over each point's samples of its reprojection chi-square against the
+    cameras' noise, divided by the chi-square's median (about 1 for typical blobs).
+
+    A sample seen by ``n >= min_cameras`` cameras leaves ``sum_c |r_c|^2 / s_c^2`` with
+    ``2n - 3`` degrees of freedom. Shared by `point_noise_factor` and the spurious-point
+    test (`carapost.algorithms.spurious`).
+
+    Parameters
+    ----------
+    obs : ndarray, shape (F, P, C, 2)
+        Observations (px), NaN where none.
+    X : ndarray, shape (F, P, 3)
+        Positions (mm), NaN where none.
+    R, t : ndarray, shapes (F, C, 3, 3) and (F, C, 3)
+    intr : CameraIntrinsics
+    noise_px : ndarray, shape (C,)
+    min_cameras, min_samples : int
+        Samples with fewer cameras do not count; a point with fewer samples gets NaN.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+    """
+    from scipy.stats import chi2
+
+    has = np.isfinite(obs).all(-1)
     n = has.sum(-1)
-    use = (n >= 3) & np.isfinite(Xm).all(-1)
-    out = np.ones(Xm.shape[1])
+    use = (n >= min_cameras) & np.isfinite(X).all(-1)
+    out = np.full(X.shape[1], np.nan)
     if not use.any():
         return out
     fi, pi = np.nonzero(use)
-    uv = _project_per_frame(Xm[fi, pi], np.asarray(R, dtype=np.float64)[::step][fi],
-                            np.asarray(t, dtype=np.float64)[::step][fi], intr)
-    r2 = np.where(has[fi, pi], np.sum((uv - o[fi, pi]) ** 2, -1), 0.0) / s[None, :] ** 2
+    uv = _project_per_frame(X[fi, pi], R[fi], t[fi], intr)
+    r2 = (np.where(has[fi, pi], np.sum((uv - obs[fi, pi]) ** 2, -1), 0.0)
+          / noise_px[None, :] ** 2)
     q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
     order = np.argsort(pi, kind="stable")
     pi_s, q_s = pi[order], q[order]
     starts = np.flatnonzero(np.r_[True, pi_s[1:] != pi_s[:-1]])
     for a, b in zip(starts, np.r_[starts[1:], pi_s.size], strict=True):
         if b - a >= min_samples:
-            out[pi_s[a]] = max(1.0, float(np.median(q_s[a:b])))
+            out[pi_s[a]] = float(np.median(q_s[a:b]))
     return out
