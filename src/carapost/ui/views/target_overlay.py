@@ -119,23 +119,23 @@ class TargetOverlay:
 
     def _selected_keys(self, project, frame: int, camera: int
                        ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """Columns and positions of the selected points' keyframes in ``camera``."""
+        """Columns and positions of the selected points' keyframes in ``camera`` (none
+        for a frame or camera outside the project)."""
         pts = project.points
         cols = np.asarray(project.selected_columns(), dtype=np.intp)
-        if not len(cols):
-            return cols, np.zeros((0, 2))
+        if (not len(cols) or not 0 <= frame < project.n_frames
+                or camera >= pts.n_cameras):
+            return cols[:0], np.zeros((0, 2))
         obs = pts.obs[frame, cols, camera].astype(np.float64)
         key = pts.keyframe[frame, cols, camera] & np.isfinite(obs[:, 0])
         return cols[key], obs[key]
 
     def grab(self, project, frame: int, camera: int, xy) -> int | None:
         """The id of the selected keyframe whose pattern box holds image point ``xy``."""
-        pts = project.points
-        if not pts.count or not 0 <= frame < project.n_frames or camera >= pts.n_cameras:
-            return None
         cols, obs = self._selected_keys(project, frame, camera)
         if not len(cols):
             return None
+        pts = project.points
         half = track_sizes(project, camera)[0][cols] / 2.0
         inside = (np.abs(obs - np.asarray(xy, float)) <= half[:, None]).all(axis=1)
         return int(pts.ids[cols[np.flatnonzero(inside)[0]]]) if inside.any() else None
@@ -145,12 +145,10 @@ class TargetOverlay:
         """The selected keyframe's white handle within ``reach`` (image px) of ``xy``:
         (point id, ``"search"`` for an end of the green cross or ``"pattern"`` for a
         corner of the blue box), or None."""
-        pts = project.points
-        if not pts.count or not 0 <= frame < project.n_frames or camera >= pts.n_cameras:
-            return None
         cols, obs = self._selected_keys(project, frame, camera)
         if not len(cols):
             return None
+        pts = project.points
         pattern, search = track_sizes(project, camera)
         q = np.asarray(xy, dtype=np.float64)
         best: tuple[float, int, str] | None = None
