@@ -41,7 +41,9 @@ from carapost.ui.settings import (
     make_settings,
     preference,
     preference_signals,
+    start_detector,
 )
+from carapost.ui.warm_start import start_detector_processes
 
 log = logging.getLogger("carapost.ui")
 
@@ -428,6 +430,8 @@ class ActionContext(QObject):
         self.view.set_project(project, frames)
         self._bind_images()
         self._start_proxies()
+        if self.view.frames.has_images and start_detector(self.settings):
+            start_detector_processes()  # the first Detect Blobs finds them ready
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
