@@ -24,17 +24,21 @@ def detector_at_open():
 
 
 def test_opening_a_take_starts_the_processes_only_when_the_user_wants(
-        make_window, synth_take, monkeypatch):
+        make_window, qtbot, synth_take, monkeypatch):
     import carapost.ui.context as context
 
     started: list[int] = []
     monkeypatch.setattr(context, "start_detector_processes", lambda: started.append(1))
+    monkeypatch.setattr(context, "DETECTOR_START_DELAY_MS", 50)
     make_window(api.import_take(synth_take))
+    qtbot.wait(300)
     assert started == []  # the preference is off in the test settings
     set_preference(make_settings(), "start_detector_after_import", True)
     make_window(api.import_take(synth_take))
-    assert started == [1]
+    assert started == []  # not while the take's first images are decoded and drawn
+    qtbot.waitUntil(lambda: started == [1], timeout=5000)
     make_window(new_project(5, 2))  # no images: nothing to detect in
+    qtbot.wait(300)
     assert started == [1]
 
 

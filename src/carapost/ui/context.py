@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from PySide6.QtCore import QObject, QSettings, Qt, Signal
+from PySide6.QtCore import QObject, QSettings, Qt, QTimer, Signal
 
 from carapost.commands.recipe import Result
 from carapost.commands.stack import CommandError, CommandStack
@@ -46,6 +46,8 @@ from carapost.ui.settings import (
 from carapost.ui.warm_start import start_detector_processes
 
 log = logging.getLogger("carapost.ui")
+#: Milliseconds after a take opens before the blob detector's processes are started.
+DETECTOR_START_DELAY_MS = 1000
 
 
 @dataclass
@@ -431,7 +433,9 @@ class ActionContext(QObject):
         self._bind_images()
         self._start_proxies()
         if self.view.frames.has_images and start_detector(self.settings):
-            start_detector_processes()  # the first Detect Blobs finds them ready
+            # the first Detect Blobs finds them ready; started once the take is on
+            # screen, so their start-up does not compete with the first images
+            QTimer.singleShot(DETECTOR_START_DELAY_MS, self, start_detector_processes)
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
@@ -451,7 +455,9 @@ class ActionContext(QObject):
         if build_proxies(self.settings):
             self.proxies.start(frames)
         else:
-            frames.attach_proxies()
+            # in a slice of its own: opening the proxies reads their keyframe indexes
+            QTimer.singleShot(0, self, lambda: frames is self.view.frames
+                              and frames.attach_proxies())
 
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
