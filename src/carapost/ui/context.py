@@ -551,8 +551,16 @@ class ActionContext(QObject):
         p.set_current_frame(frame)
 
     def on_frame_ready(self, frame: int, camera: int) -> None:
-        """Decoder-thread callback: hop to the GUI thread through a queued signal."""
+        """Decoder-thread callback: hop to the GUI thread through a queued signal.
+
+        Only for the current frame: the read-ahead decodes dozens of frames that no
+        view waits for, and each signal would wake the GUI thread for nothing (a view
+        that moves to such a frame finds its image in the cache; the image cached
+        before the frame changes is found there, the one after is signalled).
+        """
         try:
+            if frame != self.project.current_frame:
+                return
             self.view.frame_ready.emit(frame, camera)
         except RuntimeError:  # the context is already gone at shutdown
             pass
