@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -168,7 +169,14 @@ class ViewContext(QObject):
     # -- caches ------------------------------------------------------------------------------
     def set_project(self, project: Project, frames: FrameSource) -> None:
         """Switch to another project."""
-        self.frames.close()
+        old = self.frames
+        if getattr(old, "asynchronous", False):
+            # the old take's decoder threads finish the frame in hand before they stop:
+            # the GUI thread does not wait for them
+            threading.Thread(target=old.close, name="carapost-close-frames",
+                             daemon=True).start()
+        else:
+            old.close()
         self.project = project
         self.frames = frames
         self._proj_cache.clear()
