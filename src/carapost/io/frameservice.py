@@ -108,6 +108,8 @@ class FrameService(TakeFrames):
         self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
         self._playing = False
         self._proxies: dict[int, Any] = {}  # camera -> ProxyReader
+        # camera -> {view: screen pixels per original image pixel} (`set_view_scale`)
+        self._view_scales: dict[int, dict[Any, float]] = {}
         # cameras whose last frame was never checked to decode (see `_verify`)
         self._unverified: set[int] = set()
         self.dropped = 0
@@ -189,8 +191,31 @@ class FrameService(TakeFrames):
         """Number of cameras with an open proxy."""
         return len(self._proxies)
 
+    def proxy_downscale(self, camera: int) -> float:
+        """How many times smaller than the original the camera's proxy is (1.0 without
+        a proxy or for a full-resolution one)."""
+        proxy = self._proxies.get(camera)
+        if proxy is None:
+            return 1.0
+        width = int(self.take.cameras[camera].image_size[0])
+        return max(width / max(int(proxy.size[0]), 1), 1.0)
+
+    def set_view_scale(self, camera: int, scale: float | None, owner: Any = None) -> None:
+        """A view of ``camera`` shows its image at ``scale`` screen pixels per image
+        pixel (None: the view is gone). While any view of the camera shows more detail
+        than its proxy holds (zoomed in), playback reads the camera's original."""
+        scales = self._view_scales.setdefault(int(camera), {})
+        if scale is None:
+            scales.pop(owner, None)
+        else:
+            scales[owner] = float(scale)
+
     def _use_proxy(self, camera: int) -> bool:
-        return self._playing and camera in self._proxies
+        if not self._playing or camera not in self._proxies:
+            return False
+        scales = self._view_scales.get(camera)
+        # 2 % of slack: a view fitted to a proxy-sized area is not "zoomed in"
+        return not scales or max(scales.values()) * self.proxy_downscale(camera) <= 1.02
 
     @property
     def showing_proxies(self) -> bool:
@@ -200,10 +225,16 @@ class FrameService(TakeFrames):
     def get_display(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         """What a view shows without waiting: the original if cached, else while playing
         the proxy image if decoded, else (blank frames outside a video) `get_cached`."""
+        return self.display(frame, camera)[0]
+
+    def display(self, frame: int, camera: int) -> tuple[NDArray[np.uint8] | None, bool]:
+        """`get_display` and whether the image is a proxy's (smaller than the original
+        by `proxy_downscale`: a view stretches it over the original's pixels)."""
         img = self.get_cached(frame, camera)
         if img is None and self._use_proxy(camera):
             img = self._cache_get((int(frame), int(camera) + _PROXY_KEY))
-        return img
+            return img, img is not None
+        return img, False
 
     def _decode_proxy(self, frame: int, camera: int) -> None:
         index = self._video_index(frame, camera)

@@ -22,6 +22,7 @@ from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.camera_image import CameraImageMixin
 from carapost.ui.views.geometry import (
     cross_segments,
     crossed_circle,
@@ -87,7 +88,7 @@ class _ViewBox(pg.ViewBox):
         super().mouseDragEvent(ev, axis)
 
 
-class CameraView(BaseView):
+class CameraView(CameraImageMixin, BaseView):
     """One camera: ``camera`` is its index in the take."""
 
     kind = "sensor"
@@ -173,11 +174,14 @@ class CameraView(BaseView):
         self.notice.hide()
         self._current_image: NDArray | None = None
         self._image_frame: int | None = None  # frame of the image shown
+        self._stretched = False  # the image is a proxy's, scaled to the original's size
         self.report = QLabel(self.gv)
         self.report.setStyleSheet("color: #8ff; background: rgba(0,0,0,140); padding: 2px;")
         self.report.move(4, 26)
         self.report.hide()
         self.gv.scene().sigMouseMoved.connect(self._mouse_moved)
+        # the zoom decides whether a playback proxy is detailed enough (`_tell_scale`)
+        self._init_image_scale()
         self.refresh(None)
 
     # -- geometry ----------------------------------------------------------------------------
@@ -288,42 +292,6 @@ class CameraView(BaseView):
                 self.errors, self.sticks, self.points, self.selected, self.proj_conn,
                 self.proj_unconn, self.rom, self.interp]
 
-    def _draw_image(self, frame: int) -> None:
-        opts = self.ctx.options
-        img = None
-        note = None
-        if opts.image:
-            src = self.ctx.frames
-            img = src.cached(frame, self.camera)
-            if src.asynchronous:
-                note = src.message(frame, self.camera)
-            if img is None and src.asynchronous:
-                # Decoded on the frame service's threads: keep the previous image until
-                # ``frame_ready`` brings this one (the GUI never waits for a decoder).
-                src.request(frame, self.camera)
-                if note is None and self._current_image is not None:
-                    self._image_frame = None
-                    self._set_notice(None)
-                    return
-            elif img is None:
-                img = src.image(frame, self.camera)
-        if img is None:
-            self.image.hide()
-        else:
-            self._image_shape = img.shape[:2]
-            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself,
-            # which Qt scales cheapest. Levels (even 0-255) make pyqtgraph build a
-            # 256-colour table in Python and paint an indexed image, every frame: 4x
-            # the cost (0.16 against 0.04 ms for 1280x720 into 700x394, measured with a
-            # new image per frame; an RGB32 copy costs more than it saves).
-            self.image.setImage(img, autoLevels=False,
-                                levels=None if img.dtype == np.uint8 else (0, 255))
-            self.image.show()
-        self.border.setVisible(opts.border or img is None)
-        self._current_image = img
-        self._image_frame = frame if img is not None and note is None else None
-        self._set_notice(note)
-
     def _set_notice(self, text: str | None) -> None:
         if not text:
             self.notice.hide()
@@ -372,7 +340,7 @@ class CameraView(BaseView):
         # blob preview
         self.preview.hide()
         if (opts.blob_preview and self._current_image is not None
-                and self._image_frame == frame):
+                and self._image_frame == frame and not self._stretched):
             prev = ctx.blob_preview(frame, c, self._current_image)
             if prev is not None and len(prev.centre):
                 xy, conn = ellipse_polyline(prev.centre.astype(np.float64),
@@ -712,7 +680,8 @@ class CameraView(BaseView):
             return
         q = self.to_image(scene_pos)
         x, y = int(round(q.x())), int(round(q.y()))
-        img = getattr(self, "_current_image", None)
+        # grey levels are the original's (a proxy's pixels are averages)
+        img = None if self._stretched else getattr(self, "_current_image", None)
         grey = ""
         if img is not None and 0 <= y < img.shape[0] and 0 <= x < img.shape[1]:
             grey = f"  grey {int(img[y, x])}"
