@@ -10,7 +10,9 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
   looking at and returns at once. Each camera's thread serves the newest request only:
   a request that was superseded before its decode began is dropped (counted in
   ``dropped``), and a decode heading for a superseded frame stops at the next frame.
-  ``on_ready(frame, camera)`` is called from the thread when an image lands.
+  ``on_ready(frame, camera)`` is called from the thread when a requested image lands
+  (the frame asked for, or the one the views show now; not for each frame read ahead,
+  which the views find in the cache).
 - **Read-ahead** in the direction of travel while a thread is idle: forward in decode
   order, backward a keyframe interval at a time (the frames from the keyframe before the
   wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
@@ -83,8 +85,8 @@ class FrameService(TakeFrames):
     cache_mb : float
         Upper bound of the decoded-image cache in megabytes (default 1500).
     on_ready : callable, optional
-        ``on_ready(frame, camera)`` from a decoder thread when an image lands in the
-        cache (requested or read ahead).
+        ``on_ready(frame, camera)`` from a decoder thread when an image a view or a
+        job may be waiting for lands in the cache (not for frames read ahead).
     read_ahead : int
         Frames decoded ahead of the current one in the direction of travel (while
         playing, set it to about two seconds of the take: `set_read_ahead`).
@@ -236,7 +238,7 @@ class FrameService(TakeFrames):
             return img, img is not None
         return img, False
 
-    def _decode_proxy(self, frame: int, camera: int) -> None:
+    def _decode_proxy(self, frame: int, camera: int, kind: str = "view") -> None:
         index = self._video_index(frame, camera)
         proxy = self._proxies.get(camera)
         src = self._sources.get(camera)
@@ -258,7 +260,7 @@ class FrameService(TakeFrames):
                             self.take.cameras[camera].name, exc)
                 self._proxies.pop(camera, None)
                 return
-        self._notify(frame, camera)
+        self._landed(frame, camera, frame if kind == "view" else None)
 
     def reset_sources(self) -> None:
         """Reopen videos on next use (after a camera's video path changed)."""
@@ -416,7 +418,7 @@ class FrameService(TakeFrames):
                 continue
             if kind != "job" and self._use_proxy(camera):
                 state.target = None
-                self._decode_proxy(frame, camera)
+                self._decode_proxy(frame, camera, kind)
                 continue
             try:
                 img = self._decode_to(frame, camera, kind)
@@ -541,9 +543,19 @@ class FrameService(TakeFrames):
                 raise
             if 0 <= f < self.take.n_frames and self._cache_get((f, camera)) is None:
                 self._cache_put((f, camera), img)
-                self._notify(f, camera)
+                self._landed(f, camera, None if kind == "ahead" else frame)
             i += 1
         return img
+
+    def _landed(self, frame: int, camera: int, target: int | None) -> None:
+        """An image landed in the cache: tell the views if one may be waiting for it
+        (the ``target`` of a view request or job, or the frame the views show now).
+
+        Read-ahead fills the cache with frames the views will find there when they get
+        to them; a signal for each would wake the GUI thread four times per decoded
+        frame for nothing (during playback hundreds of times a second)."""
+        if frame == target or frame == self._cams[camera].origin:
+            self._notify(frame, camera)
 
     def _notify(self, frame: int, camera: int) -> None:
         callback = self.on_ready

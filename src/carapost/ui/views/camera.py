@@ -51,7 +51,25 @@ def _curve(colour: tuple[int, int, int], width: float = 1.0, z: float = 0) -> pg
 
 
 class _Scatter(pg.ScatterPlotItem):
-    """A scatter that never takes clicks (picking is done by the view, vectorised)."""
+    """A scatter that never takes clicks (picking is done by the view, vectorised) and
+    computes its bounding rectangle once per change.
+
+    Qt asks for an item's bounding rectangle four or more times per paint; pyqtgraph
+    recomputes it each time (data bounds, then the pixel size through the device
+    transform, in Python), which cost more than drawing the markers. Every change of
+    data, style or view transform replaces ``self.bounds`` with a new list, so the
+    rectangle computed for the current list is still right.
+    """
+
+    _rect_for: tuple[object, QRectF] | None = None
+
+    def boundingRect(self) -> QRectF:
+        cached = self._rect_for
+        if cached is not None and cached[0] is self.bounds:
+            return QRectF(cached[1])
+        rect = super().boundingRect()
+        self._rect_for = (self.bounds, QRectF(rect))
+        return rect
 
     def mouseClickEvent(self, ev) -> None:
         ev.ignore()

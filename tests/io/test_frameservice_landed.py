@@ -1,0 +1,46 @@
+"""The frame service tells the window about the images it waits for, not about every
+frame it reads ahead (each would wake the GUI thread for nothing)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import cv2
+import numpy as np
+
+from carapost.io.frameservice import FrameService
+from carapost.model.project import CameraChannel, Take
+
+W, H, N = 64, 48, 60
+
+
+def test_read_ahead_fills_the_cache_without_a_signal_per_frame(tmp_path):
+    path = tmp_path / "l_cam0.mkv"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 60.0, (W, H), False)
+    for i in range(N):
+        writer.write(np.full((H, W), i * 4 % 256, np.uint8))
+    writer.release()
+    take = Take(name="l", n_frames=N, cameras=[
+        CameraChannel(name="cam0", video_path=str(path), image_size=(W, H))])
+    landed: list[int] = []
+    lock = threading.Lock()
+
+    def on_ready(frame: int, camera: int) -> None:
+        with lock:
+            landed.append(frame)
+
+    with FrameService(take, on_ready=on_ready, read_ahead=20) as fs:
+        fs.request(10, direction=1)
+        deadline = time.perf_counter() + 10
+        while fs.get_cached(30, 0) is None:  # the read-ahead has come this far
+            assert time.perf_counter() < deadline
+            time.sleep(0.005)
+        assert all(fs.get_cached(f, 0) is not None for f in range(10, 31))
+        with lock:
+            assert 10 in landed  # the frame asked for
+            assert not set(range(11, 31)) & set(landed)  # none of those read ahead
+        # a step onto a frame read ahead: the view finds it cached (no decode, no wait)
+        fs.request(11, direction=1)
+        assert fs.get_display(11, 0) is not None
+        assert int(fs.get(11, 0)[0, 0]) == 44  # and it is the right frame
