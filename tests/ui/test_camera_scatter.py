@@ -51,3 +51,36 @@ def test_the_cached_rectangle_follows_data_style_and_zoom(qtbot):
     larger = item.boundingRect()
     assert larger.width() > zoomed.width()
     assert _same(larger, _reference(item))
+
+
+def test_moving_markers_in_place_draws_what_set_data_draws(qtbot):
+    rng = np.random.default_rng(4)
+    first, second = rng.uniform(20, 380, (12, 2)), rng.uniform(20, 380, (12, 2))
+    grabs = []
+    for moved in (False, True):
+        gv = pg.GraphicsView()
+        qtbot.addWidget(gv)
+        vb = pg.ViewBox(lockAspect=True, invertY=True)
+        gv.setCentralItem(vb)
+        item = _Scatter(pxMode=True, symbol="+", size=9, pen=pg.mkPen("y", width=1.5),
+                        brush=None)
+        vb.addItem(item)
+        gv.resize(300, 300)
+        vb.setRange(QRectF(0, 0, 400, 400), padding=0)
+        gv.show()
+        qtbot.waitExposed(gv)
+        if moved:
+            item.set_positions(first)
+            gv.grab()
+            item.set_positions(second)  # same count: moved in place
+        else:
+            item.setData(pos=second)
+        x, y = item.getData()
+        np.testing.assert_array_equal(np.c_[x, y], second)
+        assert _same(item.boundingRect(), _reference(item))
+        grabs.append(gv.grab().toImage())
+    assert grabs[0] == grabs[1]  # the same pixels
+    item.set_positions(second[:5])  # another count: rebuilt
+    assert len(item.getData()[0]) == 5
+    item.set_positions(np.zeros((0, 2)))
+    assert len(item.getData()[0]) == 0

@@ -71,6 +71,26 @@ class _Scatter(pg.ScatterPlotItem):
         self._rect_for = (self.bounds, QRectF(rect))
         return rect
 
+    def set_positions(self, pos: NDArray) -> None:
+        """``setData(pos=pos)`` for markers that all look alike, cheaply when their
+        number is unchanged (the common case from one frame to the next).
+
+        ``setData`` rebuilds the point table and looks every marker up in the symbol
+        atlas in Python; with the same count and style only the coordinates change, so
+        they are written into the table in place.
+        """
+        pos = np.asarray(pos, np.float64).reshape(-1, 2)
+        data = self.data
+        if len(pos) == 0 or data is None or len(data) != len(pos):
+            self.setData(pos=pos)
+            return
+        data["x"] = pos[:, 0]
+        data["y"] = pos[:, 1]
+        self.prepareGeometryChange()
+        self.informViewBoundsChanged()
+        self.bounds = [None, None]
+        self.invalidate()
+
     def mouseClickEvent(self, ev) -> None:
         ev.ignore()
 
@@ -372,7 +392,7 @@ class CameraView(CameraImageMixin, BaseView):
             np.zeros((0, 2))
         valid = ~np.isnan(obs[:, 0]) if P else np.zeros(0, bool)
         if opts.points and valid.any():
-            self.points.setData(pos=obs[valid])
+            self.points.set_positions(obs[valid])
             self.points.show()
         else:
             self.points.hide()
@@ -387,7 +407,7 @@ class CameraView(CameraImageMixin, BaseView):
                 elif proj is not None and not np.isnan(proj[col, 0]):
                     sel_xy.append(proj[col])
         if sel_xy:
-            self.selected.setData(pos=np.array(sel_xy))
+            self.selected.set_positions(np.array(sel_xy))
             self.selected.show()
         else:
             self.selected.hide()
@@ -400,10 +420,10 @@ class CameraView(CameraImageMixin, BaseView):
             conn = has & valid
             unconn = has & ~valid
             if opts.connected and conn.any():
-                self.proj_conn.setData(pos=proj[conn])
+                self.proj_conn.set_positions(proj[conn])
                 self.proj_conn.show()
             if opts.unconnected and unconn.any():
-                self.proj_unconn.setData(pos=proj[unconn])
+                self.proj_unconn.set_positions(proj[unconn])
                 self.proj_unconn.show()
         if proj is not None and opts.errors:
             conn = ~np.isnan(proj[:, 0]) & valid
@@ -438,13 +458,13 @@ class CameraView(CameraImageMixin, BaseView):
         if proj is not None and opts.points and P:
             fill = (pts.recon[frame] == RECON_INTERPOLATED) & ~np.isnan(proj[:, 0])
             if fill.any():
-                self.interp.setData(pos=proj[fill])
+                self.interp.set_positions(proj[fill])
                 self.interp.show()
         # ROM points: the loaded ROM's frame projected through this frame's camera (the
         # Initialize from ROM troubleshooting compares them with the detections)
         rom_xy = rom_overlay(p, frame, c)
         if rom_xy is not None and len(rom_xy):
-            self.rom.setData(pos=rom_xy)
+            self.rom.set_positions(rom_xy)
             self.rom.show()
         else:
             self.rom.hide()
