@@ -44,3 +44,32 @@ def test_read_ahead_fills_the_cache_without_a_signal_per_frame(tmp_path):
         fs.request(11, direction=1)
         assert fs.get_display(11, 0) is not None
         assert int(fs.get(11, 0)[0, 0]) == 44  # and it is the right frame
+
+
+def test_after_a_jump_the_nearest_frames_on_both_sides_are_read_first(tmp_path):
+    from carapost.io.encode import FFV1Writer
+
+    path = tmp_path / "o_cam0.mkv"
+    with FFV1Writer(path, (W, H), 60.0) as writer:  # all-intra, like the synthetic takes
+        for i in range(N):
+            writer.write(np.full((H, W), i, np.uint8))
+    take = Take(name="o", n_frames=N, cameras=[
+        CameraChannel(name="cam0", video_path=str(path), image_size=(W, H))])
+    order: list[int] = []
+    with FrameService(take, read_ahead=12) as fs:
+        put = fs._cache_put
+
+        def recording(key, img):
+            order.append(key[0])
+            put(key, img)
+
+        fs._cache_put = recording
+        fs.request(30)
+        deadline = time.perf_counter() + 10
+        while fs.get_cached(42, 0) is None or fs.get_cached(26, 0) is None:
+            assert time.perf_counter() < deadline
+            time.sleep(0.005)
+        # the frame asked for, the next two, the two before, then onwards; then back
+        assert order[:5] == [30, 31, 32, 29, 28]
+        assert order.index(42) < order.index(27)
+        assert all(int(fs.get(f, 0)[0, 0]) == f for f in (26, 28, 29, 31, 42))

@@ -369,21 +369,15 @@ class FrameService(TakeFrames):
         if src is None:  # no video: nothing to read ahead (and no busy loop)
             return None
         offset = int(self.take.cameras[camera].frame_offset)
-        # The direction of travel first; then, unless playing, a third as far the other
-        # way, so that a step back after a jump (or after stepping forwards) is a cache
-        # hit too (with a keyframe on every frame, a jump decodes no frame before it).
-        runs = [(step, limit)] if self._playing else [(step, limit), (-step, limit // 3)]
-        for sign, count in runs:
-            for k in range(1, count + 1):
-                f = state.origin + sign * k
-                if not 0 <= f < self.take.n_frames:
-                    break
-                if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
-                    continue  # outside a short video: blank, nothing to decode
-                if (self._cache_get((f, key_cam)) is None
-                        and self._cache_get((f, camera)) is None
-                        and (f, camera) not in self._frame_errors):
-                    return f
+        for f in _ahead_order(state.origin, step, limit, self._playing):
+            if not 0 <= f < self.take.n_frames:
+                continue
+            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
+                continue  # outside a short video: blank, nothing to decode
+            if (self._cache_get((f, key_cam)) is None
+                    and self._cache_get((f, camera)) is None
+                    and (f, camera) not in self._frame_errors):
+                return f
         return None
 
     def _run(self, camera: int) -> None:
@@ -580,6 +574,38 @@ class FrameService(TakeFrames):
         for proxy in self._proxies.values():
             proxy.close()
         self._proxies.clear()
+
+
+#: Frames read ahead on each side of the current one before the rest (not playing).
+NEAREST_FIRST = 2
+
+
+def _ahead_order(origin: int, step: int, limit: int, playing: bool) -> list[int]:
+    """Frames to read ahead from ``origin``, in order (the caller skips those cached or
+    outside the take).
+
+    Playing: ``limit`` frames in the direction of travel. Otherwise the `NEAREST_FIRST`
+    frames on both sides first (after a jump the user may step either way, and those
+    frames cost a decode each in an all-intra video), then the rest of ``limit`` in the
+    direction of travel, then a third as far the other way, so a step back after
+    stepping forwards is a cache hit too.
+
+    Examples
+    --------
+    >>> _ahead_order(10, 1, 6, playing=False)
+    [11, 12, 9, 8, 13, 14, 15, 16]
+    >>> _ahead_order(10, -1, 3, playing=True)
+    [9, 8, 7]
+    """
+    if playing:
+        return [origin + step * k for k in range(1, limit + 1)]
+    back = limit // 3
+    near = min(NEAREST_FIRST, limit)
+    order = [origin + step * k for k in range(1, near + 1)]
+    order += [origin - step * k for k in range(1, min(near, back) + 1)]
+    order += [origin + step * k for k in range(near + 1, limit + 1)]
+    order += [origin - step * k for k in range(min(near, back) + 1, back + 1)]
+    return order
 
 
 def _lower_priority(increment: int) -> None:
