@@ -61,6 +61,12 @@ def test_a_proxy_is_drawn_over_the_originals_pixels_until_zoomed_in(make_window,
         centre = view.image.mapToParent(QPointF(float(xs.mean()) + 0.5,
                                                 float(ys.mean()) + 0.5))
         assert abs(centre.x() - (200 + 5 * 30)) < 1.5 and abs(centre.y() - 150) < 1.5
+        # the image turned off and on again (Image in the view's menu) in between
+        opts = w.context.view.options
+        opts.image = False
+        view.refresh(None)
+        assert not view.showing_proxy
+        opts.image = True
         # Actual Size (1:1): the proxy is too coarse, the original is shown
         view.actual_size()
         w.set_frame(31)

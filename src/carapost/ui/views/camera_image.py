@@ -32,7 +32,6 @@ def _forget_view(ctx: ViewContext, key: int):
     return forget
 
 
-
 class CameraImageMixin:
     """The image drawing of a camera view (see the module docstring)."""
 
@@ -43,6 +42,7 @@ class CameraImageMixin:
     border: Any
 
     def _init_image_scale(self) -> None:
+        self._item_scaled = False  # the image item carries a proxy's stretch
         self._scale = 0.0
         self._told: tuple[int, int, float] | None = None  # (source, camera, scale) told
         self.vb.sigTransformChanged.connect(self._zoomed)
@@ -100,12 +100,12 @@ class CameraImageMixin:
                 # original's pixels, so the overlays and image coordinates stay put
                 width, height = self.image_size()
                 self.image.setRect(QRectF(0, 0, width, height))
-                self._stretched = True
+                self._item_scaled = True
             else:
                 self._image_shape = img.shape[:2]
-                if self._stretched:
+                if self._item_scaled:
                     self.image.resetTransform()
-                    self._stretched = False
+                    self._item_scaled = False
             self.image.show()
         self.border.setVisible(opts.border or img is None)
         self._current_image = img
