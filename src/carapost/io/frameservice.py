@@ -206,11 +206,13 @@ class FrameService(TakeFrames):
         """A view of ``camera`` shows its image at ``scale`` screen pixels per image
         pixel (None: the view is gone). While any view of the camera shows more detail
         than its proxy holds (zoomed in), playback reads the camera's original."""
-        scales = self._view_scales.setdefault(int(camera), {})
+        # copied, changed and swapped in: decoder threads read it without a lock
+        scales = dict(self._view_scales.get(int(camera), {}))
         if scale is None:
             scales.pop(owner, None)
         else:
             scales[owner] = float(scale)
+        self._view_scales[int(camera)] = scales
 
     def _use_proxy(self, camera: int) -> bool:
         if not self._playing or camera not in self._proxies:
