@@ -16,8 +16,9 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
 - **Read-ahead** in the direction of travel while a thread is idle: forward in decode
   order, backward a keyframe interval at a time (the frames from the keyframe before the
   wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
-  current one and never more than half the cache; then, unless playing, a third of that
-  the other way (a step back after a jump or a change of direction is a cache hit).
+  current one and never more than half the cache; unless playing, the two nearest
+  frames on both sides come first and a third of the run the other way last (a step
+  back after a jump or a change of direction is a cache hit; `_ahead_order`).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
