@@ -1,6 +1,6 @@
 """Half-resolution playback proxies: written at half width and height from the pixel
 averages of the original, read as such, and used only while no view of the camera is
-zoomed in beyond them."""
+zoomed in beyond Actual Size."""
 
 from __future__ import annotations
 
@@ -74,7 +74,7 @@ def _wait(fs: FrameService, frame: int, proxy: bool, timeout: float = 10.0):
     raise AssertionError(f"frame {frame} never shown (proxy={proxy})")
 
 
-def test_proxies_stand_in_until_a_view_is_zoomed_in_beyond_them(video):
+def test_proxies_stand_in_until_a_view_is_zoomed_in_beyond_actual_size(video):
     path, frames = video
     write_proxy(path)
     with FrameService(_take(path)) as fs:
@@ -85,8 +85,11 @@ def test_proxies_stand_in_until_a_view_is_zoomed_in_beyond_them(video):
         fs.request(8, direction=1)
         img = _wait(fs, 8, proxy=True)
         assert img.shape == (H // 2, W // 2)
-        # a second view of the camera zoomed to 1:1: the proxy is too coarse for it
-        fs.set_view_scale(0, 1.0, "view B")
+        fs.set_view_scale(0, 0.9, "view C")  # a one-view layout: the proxy still plays
+        fs.request(5, direction=1)
+        assert _wait(fs, 5, proxy=True).shape == (H // 2, W // 2)
+        # a second view of the camera zoomed in beyond 1:1: the artist looks at pixels
+        fs.set_view_scale(0, 2.0, "view B")
         assert fs.display(9, 0) == (None, False) or not fs.display(9, 0)[1]
         fs.request(9, direction=1)
         img = _wait(fs, 9, proxy=False)

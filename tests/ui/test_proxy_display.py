@@ -1,6 +1,6 @@
 """A camera view playing from a half-resolution proxy draws it over the original's
 pixels (overlays and image coordinates unchanged), and shows the original once the view
-is zoomed in beyond the proxy or playback stops."""
+is zoomed in beyond Actual Size or playback stops."""
 
 from __future__ import annotations
 
@@ -67,8 +67,12 @@ def test_a_proxy_is_drawn_over_the_originals_pixels_until_zoomed_in(make_window,
         view.refresh(None)
         assert not view.showing_proxy
         opts.image = True
-        # Actual Size (1:1): the proxy is too coarse, the original is shown
+        # Actual Size (1:1) still plays the proxy; zoomed in beyond it, the original
         view.actual_size()
+        assert frames_src.service._use_proxy(0)
+        centre = view.vb.viewRect().center()
+        view.vb.setRange(QRectF(centre.x() - 25, centre.y() - 15, 50, 30), padding=0)
+        assert view.image_scale() > 1.05
         w.set_frame(31)
         qtbot.waitUntil(lambda: view.image_frame == 31 and not view.showing_proxy,
                         timeout=10000)

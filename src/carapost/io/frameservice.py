@@ -60,6 +60,10 @@ DEFAULT_CACHE_MB = 1500.0
 #: cycle the GUI does not use.
 DECODER_NICE = 4
 
+#: Screen pixels per image pixel above which a view counts as zoomed in (playback then
+#: shows that camera's original instead of its proxy).
+ZOOMED_IN = 1.02
+
 _Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
 _UNOPENED: Any = object()
 # Proxy images share the cache under (frame, camera + _PROXY_KEY).
@@ -205,8 +209,9 @@ class FrameService(TakeFrames):
 
     def set_view_scale(self, camera: int, scale: float | None, owner: Any = None) -> None:
         """A view of ``camera`` shows its image at ``scale`` screen pixels per image
-        pixel (None: the view is gone). While any view of the camera shows more detail
-        than its proxy holds (zoomed in), playback reads the camera's original."""
+        pixel (None: the view is gone). While any view of the camera is zoomed in
+        beyond Actual Size (``scale`` > `ZOOMED_IN`), playback reads the camera's
+        original."""
         # copied, changed and swapped in: decoder threads read it without a lock
         scales = dict(self._view_scales.get(int(camera), {}))
         if scale is None:
@@ -219,8 +224,11 @@ class FrameService(TakeFrames):
         if not self._playing or camera not in self._proxies:
             return False
         scales = self._view_scales.get(camera)
-        # 2 % of slack: a view fitted to a proxy-sized area is not "zoomed in"
-        return not scales or max(scales.values()) * self.proxy_downscale(camera) <= 1.02
+        # Zoomed in beyond Actual Size (1:1), the artist looks at pixels: the original.
+        # Below it the proxy plays, stretched up to 2x when it is half size (a one- or
+        # two-view layout), as video editors play their proxies; 2 % of slack so a view
+        # fitted at 1:1 is not "zoomed in".
+        return not scales or max(scales.values()) <= ZOOMED_IN
 
     @property
     def showing_proxies(self) -> bool:

@@ -8,9 +8,8 @@ every frame is no faster than the original). Proxies of videos at least
 (`PROXY_DOWNSCALE`): a quarter of the pixels decodes ~3x faster again and takes a
 quarter of the cache, and a camera view in a four-view layout shows a 1280x720 image at
 about half size anyway. The views draw a proxy image stretched over the original's
-pixel rectangle (image coordinates are unchanged) and read the original instead
-whenever they show the image larger than the proxy's resolution (zoomed in), and when
-playback stops.
+pixel rectangle (image coordinates are unchanged) and read the original instead when
+zoomed in beyond Actual Size (1:1), and when playback stops.
 
 Proxies are for display only: processing always reads the originals. They live in the
 user cache (`carapost.io.decode.cache_dir`, subfolder ``proxies``), named after the

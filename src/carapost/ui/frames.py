@@ -58,7 +58,7 @@ class FrameSource:
 
     def set_view_scale(self, camera: int, scale: float | None, owner: object = None) -> None:
         """A view shows ``camera`` at ``scale`` screen pixels per image pixel (None:
-        the view is gone); zoomed in beyond a proxy's resolution, originals are shown."""
+        the view is gone); zoomed in beyond Actual Size, originals are shown."""
 
     def prefetch(self, frames: range, cameras: list[int]) -> None:
         """Hint that these images will be wanted soon."""

@@ -3,8 +3,8 @@
 
 `CameraImageMixin` is part of `carapost.ui.views.camera.CameraView`. It tells the frame
 source how large the view shows the image (`FrameSource.set_view_scale`), so a view
-zoomed in beyond a proxy's resolution gets the original, and draws what the source has
-without waiting for a decoder.
+zoomed in beyond Actual Size gets the original while playing, and draws what the source
+has without waiting for a decoder.
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ class CameraImageMixin:
 
     def _tell_scale(self) -> None:
         """Tell the frame source how large this view shows its camera's images (once
-        per change of zoom, camera or source): zoomed in beyond a proxy's resolution,
-        playback shows the original."""
+        per change of zoom, camera or source): zoomed in beyond Actual Size, playback
+        shows the original."""
         src = self.ctx.frames
         told = (id(src), self.camera, round(self._scale, 3))
         if told != self._told:
