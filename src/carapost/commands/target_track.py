@@ -6,6 +6,8 @@ Frame, Edit > Gaps To Keys and Clear Tracked Points are plain commands; a tracki
 (:mod:`carapost.commands.recipe`): :func:`prepare_target_track` snapshots the selected
 points' keyframes and 2D data, :class:`TargetTrackJob` runs
 :func:`carapost.algorithms.target_track.track_target` per point and camera on a worker,
+every camera in lockstep (:class:`carapost.algorithms.target_lockstep.LockstepTracker`:
+one frame step advances every track still going),
 and its :class:`TargetTrackResult` writes the tracked 2D observations (source
 ``SOURCE_TARGET``, the score in ``quality``) and the re-solved 3D of every tracked frame
 as one History entry. A paused (cancelled) run keeps what it tracked.
@@ -37,11 +39,11 @@ from carapost.algorithms.codes import (
     SOURCE_TARGET,
 )
 from carapost.algorithms.params import from_mapping
+from carapost.algorithms.target_lockstep import LockstepTracker, TrackRun
 from carapost.algorithms.target_track import (
     STOP_CANCELLED,
     TargetTrackerParameters,
     check_keyframe,
-    track_target,
 )
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
@@ -428,6 +430,11 @@ class TargetTrackJob(Job):
     #: camera, frame, score) per tracked frame (the window draws the span growing, and
     #: shows the frame being tracked). Read it from another thread by slicing.
     live: list[tuple[int, int, int, float]] = field(default_factory=list, repr=False)
+    #: ``request(frame, cameras, direction)``: the images of ``frame`` for these cameras
+    #: are wanted next (the window's frame service starts decoding them all, and reads
+    #: ahead in the direction of travel); called from the worker before each frame.
+    request: Callable[[int, list[int], int], None] | None = field(default=None,
+                                                                   repr=False)
 
     @property
     def stop(self) -> int:
@@ -438,9 +445,6 @@ class TargetTrackJob(Job):
     def compute(self, progress: Progress = None) -> TargetTrackResult:
         d, P = self.direction, self.params
         block = {k: v.copy() for k, v in self.block.items()}
-        totals = [abs(tr.stop - self.start) for tr in self.tracks]
-        total = max(sum(totals), 1)
-        done_before = 0
         cancelled = False
         reasons: dict[tuple[int, int], str] = {}
         tracked = 0
@@ -453,29 +457,33 @@ class TargetTrackJob(Job):
             block["detection"][r, i, c] = -1
             block["quality"][r, i, c] = 1.0
         last = self.start
-        for tr, n in zip(self.tracks, totals, strict=True):
-            if cancelled:
-                break
-            if n == 0:
-                continue
 
-            def step(done: int, _total: int, base: int = done_before) -> bool:
-                if progress is None:
-                    return True
-                return progress(base + done, total) is not False
-
-            def seen(f: int, _xy: NDArray, score: float, tr: _Track = tr) -> None:
+        def seen_by(tr: _Track) -> Callable[[int, NDArray, float], None]:
+            def seen(f: int, _xy: NDArray, score: float) -> None:
                 if f not in tr.keys:
                     self.live.append((tr.point, tr.camera, int(f), float(score)))
+            return seen
 
-            res = track_target(lambda f, c=tr.camera: self.get_image(f, c), tr.keys,
-                               start=self.start, stop=tr.stop, direction=d,
-                               params=tr.params if tr.params is not None else P,
-                               start_xy=tr.start_xy, start_velocity=tr.velocity,
-                               progress=step, on_frame=seen)
-            done_before += n
+        # every (point, camera) one frame per step: the views, the timeline and the
+        # progress bar go once through the range, and a frame's images are wanted at once
+        lock = LockstepTracker([
+            TrackRun(lambda f, c=tr.camera: self.get_image(f, c), tr.keys, self.start,
+                     tr.stop, d, tr.params if tr.params is not None else P, tr.start_xy,
+                     tr.velocity, seen_by(tr)) for tr in self.tracks])
+
+        def step(done: int, total: int) -> bool:
+            return progress is None or progress(done, total) is not False
+
+        def wanted(frame: int, runs: list[int]) -> None:
+            if self.request is not None:
+                self.request(frame, sorted({self.tracks[i].camera for i in runs}), d)
+
+        results = lock.run(step, wanted)
+        for tr, res in zip(self.tracks, results, strict=True):
+            if res is None:
+                continue
             reasons[(tr.point, tr.camera)] = res.reason
-            cancelled = res.reason == STOP_CANCELLED
+            cancelled = cancelled or res.reason == STOP_CANCELLED
             i = index[tr.point]
             ok = res.tracked
             fr = res.frames[ok] - self.first

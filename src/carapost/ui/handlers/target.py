@@ -4,9 +4,10 @@ Every item calls a :class:`~carapost.session.Session` Target Tracker method. A t
 run is prepared on the GUI thread (``session.prepare_target_track``), computed on the
 worker with a worker copy of the window's frame source, and applied as one History
 entry; pressing the running track button again (it reads Pause) cancels, which keeps
-what was tracked. With Update 2D View Every Frame the views follow the tracked frame of
-every camera; with Update Timeline Every Frame the charts draw the tracked span as it
-grows (:mod:`carapost.ui.handlers.target_live`).
+what was tracked. Every camera is tracked in lockstep (one frame at a time, all cameras):
+with Update 2D View Every Frame the views follow the tracked frame once through the
+range; with Update Timeline Every Frame the charts draw the tracked span as it grows
+(:mod:`carapost.ui.handlers.target_live`).
 """
 
 from __future__ import annotations
@@ -59,6 +60,12 @@ def track(ctx: ActionContext, direction: int, single_frame: bool = False,
             source.close()
         ctx.report_error(title, str(exc), show=False)
         return False
+
+    def request(frame: int, cameras: list[int], direction: int) -> None:
+        for c in cameras:   # the frame's images of every tracked camera decode at once
+            source.request(frame, c, direction)
+
+    job.request = request
     unfollow = follow_tracking(ctx, job)
     unlive = live_timeline(ctx, job)
 
