@@ -503,7 +503,9 @@ class SelectedPointPane(QWidget):
         super().__init__()
         layout = _vbox(self)
         self.chart = ContinuityView(ctx.view, single=True)
-        self.chart.setMinimumHeight(90)
+        # tall enough to name every row of a four-camera rig (the point and its cameras):
+        # shorter, the row names are thinned to every other one
+        self.chart.setMinimumHeight(ContinuityView.ROW_PX * 5 + 44)
         layout.addWidget(self.chart)
         # the sample at the current frame: how it was made, its estimated error (sigma:
         # from the cameras that see it, or the self-test of Interpolate Gaps for a fill)
