@@ -42,6 +42,7 @@ from carapost.algorithms.params import from_mapping
 from carapost.algorithms.target_lockstep import LockstepTracker, TrackRun
 from carapost.algorithms.target_track import (
     STOP_CANCELLED,
+    STOP_THRESHOLD,
     TargetTrackerParameters,
     check_keyframe,
 )
@@ -512,13 +513,32 @@ class TargetTrackJob(Job):
             block["positions"][rows, i] = p
             block["recon"][rows, i] = r
             block["residual"][rows, i] = e
-        why = sorted(set(reasons.values()))
-        message = (f"Target Tracker: {tracked} observations tracked "
-                   f"({len(self.tracks)} point-cameras; stopped: {', '.join(why) or '-'})")
+        message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
+
+
+def _run_message(tracks: list[_Track], results: list[Any], tracked: int, last: int,
+                 threshold: float) -> str:
+    """What a run did, for the status bar and the log: how far it got and, for every
+    track that lost its marker, where and with what match (the artist keys there)."""
+    why = sorted({r.reason for r in results if r is not None})
+    text = (f"Target Tracker: {tracked} observation{'s' if tracked != 1 else ''} tracked "
+            f"in {len(tracks)} point-camera{'s' if len(tracks) != 1 else ''}, up to frame "
+            f"{last}")
+    lost = [(tr, r) for tr, r in zip(tracks, results, strict=True)
+            if r is not None and r.reason == STOP_THRESHOLD]
+    if lost:
+        # the match truncated, never rounded up to the threshold it fell below
+        where = ", ".join(f"point {tr.point} camera {tr.camera} at frame "
+                          f"{int(r.frames[-1])} (match "
+                          f"{np.floor(float(r.score[-1]) * 1000) / 1000:.3f})"
+                          for tr, r in lost[:4])
+        more = f" and {len(lost) - 4} more" if len(lost) > 4 else ""
+        text += f"; lost the marker: {where}{more}, below the Break Threshold {threshold:g}"
+    return f"{text} (stopped: {', '.join(why) or '-'})"
 
 
 def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *,

@@ -16,7 +16,7 @@ import logging
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt
+from PySide6.QtCore import Qt, QTimer
 
 from carapost.algorithms.codes import SOURCE_KEYFRAME, SOURCE_TARGET
 from carapost.commands.stack import CommandError
@@ -75,7 +75,21 @@ def track(ctx: ActionContext, direction: int, single_frame: bool = False,
         if source is not frames:
             source.close()
 
-    started = ctx.runner.start_job(job, ctx.apply, title=title, finished=finished)
+    def applied(result: Any) -> None:
+        if result.changes_nothing() and not result.cancelled:   # lost on the first frame
+            text = f"{result.message}; nothing changed"
+            ctx.report_error(title, text, show=False)
+            # after the runner's own "finished" message, which would replace it
+            QTimer.singleShot(0, lambda: ctx.status(text, 8000))
+            return
+        if ctx.apply(result):
+            QTimer.singleShot(0, lambda: ctx.status(result.message, 8000))
+            # show where the run stopped: the next click of a one-frame button goes on
+            # from there, and a lost marker is keyed on its last good frame
+            if result.last_frame is not None:
+                ctx.set_frame(int(result.last_frame))
+
+    started = ctx.runner.start_job(job, applied, title=title, finished=finished)
     if not started:
         finished()
     return started
