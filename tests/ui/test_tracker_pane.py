@@ -59,3 +59,44 @@ def test_a_check_box_row_edits_the_property_as_one_history_entry(make_window, qt
     w.flush()
     assert w.context.project.properties["tracker_overwrite_existing_tracks"] is False
     assert not box.isChecked()
+
+
+def test_a_progress_bar_below_the_play_controls_during_a_run(make_window, qtbot):
+    import copy
+    import functools
+    import time
+
+    from carapost.synth.demo_project import scene_project
+    from carapost.ui.frames import ArrayFrameSource
+
+    project, scene, get = scene_project(frames=16, size=(320, 240), preset="speech", seed=3)
+    p = copy.deepcopy(project)
+    get = functools.lru_cache(maxsize=None)(get)
+
+    def slow(f, c):   # a run long enough for its progress to reach the window
+        time.sleep(0.01)
+        return get(f, c)
+
+    w = make_window(p, ArrayFrameSource(slow))
+    w.show()
+    bar = w.tracker_progress
+    assert not bar.isVisible()
+    m = list(scene.labels).index("Cheek_L")
+    p.set_selection(points=[int(p.points.ids[m])])
+    w.context.session.set_property("Target Tracker", "tracker_overwrite_existing_tracks",
+                                   True)
+    seen = []
+    w.runner.progressed.connect(lambda d, t: seen.append((bar.isVisible(), bar.value(),
+                                                          bar.maximum(), bar.format())))
+    w.pane("Tracker").buttons["forward_to_end"].click()
+    assert bar.isVisible()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    assert not bar.isVisible()
+    assert seen and all(v for v, *_ in seen)
+    visible, value, maximum, text = seen[-1]
+    assert maximum == 15 and 0 < value <= 15
+    assert text.startswith("Track forward to end: frame ")
+    # the bar sits under the timebar (the play controls)
+    assert bar.parent() is w.timebar.parent()
+    lay = bar.parent().layout()
+    assert lay.indexOf(bar) == lay.indexOf(w.timebar) + 1
