@@ -228,6 +228,8 @@ def test_a_run_tracks_every_camera_in_lockstep_as_each_alone(session, take):
     s.select(points=[int(pts.ids[col])])
     s.set_property("Target Tracker", "tracker_overwrite_existing_tracks", True)
     s.current_frame = 0
+    pts.sigma[:, col] = 0.05                 # an earlier estimate of the 3D's uncertainty
+    before = snapshot(s.project)
     job = s.prepare_target_track(+1)
     assert len(job.tracks) >= 2
     alone = {tr.camera: track_target(lambda f, c=tr.camera: get(f, c), tr.keys,
@@ -247,6 +249,9 @@ def test_a_run_tracks_every_camera_in_lockstep_as_each_alone(session, take):
                                       res.xy[ok].astype(np.float32))
         np.testing.assert_array_equal(pts.quality[res.frames[ok], col, c],
                                       res.score[ok].astype(np.float16))
+    # the re-solved frames' old uncertainty is gone with their old 3D; undo brings it back
+    assert np.isnan(pts.sigma[1:, col]).all() and pts.sigma[0, col] == np.float32(0.05)
+    assert s.undo() and snapshot(s.project) == before
 
 
 def test_bad_input_is_refused_and_changes_nothing(session):

@@ -69,7 +69,7 @@ __all__ = [
 
 #: The per-point arrays a tracking run or a keyframe edit writes.
 _NAMES = ("positions", "recon", "residual", "obs", "source", "detection", "quality",
-          "keyframe")
+          "keyframe", "sigma")
 
 ImageFn = Callable[[int, int], NDArray[np.uint8]]
 
@@ -192,7 +192,9 @@ def _resolve_frames(project: Project, col: int, frames: NDArray, single: bool,
     p, r, e = resolve_3d(o, cal.R[frames], cal.t[frames], _intrinsics(project), ref, single)
     unsolved = ~cal.solved[frames]
     p[unsolved], r[unsolved], e[unsolved] = np.nan, RECON_NONE, np.nan
-    return {"positions": p, "recon": r, "residual": e}
+    # the old uncertainty belonged to the old 3D: unknown until estimated again
+    return {"positions": p, "recon": r, "residual": e,
+            "sigma": np.full(len(frames), np.nan, np.float32)}
 
 
 def _write_cells(project: Project, journal: Journal, col: int, frames: NDArray,
@@ -513,6 +515,7 @@ class TargetTrackJob(Job):
             block["positions"][rows, i] = p
             block["recon"][rows, i] = r
             block["residual"][rows, i] = e
+            block["sigma"][rows, i] = np.nan     # the old 3D's uncertainty, not this one's
         message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
