@@ -123,6 +123,10 @@ def test_fill_a_gap_between_two_keyframes_tracking_backwards(make_window, take, 
     w.context.set_frame(16)
     before = snapshot(p)
     _run(w, qtbot, "back_to_start")
+    # the run stopped short of the start at the keyframe before the gap, and says so
+    qtbot.waitUntil(lambda: "stopped: keyframe 7" in w.statusBar().currentMessage(),
+                    timeout=5000)
+    assert p.current_frame == 8
     err = np.linalg.norm(pts.obs[8:16, col][:, cams] - scene.uv[8:16, col][:, cams], axis=-1)
     assert np.isfinite(err).all() and err.max() < 0.3
     assert np.isfinite(pts.positions[8:16, col]).all()

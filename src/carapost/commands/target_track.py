@@ -42,6 +42,7 @@ from carapost.algorithms.params import from_mapping
 from carapost.algorithms.target_lockstep import LockstepTracker, TrackRun
 from carapost.algorithms.target_track import (
     STOP_CANCELLED,
+    STOP_END,
     STOP_THRESHOLD,
     TargetTrackerParameters,
     check_keyframe,
@@ -386,6 +387,9 @@ class _Track:
     stop: int
     #: the run's settings with this track's own pattern and search sizes (None: the run's)
     params: TargetTrackerParameters | None = None
+    #: why ``stop`` is short of the run's end: a keyframe ahead (Stop On Next Keyframe)
+    #: or 2D data ahead (Overwrite Existing Tracks off); "" when it is the run's end
+    limit: str = ""
 
 
 @dataclass
@@ -485,7 +489,9 @@ class TargetTrackJob(Job):
         for tr, res in zip(self.tracks, results, strict=True):
             if res is None:
                 continue
-            reasons[(tr.point, tr.camera)] = res.reason
+            # reaching a stop set by a keyframe or data ahead is that, not the take's end
+            reasons[(tr.point, tr.camera)] = (tr.limit if res.reason == STOP_END
+                                              and tr.limit else res.reason)
             cancelled = cancelled or res.reason == STOP_CANCELLED
             i = index[tr.point]
             ok = res.tracked
@@ -527,7 +533,8 @@ def _run_message(tracks: list[_Track], results: list[Any], tracked: int, last: i
                  threshold: float) -> str:
     """What a run did, for the status bar and the log: how far it got and, for every
     track that lost its marker, where and with what match (the artist keys there)."""
-    why = sorted({r.reason for r in results if r is not None})
+    why = sorted({tr.limit if r.reason == STOP_END and tr.limit else r.reason
+                  for tr, r in zip(tracks, results, strict=True) if r is not None})
     text = (f"Target Tracker: {tracked} observation{'s' if tracked != 1 else ''} tracked "
             f"in {len(tracks)} point-camera{'s' if len(tracks) != 1 else ''}, up to frame "
             f"{last}")
@@ -625,26 +632,27 @@ def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *
                 except ValueError as exc:
                     raise CommandError(f"{what}: point {pid}, camera {c}, keyframe "
                                        f"{kf}: {exc}") from None
-            stop = end
+            stop, limit = end, ""
             if params.stop_on_next_keyframe:   # any selected point's keyframe, any camera
                 ahead = np.flatnonzero(keyed_any)
                 ahead = ahead[ahead > s] if direction > 0 else ahead[ahead < s][::-1]
                 if len(ahead):
                     k = int(ahead[0])
-                    stop = min(stop, k - 1) if direction > 0 else max(stop, k + 1)
+                    cut = min(stop, k - 1) if direction > 0 else max(stop, k + 1)
+                    stop, limit = cut, (f"keyframe {k}" if cut != end else limit)
             if not params.overwrite_existing_tracks:   # keep existing 2D data
                 rng = (np.arange(s + 1, stop + 1) if direction > 0
                        else np.arange(s - 1, stop - 1, -1))
                 busy = rng[np.isfinite(pts.obs[rng, col, c, 0])] if len(rng) else rng
                 if len(busy):
-                    stop = int(busy[0]) - direction
+                    stop, limit = int(busy[0]) - direction, f"2D data at {int(busy[0])}"
             prev = s - direction
             vel = None
             if 0 <= prev < F and np.isfinite(pts.obs[prev, col, c]).all():
                 vel = xy - pts.obs[prev, col, c].astype(np.float64)
             if (stop - s) * direction > 0:
                 tracks.append(_Track(int(pid), int(c), keys, xy, vel, int(stop),
-                                     None if tp is params else tp))
+                                     None if tp is params else tp, limit))
     if not tracks:
         raise CommandError(f"{what}: nothing to track from frame {s} (the next frame is "
                            "a keyframe or already has 2D data; see Overwrite Existing "
