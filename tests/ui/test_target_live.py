@@ -158,3 +158,39 @@ def test_live_redraws_are_throttled():
     live.tick(40, 40)
     assert live.redraws == 2 and live.read == 39
     assert live.tracks[(pid, 0)][0] == list(range(1, 40))
+
+
+def test_views_draw_the_tracked_position_while_following(make_window, take, qtbot):  # noqa: F811
+    """With Update 2D View Every Frame on, each camera view draws where the run has just
+    tracked the point on the frame shown (the model is written only at the end)."""
+    from carapost.algorithms.target_track import TargetTrackerParameters
+
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.02)
+    set_preference(w.context.settings, "tracker_update_2d_view_every_frame", True)
+    pid, col, m = _keyed_point(w, scene, cameras=(0, 1))
+    views = {v.camera: v for v in w.workspace.views() if v.kind == "sensor"}
+    checked = []
+
+    def check(_done, _total):
+        f = p.current_frame
+        live = views[0].targets.live
+        if f == 0 or not live.isVisible() or p.points.source[f, col, 0] == SOURCE_TARGET:
+            return
+        x, y = live.getData()
+        centre = np.array([np.nanmean(x), np.nanmean(y)])
+        checked.append((f, float(np.hypot(*(centre - scene.uv[f, m, 0])))))
+
+    w.runner.progressed.connect(check)
+    w.pane("Tracker").buttons["forward_to_end"].click()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    w.flush()
+    assert len(checked) >= 2, checked                 # seen part-way, more than once
+    # the circle is the tracked marker of that frame (its centre within the ring's
+    # sampling of the truth), not yet in the model
+    assert max(e for _, e in checked) < 0.5, checked
+    r = TargetTrackerParameters().pattern_size / 4.0
+    x, y = views[0].targets.live.getData()
+    assert abs(np.nanmax(x) - np.nanmin(x) - 2 * r) < 0.2
+    # the run ended: the result is drawn from the model, the live circle is gone
+    assert not views[0].targets.live.isVisible() and not views[1].targets.live.isVisible()
+    assert (p.points.source[1:, col, :2] == SOURCE_TARGET).all()

@@ -442,6 +442,10 @@ class TargetTrackJob(Job):
     #: ahead in the direction of travel); called from the worker before each frame.
     request: Callable[[int, list[int], int], None] | None = field(default=None,
                                                                    repr=False)
+    #: The latest tracked position of each (point id, camera): (frame, x, y), replaced
+    #: as the run goes (the views draw it while they follow the run). Read a copy.
+    live_xy: dict[tuple[int, int], tuple[int, float, float]] = field(default_factory=dict,
+                                                                     repr=False)
 
     @property
     def stop(self) -> int:
@@ -466,9 +470,12 @@ class TargetTrackJob(Job):
         last = self.start
 
         def seen_by(tr: _Track) -> Callable[[int, NDArray, float], None]:
-            def seen(f: int, _xy: NDArray, score: float) -> None:
+            def seen(f: int, xy: NDArray, score: float) -> None:
                 if f not in tr.keys:
                     self.live.append((tr.point, tr.camera, int(f), float(score)))
+                    if np.isfinite(xy).all():
+                        self.live_xy[(tr.point, tr.camera)] = (int(f), float(xy[0]),
+                                                               float(xy[1]))
             return seen
 
         # every (point, camera) one frame per step: the views, the timeline and the

@@ -23,6 +23,7 @@ from carapost.commands.stack import CommandError
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.process import follow_tracking
 from carapost.ui.handlers.target_live import live_timeline
+from carapost.ui.handlers.target_live_view import live_views
 
 log = logging.getLogger("carapost.ui")
 
@@ -68,10 +69,12 @@ def track(ctx: ActionContext, direction: int, single_frame: bool = False,
     job.request = request
     unfollow = follow_tracking(ctx, job)
     unlive = live_timeline(ctx, job)
+    unviews = live_views(ctx, job)
 
     def finished(*_: Any) -> None:
         unfollow()
         unlive()
+        unviews()
         if source is not frames:
             source.close()
 
