@@ -125,3 +125,14 @@ def test_tracks_must_share_start_and_direction():
                          TrackRun(sc.image, {3: sc.xy[3]}, 3, 9, 1, P)])
     with pytest.raises(ValueError, match="at least one"):
         LockstepTracker([])
+
+
+def test_a_failing_callback_leaves_no_track_suspended(cameras):
+    def progress(done, total):
+        if done == 3:
+            raise RuntimeError("the window went away")
+
+    lock = LockstepTracker(_runs(cameras))
+    with pytest.raises(RuntimeError, match="went away"):
+        lock.run(progress)
+    assert all(g is None for g in lock._lets)

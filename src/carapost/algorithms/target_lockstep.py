@@ -204,13 +204,18 @@ class LockstepTracker:
             Per run, in the order given.
         """
         total = max(self.total, 1)
-        while (frame := self.next_frame) is not None:
-            if before_step is not None:
-                before_step(frame, self.active)
-            self.step()
-            if (progress is not None and progress(min(self.done, total), total) is False
-                    and self.active):
-                return self.cancel()
+        try:
+            while (frame := self.next_frame) is not None:
+                if before_step is not None:
+                    before_step(frame, self.active)
+                self.step()
+                if (progress is not None
+                        and progress(min(self.done, total), total) is False
+                        and self.active):
+                    return self.cancel()
+        except BaseException:   # a callback failed: no track is left suspended
+            self.close()
+            raise
         return self.results
 
     def close(self) -> None:
