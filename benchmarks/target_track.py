@@ -37,7 +37,9 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   default pattern and search sizes, single core, over CPU time.
 - ``target_track_4cam_600_s``: one point in 4 cameras over 600 frames (300 forwards,
   then 300 backwards), images in memory; ``decode_4cam_600_s``: decoding the same 2,400
-  images from the take's FFV1 videos (``carapost.io.video``), and its share.
+  images from the take's FFV1 videos (``carapost.io.video``), and its share;
+  ``target_track_session_4cam_600_s``: one run of the point through the Session on the
+  same images (``benchmarks/target_track_window.py``, which also times the window).
 """
 
 from __future__ import annotations
@@ -379,6 +381,11 @@ def _speed(cfg: SynthConfig, scene, imgs: np.ndarray, m: int, decode: float | No
     if decode is not None:
         emit("decode_4cam_600_s", round(decode, 3), "s",
              share=round(decode / (decode + w), 3), load_average=_load())
+    # the same run through the Session (prepare, lockstep compute, apply: one History
+    # entry), on the same images
+    from target_track_window import project_for, session_speed
+
+    session_speed(*project_for(cfg), imgs, decode=decode)
 
 
 
