@@ -395,7 +395,22 @@ def _speed(cfg: SynthConfig, scene, imgs: np.ndarray, m: int, decode: float | No
 
 # ----------------------------------------------------------- partial occlusion, faded markers
 
-def bench_partial(frames: int, size: tuple[int, int], margin: int = 3) -> None:
+class _KeyframeOnly:
+    """Within it, the Target Tracker takes no appearance step (the reference: keyframe
+    patterns alone), also where the Session builds the parameters."""
+
+    def __enter__(self):
+        import carapost.algorithms.target_appearance as ta
+        self.ta, self.saved = ta, ta.appearance_step
+        ta.appearance_step = lambda *a, **k: (np.array([np.nan, np.nan]), 0.0)
+        return self
+
+    def __exit__(self, *exc):
+        self.ta.appearance_step = self.saved
+
+
+def bench_partial(frames: int, size: tuple[int, int], margin: int = 3, seed: int = 0,
+                  tag: str = "") -> None:
     """Partial occlusion (``SynthConfig.partial_occlusion``): an eyelid fold over the
     upper-lid markers (``blink`` take) and curling lips over the lip markers (``speech``).
 
@@ -406,18 +421,19 @@ def bench_partial(frames: int, size: tuple[int, int], margin: int = 3) -> None:
     compared with the centroid of its visible part (``visible_uv``) and with its true
     centre (``uv``)."""
     for preset, kind in (("blink", "eyelid"), ("speech", "lip")):
-        cfg = SynthConfig(preset=preset, frames=frames, size=size, partial_occlusion=True)
+        cfg = SynthConfig(preset=preset, frames=frames, size=size, partial_occlusion=True,
+                          seed=seed)
         scene, imgs = render(cfg)
         covered = np.isfinite(scene.cover_offset)
         cover_frac = np.clip((scene.marker_radius_mm[None] - scene.cover_offset)
                              / (2 * scene.marker_radius_mm[None]), 0, 1)
         for bt in (0.9, 0.0):
             _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
-                         TargetTrackerParameters(break_threshold=bt))
+                         TargetTrackerParameters(break_threshold=bt), seed, tag)
 
 
 def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover_frac,
-                 params) -> None:
+                 params, seed=0, tag="") -> None:
     """One Break Threshold of :func:`bench_partial`."""
     uv, vis, vuv = scene.uv, scene.visible, scene.visible_uv
     e_vis, e_cen, frac, wrong, n_frames, n_tracked, spans = [], [], [], 0, 0, 0, 0
@@ -445,7 +461,8 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
                     frac.extend(cover_frac[f, m])
                 n_tracked += int(seen.sum())
     ev, ec, fr = np.array(e_vis), np.array(e_cen), np.array(frac)
-    common = {"case": f"partial_{kind}", "preset": preset, "spans": spans,
+    common = {"case": f"partial_{kind}{tag}", "preset": preset, "spans": spans,
+              "seed": seed, "held_out": seed != 0,
               "break_threshold": params.break_threshold,
               "covered_visible_frames": n_frames, "frames": frames,
               "size": f"{size[0]}x{size[1]}"}
@@ -466,7 +483,7 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
 
 
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
-                       mode: str = "before") -> None:
+                       mode: str = "before", seed: int = 3, tag: str = "") -> None:
     """Markers the blob detector misses over a stretch (``SynthConfig.missed_markers``:
     their ink fades to a low contrast), recovered through the Session as a script would.
 
@@ -486,7 +503,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     from carapost.synth.demo_project import scene_project
     from carapost.synth.occlusion import MISSED_RAMP
 
-    project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=3,
+    project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=seed,
                                         decorate=False, missed_markers=n)
     get = functools.lru_cache(maxsize=None)(get)
     pts = project.points
@@ -533,7 +550,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
         rmse.append(float(np.sqrt(np.nanmean(e3 ** 2))) if np.isfinite(e3).any() else np.nan)
     cpu = time.process_time() - t
     e2_all = np.array(e2_all)
-    common = {"case": f"missed_faded_{mode}", "markers": len(missed), "frames": frames,
+    common = {"case": f"missed_faded_{mode}{tag}", "seed": seed, "held_out": seed != 3,
+              "markers": len(missed), "frames": frames,
               "stretch_frames": int(scene.missed[:, missed].sum(0).max()),
               "labels": [scene.labels[m] for m in missed], "size": f"{size[0]}x{size[1]}"}
     emit("missed_faded_detector_found", found, "images", **common,
@@ -592,10 +610,19 @@ def main(argv: list[str] | None = None) -> int:
     if not a.skip_missed:
         bench_missed(min(a.frames, 120), size)
     if a.partial:
-        bench_partial(min(a.frames, 120), size)
+        for seed in (0, 9):   # seed 9: held out
+            bench_partial(min(a.frames, 120), size, seed=seed)
+            if a.reference:
+                with _KeyframeOnly():
+                    bench_partial(min(a.frames, 120), size, seed=seed, tag="_keyframe_only")
     if a.faded:
         for mode in ("before", "inside", "gaps"):
-            bench_missed_faded(min(a.frames, 120), size, mode=mode)
+            for seed in (3, 8):   # seed 8: held out
+                bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed)
+                if a.reference:
+                    with _KeyframeOnly():
+                        bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
+                                           tag="_keyframe_only")
     emit("load_average", _load(), "")
     return 0
 

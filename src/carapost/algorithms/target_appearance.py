@@ -48,6 +48,9 @@ TUKEY_C = 3.0
 SCALE_FLOOR = 0.5
 #: Floor of the residual's robust scale as a fraction of the pattern's contrast.
 RELATIVE_FLOOR = 0.03
+#: The appearance's and the keyframe's positions of an appearance step must agree within
+#: this (px): farther, the keyframe refinement found something else than the chain.
+AGREE_PX = 0.5
 #: Reweighting iterations before :func:`robust_refine` may stop on a small step.
 MIN_REWEIGHTS = 3
 
@@ -331,4 +334,4 @@ def appearance_step(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: Any,
         image, prev_image, prev_xy, predicted, key_tpl, pattern_size=params.pattern_size,
         weight_sigma=params.weight_fraction * params.pattern_size,
         anchor_score=params.anchor_score, max_move=max(float(params.near_px), 2.0),
-        max_anchor_px=0.5)
+        max_anchor_px=AGREE_PX)
