@@ -86,3 +86,21 @@ def test_robust_refinement_ignores_the_part_of_the_pattern_that_changed():
     assert plain < 0.9
     assert robust_score(patch.ravel().astype(float), tpl.ravel(),
                         np.full(441, 1 / 441)) > 0.95
+
+
+def test_a_fading_marker_is_left_to_the_keyframe_match():
+    """The appearance step follows changing surroundings, not a marker losing its ink:
+    a faint marker would be matched less accurately than the keyframe match needs."""
+    rng = np.random.default_rng(6)
+    bg = cv2.GaussianBlur(rng.normal(150, 12, (80, 96)), (0, 0), 1.5)
+    xs = 40 + 0.6 * np.arange(14)
+    fade = np.clip(1.0 - 0.2 * np.arange(14), 0.2, 1.0)
+    imgs = [np.clip(bg - fade[f] * _disc(x, 40.4) + rng.normal(0, 1.5, bg.shape),
+                    0, 255).astype(np.uint8) for f, x in enumerate(xs)]
+    runs = [track_target(lambda f: imgs[f], {0: (xs[0], 40.4)}, start=0, stop=13,
+                         direction=1, params=TargetTrackerParameters(
+                             search_size=41, follow_appearance=fa)) for fa in (False, True)]
+    assert runs[0].reason == "threshold" and runs[0].frames[-1] < 13
+    np.testing.assert_array_equal(runs[0].frames, runs[1].frames)
+    np.testing.assert_array_equal(runs[0].xy, runs[1].xy)
+    np.testing.assert_array_equal(runs[0].score, runs[1].score)

@@ -38,7 +38,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["appearance_step", "follow_appearance", "robust_refine", "robust_score"]
+__all__ = ["appearance_step", "follow_appearance", "robust_refine", "robust_score",
+           "window_contrast"]
 
 #: Tukey's biweight constant, in robust standard deviations of the residual: pixels whose
 #: residual after the fit is beyond it get no weight (what changed in the pattern).
@@ -51,6 +52,9 @@ RELATIVE_FLOOR = 0.03
 #: The appearance's and the keyframe's positions of an appearance step must agree within
 #: this (px): farther, the keyframe refinement found something else than the chain.
 AGREE_PX = 0.5
+#: An appearance step needs the marker's contrast (window-weighted standard deviation of
+#: the patch) to be at least this fraction of the keyframe's.
+MIN_CONTRAST = 0.6
 #: Reweighting iterations before :func:`robust_refine` may stop on a small step.
 MIN_REWEIGHTS = 3
 
@@ -252,7 +256,7 @@ def _wmedian(v: NDArray[np.float64], wt: NDArray[np.float64]) -> float:
 def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: Any,
                       predicted: Any, key_tpl: NDArray[Any], *, pattern_size: int,
                       weight_sigma: float, anchor_score: float, max_move: float,
-                      max_anchor_px: float = 1.5
+                      max_anchor_px: float = 1.5, key_contrast: float | None = None
                       ) -> tuple[NDArray[np.float64], float]:
     """One tracking step against the marker's appearance in the previous frame.
 
@@ -278,6 +282,12 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
     max_anchor_px : float
         The keyframe refinement may move the appearance's position by this much at most
         (px); farther, the two disagree and the step failed.
+    key_contrast : float, optional
+        The marker's contrast at its keyframe (:func:`window_contrast`, grey levels):
+        where the patch found has less than `MIN_CONTRAST` of it the step failed. The
+        step follows a marker whose surroundings change, not one that fades: a faint
+        marker is matched less accurately than the keyframe match would need, and the
+        track stops there as it would without the step.
 
     Returns
     -------
@@ -315,6 +325,9 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
         return nan, 0.0
     ox, oy = xk[0] - x0, xk[1] - y0
     w = _shift(crop, ox, oy, P).ravel()
+    if key_contrast is not None and (window_contrast(w, weight_sigma)
+                                     < MIN_CONTRAST * key_contrast):
+        return nan, 0.0
     key = np.asarray(key_tpl, dtype=np.float64).ravel()
     win = _window(P, weight_sigma)
     anchor = _weighted_ncc(w, key, win)
@@ -327,11 +340,35 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
 
 
 def appearance_step(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: Any,
-                    predicted: Any, key_tpl: NDArray[Any], params: Any
+                    predicted: Any, key_tpl: NDArray[Any], params: Any,
+                    key: tuple[NDArray[Any], Any] | None = None,
+                    failed: tuple[NDArray[np.float64], float] | None = None
                     ) -> tuple[NDArray[np.float64], float]:
-    """:func:`follow_appearance` with the settings of a ``TargetTrackerParameters``."""
-    return follow_appearance(
+    """:func:`follow_appearance` with the settings of a ``TargetTrackerParameters``.
+
+    ``key`` (the image and position of the keyframe behind) sets the marker's contrast
+    as keyed: a step where the marker shows less than `MIN_CONTRAST` of it fails.
+    ``failed`` is what the keyframe match found, returned when the step fails too (so
+    the frame keeps the keyframe match's score).
+    """
+    contrast = None
+    if key is not None:
+        from carapost.algorithms.target_track import sample_patch
+        contrast = window_contrast(sample_patch(key[0], key[1], params.pattern_size),
+                                   params.weight_fraction * params.pattern_size)
+    xy, score = follow_appearance(
         image, prev_image, prev_xy, predicted, key_tpl, pattern_size=params.pattern_size,
         weight_sigma=params.weight_fraction * params.pattern_size,
         anchor_score=params.anchor_score, max_move=max(float(params.near_px), 2.0),
-        max_anchor_px=AGREE_PX)
+        max_anchor_px=AGREE_PX, key_contrast=contrast)
+    if failed is not None and not (np.all(np.isfinite(xy)) and score >= failed[1]):
+        return failed
+    return xy, score
+
+
+def window_contrast(patch: NDArray[Any], weight_sigma: float) -> float:
+    """The window-weighted standard deviation of a patch (grey levels): its contrast."""
+    w = np.asarray(patch, dtype=np.float64).ravel()
+    win = _window(int(round(math.sqrt(w.size))), weight_sigma)
+    wc = w - win @ w
+    return math.sqrt(float(win @ (wc * wc)))

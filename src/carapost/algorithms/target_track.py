@@ -681,8 +681,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                     xy, score = np.array([np.nan, np.nan]), 0.0
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
-                xy, score = target_appearance.appearance_step(img, prev_img, pos,
-                                                              pos + velocity, tpl, params)
+                xy, score = target_appearance.appearance_step(
+                    img, prev_img, pos, pos + velocity, tpl, params,
+                    (get_image(pp.frame), keys[pp.frame]), (xy, score))
             prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)
