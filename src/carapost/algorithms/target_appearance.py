@@ -54,7 +54,7 @@ RELATIVE_FLOOR = 0.03
 AGREE_PX = 0.5
 #: An appearance step needs the marker's contrast (window-weighted standard deviation of
 #: the patch) to be at least this fraction of the keyframe's.
-MIN_CONTRAST = 0.6
+MIN_CONTRAST = 0.8
 #: Reweighting iterations before :func:`robust_refine` may stop on a small step.
 MIN_REWEIGHTS = 3
 
