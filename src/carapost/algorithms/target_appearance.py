@@ -53,7 +53,7 @@ RELATIVE_FLOOR = 0.03
 #: this (px): farther, the keyframe refinement found something else than the chain.
 AGREE_PX = 0.5
 #: An appearance step needs the marker's contrast (window-weighted standard deviation of
-#: the patch) to be at least this fraction of the keyframe's.
+#: the patch) within this fraction of the keyframe's and its inverse.
 MIN_CONTRAST = 0.8
 #: Reweighting iterations before :func:`robust_refine` may stop on a small step.
 MIN_REWEIGHTS = 3
@@ -284,10 +284,11 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
         (px); farther, the two disagree and the step failed.
     key_contrast : float, optional
         The marker's contrast at its keyframe (:func:`window_contrast`, grey levels):
-        where the patch found has less than `MIN_CONTRAST` of it the step failed. The
-        step follows a marker whose surroundings change, not one that fades: a faint
-        marker is matched less accurately than the keyframe match would need, and the
-        track stops there as it would without the step.
+        where the patch found has less than `MIN_CONTRAST` of it, or more than its
+        inverse, the step failed. The step follows a marker whose surroundings change,
+        not one that fades (or comes back from a fade): a faint marker is matched less
+        accurately than the keyframe match would need, and the track stops there as it
+        would without the step.
 
     Returns
     -------
@@ -325,8 +326,9 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
         return nan, 0.0
     ox, oy = xk[0] - x0, xk[1] - y0
     w = _shift(crop, ox, oy, P).ravel()
-    if key_contrast is not None and (window_contrast(w, weight_sigma)
-                                     < MIN_CONTRAST * key_contrast):
+    if key_contrast is not None and not (
+            MIN_CONTRAST <= window_contrast(w, weight_sigma) / max(key_contrast, 1e-9)
+            <= 1.0 / MIN_CONTRAST):
         return nan, 0.0
     key = np.asarray(key_tpl, dtype=np.float64).ravel()
     win = _window(P, weight_sigma)
@@ -347,7 +349,8 @@ def appearance_step(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: Any,
     """:func:`follow_appearance` with the settings of a ``TargetTrackerParameters``.
 
     ``key`` (the image and position of the keyframe behind) sets the marker's contrast
-    as keyed: a step where the marker shows less than `MIN_CONTRAST` of it fails.
+    as keyed: a step where the marker shows less than `MIN_CONTRAST` of it (or more
+    than its inverse) fails.
     ``failed`` is what the keyframe match found, returned when the step fails too (so
     the frame keeps the keyframe match's score).
     """
