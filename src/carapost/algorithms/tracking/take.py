@@ -32,6 +32,7 @@ from carapost.algorithms.tracking.identity import (
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
+from carapost.algorithms.tracking.time_checks import place_single_sensor, reject_by_motion
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
     brim_pose_covariance,
@@ -386,6 +387,14 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             ok = redo & np.isfinite(X).all(-1)
         o["positions"][ok] = X[ok].astype(o["positions"].dtype)
         o["residual"][ok] = res[ok].astype(o["residual"].dtype)
+        # wrong observations the motion contradicts, then single-sensor samples from
+        # both sides (docs/algorithms.md, "Wrong observations and single-sensor depth")
+        reject_by_motion(o, R, t, face, intr, fixed)
+        single_sigma = place_single_sensor(o, R, t, face, intr, fixed)
+        tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+        obs = o["obs"].astype(np.float64)
+    else:
+        single_sigma = np.full(tri.shape, np.nan, np.float32)
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     noise = noise_from_residuals(obs_t, X, R, t, intr)
@@ -393,8 +402,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     brim = ~face
     pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
     if depth_window < 5 or len(R) < 5 or not tri.any():
-        return R, t, sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                                  point_factor=phi)
+        sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
+                             point_factor=phi).astype(np.float32)
+        return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
     # the depth prior from time: one-caddy depth follows the smooth track, well-seen
     # directions keep their measurement (docs/algorithms.md). It reduces only the error
     # that changes from frame to frame (the cameras' 2D noise, up to each point's own
@@ -419,7 +429,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
         sigma[:, ps] = np.sqrt(var)
     sigma[~np.isfinite(X).all(-1)] = np.nan
-    return R, t, sigma
+    return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
 
 
 def _merge_doubles(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
