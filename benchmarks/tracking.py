@@ -38,7 +38,7 @@ Prints JSON lines:
   pooled over the takes (``take: "pooled"``); the calibration also per number of
   cameras that observed the sample (groups ``cameras_2``, ``cameras_3``, ``cameras_4``).
   ``--variety-set heldout`` (the default) scores the held-out takes, never used to tune;
-  ``tuning`` the development ones.
+  ``heldout2`` the second held-out set; ``tuning`` the development ones.
 """
 
 from __future__ import annotations

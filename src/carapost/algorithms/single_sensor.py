@@ -43,22 +43,24 @@ __all__ = ["neighbour_prediction", "neighbours", "place_on_rays", "prediction_si
 NEIGHBOURS = 6
 
 
-def neighbours(X: NDArray[np.float64], tri: NDArray[np.bool_], k: int = NEIGHBOURS
-               ) -> NDArray[np.intp]:
+def neighbours(X: NDArray[np.float64], tri: NDArray[np.bool_], k: int = NEIGHBOURS,
+               max_frames: int = 40) -> NDArray[np.intp]:
     """(P, k) the k points nearest each point (median distance over the frames where
-    both are in ``tri``; -1 where fewer exist). ``X`` (F, P, 3) mm, ``tri`` (F, P)."""
+    both are in ``tri``, at most ``max_frames`` of them spread over the take; -1 where
+    fewer exist). ``X`` (F, P, 3) mm, ``tri`` (F, P)."""
     F, P = tri.shape
-    med = np.full((P, P), np.inf)
-    for p in range(P):
-        if not tri[:, p].any():
-            continue
-        d = np.linalg.norm(X - X[:, p:p + 1], axis=-1)  # (F, P)
-        both = tri & tri[:, p:p + 1]
-        cnt = both.sum(0)
-        d = np.where(both, d, np.nan)
-        ok = cnt >= max(3, tri[:, p].sum() // 4)
-        if ok.any():
-            med[p, ok] = np.nanmedian(d[:, ok], axis=0)
+    rows = np.unique(np.linspace(0, F - 1, min(F, max_frames)).astype(np.intp))
+    Xs = np.where(tri[rows][..., None], X[rows], np.nan)
+    d = np.linalg.norm(Xs[:, :, None] - Xs[:, None, :], axis=-1)  # (f, P, P)
+    cnt = np.isfinite(d).sum(0)
+    need = np.maximum(3, tri[rows].sum(0) // 4)
+    with np.errstate(all="ignore"):
+        d = np.where(np.isfinite(d), d, np.inf)
+        med = np.sort(d, axis=0)
+        # the median over the frames both have: the middle one of the finite entries
+        mid = np.clip((cnt - 1) // 2, 0, max(len(rows) - 1, 0))
+        med = np.take_along_axis(med, mid[None], axis=0)[0]
+    med[cnt < need[:, None]] = np.inf
     np.fill_diagonal(med, np.inf)
     k = min(k, max(P - 1, 1))
     order = np.argsort(med, axis=1)[:, :k]

@@ -72,23 +72,28 @@ def loo_prediction(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
     F, P = tri.shape
     valid = nb >= 0
     nn = np.where(valid, nb, 0)
+    frames = np.arange(F)
+    idx = np.where(tri, frames[:, None], -1)
+    prev = np.full((F, P), -1)
+    prev[1:] = np.maximum.accumulate(idx, axis=0)[:-1]  # last triangulated frame < f
+    idx = np.where(tri, frames[:, None], F)
+    nxt = np.full((F, P), F)
+    nxt[:-1] = np.minimum.accumulate(idx[::-1], axis=0)[::-1][1:]  # first one > f
     acc = np.zeros((F, P, 3))
     cnt = np.zeros((F, P))
-    for side in (-1, 1):
-        done = np.zeros((F, P), bool)
-        for dist in range(1, max_frames + 1):
-            step = side * dist
-            f = np.arange(max(0, -step), F - max(0, step))  # frames with a frame f + step
-            g = f + step
-            # (len f, P, k) neighbour available at both frames
-            both = valid[None] & tri[f][:, nn] & tri[g][:, nn]
-            disp = np.where(both[..., None], X[f][:, nn] - X[g][:, nn], 0.0).sum(2)
-            n = both.sum(2)
-            ok = tri[g] & (n > 0) & ~done[f]
-            est = X[g] + disp / np.maximum(n, 1)[..., None]
-            acc[f] += np.where(ok[..., None], est, 0.0)
-            cnt[f] += ok
-            done[f] |= ok
+    Xn = X[:, nn]  # (F, P, k, 3) the neighbours at every frame
+    Tn = tri[:, nn] & valid[None]
+    for g in (prev, nxt):
+        have = (g >= 0) & (g < F) & (np.abs(g - frames[:, None]) <= max_frames)
+        gg = np.where(have, g, 0)
+        Xg = X[gg[:, :, None], nn[None]]  # (F, P, k, 3) the neighbours at the reference
+        both = Tn & tri[gg[:, :, None], nn[None]]
+        n = both.sum(2)
+        disp = np.where(both[..., None], Xn - Xg, 0.0).sum(2)
+        ok = have & (n > 0)
+        est = X[gg, np.arange(P)[None]] + disp / np.maximum(n, 1)[..., None]
+        acc += np.where(ok[..., None], est, 0.0)
+        cnt += ok
     out = acc / np.maximum(cnt, 1)[..., None]
     out[cnt == 0] = np.nan
     return out

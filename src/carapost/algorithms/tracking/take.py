@@ -22,6 +22,8 @@ from carapost.algorithms.codes import (
     blank_point_array,
 )
 from carapost.algorithms.depth_prior import sample_covariance, smooth_along_uncertainty
+from carapost.algorithms.neighbour_prior import deformation_sigma, fuse, patch_prediction
+from carapost.algorithms.single_sensor import neighbours
 from carapost.algorithms.tracking.identity import (
     absorb,
     drop_isolated,
@@ -389,12 +391,15 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         o["residual"][ok] = res[ok].astype(o["residual"].dtype)
         # wrong observations the motion contradicts, then single-sensor samples from
         # both sides (docs/algorithms.md, "Wrong observations and single-sensor depth")
-        reject_by_motion(o, R, t, face, intr, fixed)
-        single_sigma = place_single_sensor(o, R, t, face, intr, fixed)
+        Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+        nb = neighbours(Xt, tri)
+        reject_by_motion(o, R, t, face, intr, fixed, nb)
+        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         obs = o["obs"].astype(np.float64)
     else:
         single_sigma = np.full(tri.shape, np.nan, np.float32)
+        nb = None
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     noise = noise_from_residuals(obs_t, X, R, t, intr)
@@ -418,10 +423,17 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     sigma = np.full((F, P), np.nan, dtype=np.float32)
     # a few points at a time: the covariances of a long take would not fit in memory
     step = max(1, 500_000 // max(F, 1))
+    # the neighbours' prediction: a prior for depths that time alone leaves poor
+    pred = patch_prediction(X, tri, neighbours(X, tri) if nb is None else nb)
     for p0 in range(0, P, step):
         ps = slice(p0, p0 + step)
         cov = sample_covariance(X[:, ps], obs_t[:, ps], R, t, intr, noise)
         Xs, cov = smooth_along_uncertainty(X[:, ps], cov, depth_window)
+        tau = deformation_sigma(Xs, pred[:, ps], cov, tri[:, ps])
+        # the sigma stays that of the track alone: the prediction shares the point's
+        # own offsets and its neighbours' errors, so the product of the two
+        # covariances would promise more than the fused sample keeps
+        Xs, _ = fuse(Xs, cov, pred[:, ps], tau, tri[:, ps])
         moved = tri[:, ps] & ~fixed[:, None] & np.isfinite(Xs).all(-1)
         block = o["positions"][:, ps]
         block[moved] = Xs[moved].astype(block.dtype)

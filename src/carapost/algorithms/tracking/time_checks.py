@@ -56,7 +56,7 @@ def _detach(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
 
 def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                      face: NDArray[np.bool_], intr: CameraIntrinsics,
-                     fixed: NDArray[np.bool_]) -> int:
+                     fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None) -> int:
     """Remove the observations the point's motion contradicts; solve those samples again.
 
     Parameters
@@ -69,6 +69,9 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     intr : CameraIntrinsics
     fixed : ndarray of bool, shape (F,)
         Frames left alone (the initialised frame).
+    nb : ndarray of int, shape (P, k), optional
+        Each point's neighbours (:func:`carapost.algorithms.single_sensor.neighbours`),
+        when already known.
 
     Returns
     -------
@@ -79,7 +82,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if tri.sum() < 10:
         return 0
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
-    nb = neighbours(X, tri)
+    nb = neighbours(X, tri) if nb is None else nb
     obs = o["obs"].astype(np.float64)
     # a wrong sample spoils the predictions of its neighbours in time (it is their
     # reference): predict again without the suspects until the set no longer changes
@@ -112,13 +115,14 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
 
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                         face: NDArray[np.bool_], intr: CameraIntrinsics,
-                        fixed: NDArray[np.bool_]) -> NDArray[np.float32]:
+                        fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None
+                        ) -> NDArray[np.float32]:
     """Put every single-sensor face sample on its ray nearest the prediction from both
     sides; return their sigmas.
 
     Parameters
     ----------
-    o, R, t, face, intr, fixed
+    o, R, t, face, intr, fixed, nb
         As for :func:`reject_by_motion`.
 
     Returns
@@ -138,7 +142,7 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if not single.any() or tri.sum() < 10:
         return sigma
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
-    nb = neighbours(X, tri)
+    nb = neighbours(X, tri) if nb is None else nb
     pred, gap = neighbour_prediction(X, tri, nb=nb)
     f, p = np.nonzero(single & np.isfinite(pred).all(-1))
     if f.size:
