@@ -158,4 +158,34 @@ def test_neighbour_prediction_blends_both_sides():
     tri[:, 4] = False
     pred, gap = neighbour_prediction(np.where(tri[..., None], X, np.nan), tri)
     assert np.isnan(pred[:, 4]).all() and (gap[:, 4] == -1).all()
-    assert RECON_NONE == 0
+
+
+@pytest.mark.parametrize("single_sensor", [True, False])
+def test_a_two_camera_sample_left_with_one_camera(scene, single_sensor):
+    # seen by cameras 0 and 2 only; a blob 4 px off in camera 2: after its removal the
+    # sample is single-sensor, or a gap when single sensor tracking is off
+    rng = np.random.default_rng(6)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    two = scene.visible[..., 0] & scene.visible[..., 2]
+    cand = np.argwhere(two[2:-2]) + [2, 0]
+    pick = cand[rng.choice(len(cand), 12, replace=False)]
+    f, p = pick[:, 0], pick[:, 1]
+    block = o["obs"][f, p]
+    block[:, [1, 3]] = np.nan
+    block[:, 2] += [4.0, 0.0]
+    o["obs"][f, p] = block
+    obs = o["obs"].astype(float)
+    redo = np.zeros((F, M), bool)
+    redo[f, p] = True
+    X, _ = retriangulate(obs, scene.cam_R, scene.cam_t, scene.intrinsics, redo)
+    o["positions"][redo] = X[redo]
+    reject_by_motion(o, scene.cam_R, scene.cam_t, np.ones(M, bool), scene.intrinsics,
+                     np.zeros(F, bool), single_sensor=single_sensor)
+    gone = ~np.isfinite(o["obs"][f, p, 2, 0])
+    assert gone.sum() >= 10
+    if single_sensor:
+        assert (o["recon"][f, p][gone] == RECON_SINGLE_SENSOR).all()
+    else:
+        assert (o["recon"][f, p][gone] == RECON_NONE).all()
+        assert np.isnan(o["positions"][f, p][gone]).all()

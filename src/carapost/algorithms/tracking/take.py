@@ -253,7 +253,8 @@ def track_take(
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
                             merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
-                                                  _outlier_target_px(params)))
+                                                  _outlier_target_px(params),
+                                                  params.allow_single_sensor_tracking))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -290,13 +291,14 @@ def track_take(
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
                         merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
-                                                  _outlier_target_px(params)))
+                                                  _outlier_target_px(params),
+                                                  params.allow_single_sensor_tracking))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 windows: tuple[int, int, float]) -> TrackResult:
+                 windows: tuple[int, int, float, bool]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -310,10 +312,14 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        kept), triangulate the face samples again with them, estimate each
        triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
        prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
-       of the pose fit and of the depth prior and the target reprojection error (px) of
-       the outlier rejection. The sigma is that of the result, plus what no fit over
-       time removes: each point's excess noise (its noise factor) and the cameras' pose
-       error from the brim (:func:`sample_sigma`).
+       of the pose fit and of the depth prior, the target reprojection error (px) of
+       the outlier rejection and whether single-sensor samples are allowed. The sigma
+       is that of the result, plus what no fit over time removes: each point's excess
+       noise (its noise factor) and the cameras' pose error from the brim
+       (:func:`sample_sigma`). Between the re-solve and the sigma, the checks of
+       :mod:`carapost.algorithms.tracking.time_checks` run, and the depth prior from
+       the neighbours (:mod:`carapost.algorithms.neighbour_prior`) follows the one
+       from time.
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -354,7 +360,8 @@ def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrins
 
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
-                    window: int, depth_window: int = 0, target_px: float = 0.0
+                    window: int, depth_window: int = 0, target_px: float = 0.0,
+                    single_sensor: bool = True
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -393,7 +400,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         # both sides (docs/algorithms.md, "Wrong observations and single-sensor depth")
         Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
         nb = neighbours(Xt, tri)
-        reject_by_motion(o, R, t, face, intr, fixed, nb)
+        reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
         single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         obs = o["obs"].astype(np.float64)

@@ -56,7 +56,8 @@ def _detach(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
 
 def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                      face: NDArray[np.bool_], intr: CameraIntrinsics,
-                     fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None) -> int:
+                     fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None, *,
+                     single_sensor: bool = True) -> int:
     """Remove the observations the point's motion contradicts; solve those samples again.
 
     Parameters
@@ -72,6 +73,9 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     nb : ndarray of int, shape (P, k), optional
         Each point's neighbours (:func:`carapost.algorithms.single_sensor.neighbours`),
         when already known.
+    single_sensor : bool
+        A sample left with one camera becomes a single-sensor sample (else a gap, as the
+        tracker does when single sensor tracking is off).
 
     Returns
     -------
@@ -105,9 +109,10 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     ok = redo & (left >= 2) & np.isfinite(Xn).all(-1)
     o["positions"][ok] = Xn[ok].astype(o["positions"].dtype)
     o["residual"][ok] = res[ok].astype(o["residual"].dtype)
-    # one camera left: placed on its ray by `place_single_sensor`
-    o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
-    lost = redo & ((left == 0) | ((left >= 2) & ~ok))
+    # one camera left: placed on its ray by `place_single_sensor` (or a gap)
+    if single_sensor:
+        o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
+    lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
     o["recon"][lost] = RECON_NONE
     o["positions"][lost] = np.nan
     return n
