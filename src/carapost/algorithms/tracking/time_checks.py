@@ -44,6 +44,10 @@ from carapost.algorithms.uncertainty import retriangulate
 
 __all__ = ["place_single_sensor", "reject_by_motion"]
 
+#: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
+#: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
+MAX_GAP = 2
+
 #: Gap lengths (frames) at which the single-sensor prediction's error is measured.
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
 
@@ -120,8 +124,8 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
 
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                         face: NDArray[np.bool_], intr: CameraIntrinsics,
-                        fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None
-                        ) -> NDArray[np.float32]:
+                        fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None,
+                        max_gap: int = MAX_GAP) -> NDArray[np.float32]:
     """Put every single-sensor face sample on its ray nearest the prediction from both
     sides; return their sigmas.
 
@@ -149,6 +153,11 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     nb = neighbours(X, tri) if nb is None else nb
     pred, gap = neighbour_prediction(X, tri, nb=nb)
+    # far from both sides the tracker's own placement (its elastic prediction, frame by
+    # frame) is kept, only moved onto the ray of the fitted cameras
+    old = o["positions"].astype(np.float64)
+    far = ~((gap >= 0) & (gap <= max_gap)) & np.isfinite(old).all(-1)
+    pred[far] = old[far]
     f, p = np.nonzero(single & np.isfinite(pred).all(-1))
     if f.size:
         cam = np.argmax(has[f, p], axis=1)
