@@ -22,6 +22,8 @@ from carapost.algorithms.codes import (
     blank_point_array,
 )
 from carapost.algorithms.depth_prior import sample_covariance, smooth_along_uncertainty
+from carapost.algorithms.neighbour_prior import deformation_sigma, fuse, patch_prediction
+from carapost.algorithms.single_sensor import neighbours
 from carapost.algorithms.tracking.identity import (
     absorb,
     drop_isolated,
@@ -32,6 +34,7 @@ from carapost.algorithms.tracking.identity import (
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
+from carapost.algorithms.tracking.time_checks import place_single_sensor, reject_by_motion
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
     brim_pose_covariance,
@@ -250,7 +253,8 @@ def track_take(
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
                             merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
-                                                  _outlier_target_px(params)))
+                                                  _outlier_target_px(params),
+                                                  params.allow_single_sensor_tracking))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -287,13 +291,14 @@ def track_take(
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
                         merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
-                                                  _outlier_target_px(params)))
+                                                  _outlier_target_px(params),
+                                                  params.allow_single_sensor_tracking))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 windows: tuple[int, int, float]) -> TrackResult:
+                 windows: tuple[int, int, float, bool]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -307,10 +312,14 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        kept), triangulate the face samples again with them, estimate each
        triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
        prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
-       of the pose fit and of the depth prior and the target reprojection error (px) of
-       the outlier rejection. The sigma is that of the result, plus what no fit over
-       time removes: each point's excess noise (its noise factor) and the cameras' pose
-       error from the brim (:func:`sample_sigma`).
+       of the pose fit and of the depth prior, the target reprojection error (px) of
+       the outlier rejection and whether single-sensor samples are allowed. The sigma
+       is that of the result, plus what no fit over time removes: each point's excess
+       noise (its noise factor) and the cameras' pose error from the brim
+       (:func:`sample_sigma`). Between the re-solve and the sigma, the checks of
+       :mod:`carapost.algorithms.tracking.time_checks` run, and the depth prior from
+       the neighbours (:mod:`carapost.algorithms.neighbour_prior`) follows the one
+       from time.
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -351,7 +360,8 @@ def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrins
 
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
-                    window: int, depth_window: int = 0, target_px: float = 0.0
+                    window: int, depth_window: int = 0, target_px: float = 0.0,
+                    single_sensor: bool = True
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -386,6 +396,17 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             ok = redo & np.isfinite(X).all(-1)
         o["positions"][ok] = X[ok].astype(o["positions"].dtype)
         o["residual"][ok] = res[ok].astype(o["residual"].dtype)
+        # wrong observations the motion contradicts, then single-sensor samples from
+        # both sides (docs/algorithms.md, "Wrong observations and single-sensor depth")
+        Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+        nb = neighbours(Xt, tri)
+        reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
+        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
+        tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+        obs = o["obs"].astype(np.float64)
+    else:
+        single_sigma = np.full(tri.shape, np.nan, np.float32)
+        nb = None
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     noise = noise_from_residuals(obs_t, X, R, t, intr)
@@ -393,8 +414,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     brim = ~face
     pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
     if depth_window < 5 or len(R) < 5 or not tri.any():
-        return R, t, sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                                  point_factor=phi)
+        sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
+                             point_factor=phi).astype(np.float32)
+        return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
     # the depth prior from time: one-caddy depth follows the smooth track, well-seen
     # directions keep their measurement (docs/algorithms.md). It reduces only the error
     # that changes from frame to frame (the cameras' 2D noise, up to each point's own
@@ -408,10 +430,17 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     sigma = np.full((F, P), np.nan, dtype=np.float32)
     # a few points at a time: the covariances of a long take would not fit in memory
     step = max(1, 500_000 // max(F, 1))
+    # the neighbours' prediction: a prior for depths that time alone leaves poor
+    pred = patch_prediction(X, tri, neighbours(X, tri) if nb is None else nb)
     for p0 in range(0, P, step):
         ps = slice(p0, p0 + step)
         cov = sample_covariance(X[:, ps], obs_t[:, ps], R, t, intr, noise)
         Xs, cov = smooth_along_uncertainty(X[:, ps], cov, depth_window)
+        tau = deformation_sigma(Xs, pred[:, ps], cov, tri[:, ps])
+        # the sigma stays that of the track alone: the prediction shares the point's
+        # own offsets and its neighbours' errors, so the product of the two
+        # covariances would promise more than the fused sample keeps
+        Xs, _ = fuse(Xs, cov, pred[:, ps], tau, tri[:, ps])
         moved = tri[:, ps] & ~fixed[:, None] & np.isfinite(Xs).all(-1)
         block = o["positions"][:, ps]
         block[moved] = Xs[moved].astype(block.dtype)
@@ -419,7 +448,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
         sigma[:, ps] = np.sqrt(var)
     sigma[~np.isfinite(X).all(-1)] = np.nan
-    return R, t, sigma
+    return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
 
 
 def _merge_doubles(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],

@@ -1,0 +1,182 @@
+"""After both passes: wrong observations rejected by the motion, single-sensor samples
+placed again from both sides.
+
+Two steps of :func:`carapost.algorithms.tracking.take.track_take`'s clean-up, run after
+the cameras are fitted over time and the face samples re-solved with them:
+
+1. :func:`reject_by_motion`: an observation far from where the point's neighbours in
+   time (moved with its neighbours on the face) put it, while the sample's other
+   observations agree, is removed (:mod:`carapost.algorithms.temporal_check`); the
+   sample is solved again from the rest, or becomes a single-sensor sample when one
+   camera is left.
+2. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
+   (with the fitted cameras) nearest the prediction from the point's triangulated
+   samples on both sides (:mod:`carapost.algorithms.single_sensor`), with a sigma
+   measured on the take for its distance in time to them.
+
+Shapes: ``F`` frames, ``P`` points, ``C`` cameras; the arrays are a track result's
+(``positions``, ``recon``, ``residual``, ``obs``, ``source``, ``detection``,
+``quality``), changed in place.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.codes import (
+    POINT_FILLS,
+    RECON_NONE,
+    RECON_SINGLE_SENSOR,
+    RECON_TRIANGULATED,
+)
+from carapost.algorithms.single_sensor import (
+    neighbour_prediction,
+    neighbours,
+    place_on_rays,
+    prediction_sigma,
+)
+from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
+from carapost.algorithms.uncertainty import retriangulate
+
+__all__ = ["place_single_sensor", "reject_by_motion"]
+
+#: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
+#: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
+MAX_GAP = 2
+
+#: Gap lengths (frames) at which the single-sensor prediction's error is measured.
+_GAPS = np.array([1, 2, 4, 8, 16, 32])
+
+
+def _detach(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
+    """Remove the (F, P, C) ``drop`` observations from the arrays (not keyframes)."""
+    for k in ("obs", "source", "detection", "quality"):
+        o[k][drop] = POINT_FILLS[k]
+
+
+def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
+                     face: NDArray[np.bool_], intr: CameraIntrinsics,
+                     fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None, *,
+                     single_sensor: bool = True) -> int:
+    """Remove the observations the point's motion contradicts; solve those samples again.
+
+    Parameters
+    ----------
+    o : dict of arrays
+        The track result's arrays (changed in place).
+    R, t : ndarray, shapes (F, C, 3, 3) and (F, C, 3)
+        The cameras (fitted over time).
+    face : ndarray of bool, shape (P,)
+    intr : CameraIntrinsics
+    fixed : ndarray of bool, shape (F,)
+        Frames left alone (the initialised frame).
+    nb : ndarray of int, shape (P, k), optional
+        Each point's neighbours (:func:`carapost.algorithms.single_sensor.neighbours`),
+        when already known.
+    single_sensor : bool
+        A sample left with one camera becomes a single-sensor sample (else a gap, as the
+        tracker does when single sensor tracking is off).
+
+    Returns
+    -------
+    int
+        Observations removed.
+    """
+    tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+    if tri.sum() < 10:
+        return 0
+    X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+    nb = neighbours(X, tri) if nb is None else nb
+    obs = o["obs"].astype(np.float64)
+    # a wrong sample spoils the predictions of its neighbours in time (it is their
+    # reference): predict again without the suspects until the set no longer changes
+    suspect = np.zeros(tri.shape, bool)
+    for _ in range(3):
+        pred = loo_prediction(X, tri & ~suspect, nb)
+        flag = inconsistent_observations(obs, pred, R, t, intr, tri & ~fixed[:, None])
+        now = flag.any(-1)
+        if np.array_equal(now, suspect):
+            break
+        suspect = now
+    n = int(flag.sum())
+    if n == 0:
+        return 0
+    _detach(o, flag)
+    obs[flag] = np.nan
+    redo = flag.any(-1)
+    left = np.isfinite(obs).all(-1).sum(-1)
+    Xn, res = retriangulate(obs, R, t, intr, redo & (left >= 2))
+    ok = redo & (left >= 2) & np.isfinite(Xn).all(-1)
+    o["positions"][ok] = Xn[ok].astype(o["positions"].dtype)
+    o["residual"][ok] = res[ok].astype(o["residual"].dtype)
+    # one camera left: placed on its ray by `place_single_sensor` (or a gap)
+    if single_sensor:
+        o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
+    lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
+    o["recon"][lost] = RECON_NONE
+    o["positions"][lost] = np.nan
+    return n
+
+
+def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
+                        face: NDArray[np.bool_], intr: CameraIntrinsics,
+                        fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None,
+                        max_gap: int = MAX_GAP) -> NDArray[np.float32]:
+    """Put every single-sensor face sample on its ray nearest the prediction from both
+    sides; return their sigmas.
+
+    Parameters
+    ----------
+    o, R, t, face, intr, fixed, nb
+        As for :func:`reject_by_motion`.
+
+    Returns
+    -------
+    ndarray, shape (F, P), float32
+        Sigma (mm) of each single-sensor sample: the error of the prediction along the
+        ray measured on the take for its distance in time to the triangulated samples
+        (:func:`prediction_sigma`); NaN elsewhere.
+    """
+    F, P = o["recon"].shape
+    sigma = np.full((F, P), np.nan, np.float32)
+    obs = o["obs"].astype(np.float64)
+    has = np.isfinite(obs).all(-1)
+    single = (o["recon"] == RECON_SINGLE_SENSOR) & face[None, :] & (has.sum(-1) == 1)
+    single &= ~fixed[:, None]
+    tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+    if not single.any() or tri.sum() < 10:
+        return sigma
+    X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+    nb = neighbours(X, tri) if nb is None else nb
+    pred, gap = neighbour_prediction(X, tri, nb=nb)
+    # far from both sides the tracker's own placement (its elastic prediction, frame by
+    # frame) is kept, only moved onto the ray of the fitted cameras
+    old = o["positions"].astype(np.float64)
+    far = ~((gap >= 0) & (gap <= max_gap)) & np.isfinite(old).all(-1)
+    pred[far] = old[far]
+    f, p = np.nonzero(single & np.isfinite(pred).all(-1))
+    if f.size:
+        cam = np.argmax(has[f, p], axis=1)
+        Xs, dist, _ = place_on_rays(pred[f, p], obs[f, p, cam], R[f], t[f], intr, cam)
+        ok = np.isfinite(Xs).all(-1)
+        f, p, Xs, dist = f[ok], p[ok], Xs[ok], dist[ok]
+        o["positions"][f, p] = Xs.astype(o["positions"].dtype)
+        o["residual"][f, p] = dist.astype(o["residual"].dtype)
+    # the sigma: the prediction's error measured on the take at that distance in time
+    # (interpolated between the measured gaps, the longest one beyond)
+    curve = prediction_sigma(X, tri, nb, _GAPS)  # (P, G)
+    good = np.isfinite(curve)
+    if good.any():
+        curve = np.maximum.accumulate(np.where(good, curve, 0.0), axis=1)
+        fs, ps = np.nonzero(single)
+        g = np.where(gap[fs, ps] > 0, gap[fs, ps], _GAPS[-1]).astype(np.float64)
+        # piecewise linear in the gap per point (the longest measured one beyond)
+        j = np.clip(np.searchsorted(_GAPS, g) - 1, 0, _GAPS.size - 2)
+        w = np.clip((g - _GAPS[j]) / (_GAPS[j + 1] - _GAPS[j]), 0.0, 1.0)
+        val = curve[ps, j] * (1 - w) + curve[ps, j + 1] * w
+        sigma[fs, ps] = val.astype(np.float32)
+    return sigma
