@@ -22,7 +22,7 @@ from carapost.synth.scene import SynthConfig
 __all__ = ["HELD_OUT_VARIANTS", "TUNING_VARIANTS", "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
-TUNING_VARIANTS = (1, 2, 3)
+TUNING_VARIANTS = (1, 2, 3, 4, 5)
 #: Indices of the takes that are only scored, never tuned on.
 HELD_OUT_VARIANTS = (101, 102, 103, 104)
 
