@@ -38,7 +38,8 @@ Prints JSON lines:
   pooled over the takes (``take: "pooled"``); the calibration also per number of
   cameras that observed the sample (groups ``cameras_2``, ``cameras_3``, ``cameras_4``).
   ``--variety-set heldout`` (the default) scores the held-out takes, never used to tune;
-  ``tuning`` the development ones.
+  ``fresh`` the second held-out set (``FRESH_HELD_OUT_VARIANTS``); ``tuning`` the
+  development ones.
 """
 
 from __future__ import annotations
@@ -250,9 +251,15 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
     from carapost.pipeline import process_take
     from carapost.synth import generate_take
     from carapost.synth.scoring import GROUPS, group_quality
-    from carapost.synth.variety import HELD_OUT_VARIANTS, TUNING_VARIANTS, other_rig_config
+    from carapost.synth.variety import (
+        FRESH_HELD_OUT_VARIANTS,
+        HELD_OUT_VARIANTS,
+        TUNING_VARIANTS,
+        other_rig_config,
+    )
 
-    indices = HELD_OUT_VARIANTS if which == "heldout" else TUNING_VARIANTS
+    indices = {"heldout": HELD_OUT_VARIANTS, "fresh": FRESH_HELD_OUT_VARIANTS,
+               "tuning": TUNING_VARIANTS}[which]
     pooled: dict[str, list] = {g: [] for g in GROUPS}
     by_cams: dict[int, list] = {}
     totals = {"swaps": 0, "spurious": 0}
@@ -407,7 +414,8 @@ def main(argv: list[str] | None = None) -> int:
                          "sparse35,back (truth-derived detections, --frames frames)")
     ap.add_argument("--variety", action="store_true",
                     help="render, process and score takes of another renderer")
-    ap.add_argument("--variety-set", choices=("heldout", "tuning"), default="heldout")
+    ap.add_argument("--variety-set", choices=("heldout", "fresh", "tuning"),
+                    default="heldout")
     ap.add_argument("--variety-frames", type=int, default=120)
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) /

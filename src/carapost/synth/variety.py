@@ -8,9 +8,11 @@ one caddy only), more rig flex (up to ~0.3 mm) and helmet slip, other noise and 
 drawn rig variant (camera aims, lenses, brim layout). Every random choice comes from
 the index, so a take is reproducible from it.
 
-Two disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
-developing the tracker, and `HELD_OUT_VARIANTS`, takes that are only ever scored
-(``benchmarks/tracking.py --variety``) and never used to choose a parameter.
+Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
+developing the tracker, and `HELD_OUT_VARIANTS` and `FRESH_HELD_OUT_VARIANTS`, takes
+that are only ever scored (``benchmarks/tracking.py --variety``) and never used to
+choose a parameter; the fresh set was fixed before any of its takes was rendered, and
+scored once, for a figure no earlier tuning has seen.
 """
 
 from __future__ import annotations
@@ -19,12 +21,15 @@ import numpy as np
 
 from carapost.synth.scene import SynthConfig
 
-__all__ = ["HELD_OUT_VARIANTS", "TUNING_VARIANTS", "other_rig_config"]
+__all__ = ["FRESH_HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS", "TUNING_VARIANTS",
+           "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
 TUNING_VARIANTS = (1, 2, 3, 4, 5)
 #: Indices of the takes that are only scored, never tuned on.
 HELD_OUT_VARIANTS = (101, 102, 103, 104)
+#: A second set of held-out takes (blink, fast, speech, dense speech, like 101-104).
+FRESH_HELD_OUT_VARIANTS = (301, 302, 303, 304)
 
 _PRESETS = ("speech", "blink", "fast", "speech")
 
