@@ -38,7 +38,8 @@ Prints JSON lines:
   pooled over the takes (``take: "pooled"``); the calibration also per number of
   cameras that observed the sample (groups ``cameras_2``, ``cameras_3``, ``cameras_4``).
   ``--variety-set heldout`` (the default) scores the held-out takes, never used to tune;
-  ``heldout2`` the second held-out set; ``tuning`` the development ones.
+  ``heldout2`` and ``heldout3`` the second and third held-out sets; ``tuning`` the
+  development ones.
 """
 
 from __future__ import annotations
@@ -253,11 +254,13 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
     from carapost.synth.variety import (
         HELD_OUT_VARIANTS,
         HELD_OUT_VARIANTS_2,
+        HELD_OUT_VARIANTS_3,
         TUNING_VARIANTS,
         other_rig_config,
     )
 
     indices = {"heldout": HELD_OUT_VARIANTS, "heldout2": HELD_OUT_VARIANTS_2,
+               "heldout3": HELD_OUT_VARIANTS_3,
                "tuning": TUNING_VARIANTS}[which]
     pooled: dict[str, list] = {g: [] for g in GROUPS}
     by_cams: dict[int, list] = {}
@@ -413,7 +416,8 @@ def main(argv: list[str] | None = None) -> int:
                          "sparse35,back (truth-derived detections, --frames frames)")
     ap.add_argument("--variety", action="store_true",
                     help="render, process and score takes of another renderer")
-    ap.add_argument("--variety-set", choices=("heldout", "heldout2", "tuning"),
+    ap.add_argument("--variety-set",
+                    choices=("heldout", "heldout2", "heldout3", "tuning"),
                     default="heldout")
     ap.add_argument("--variety-frames", type=int, default=120)
     ap.add_argument("--skip-speed", action="store_true")

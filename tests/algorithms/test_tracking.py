@@ -790,3 +790,45 @@ def test_biased_blob_of_a_resuming_camera_does_not_move_a_one_camera_point(shift
     err = np.linalg.norm(pos[later] - scene.points3d[rows[later], m], axis=-1)
     assert np.isfinite(err).mean() > 0.8
     assert np.nanmax(err) < 1.0
+
+
+def test_stitch_takes_the_found_piece_over_a_ghost_of_the_earlier_point():
+    # A marker lost at frame 25 is found again as a new point from frame 30 to 87; the
+    # lost point was revived meanwhile on a ghost 8 mm off (frames 40-60) and later back
+    # on its marker (90-119). The two pieces disagree where both exist, but the found
+    # piece keeps to the marker: it replaces the ghost and the marker is one point.
+    from carapost.algorithms.codes import (
+        KIND_FACE,
+        POINT_FILLS,
+        RECON_TRIANGULATED,
+        blank_point_array,
+    )
+    from carapost.algorithms.tracking.identity import stitch
+
+    rng = np.random.default_rng(3)
+    F, C = 120, 4
+    gx, gy = np.meshgrid(np.arange(5) * 10.0, np.arange(5) * 10.0)
+    grid = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(25)])
+    marker = 12  # the centre of the grid
+    t = np.arange(F)[:, None]
+    motion = np.stack([2.0 * np.sin(t / 15.0), 1.5 * np.cos(t / 20.0), 0.5 * t / F], -1)
+    truth = grid[None] + motion + rng.normal(0, 0.02, (F, 25, 3))
+    n = 25 + 1  # the last column: the piece found at frame 30
+    A = {k: blank_point_array(k, F, n, C) for k in POINT_FILLS}
+    X = truth.copy()
+    X[26:40, marker] = np.nan
+    X[40:61, marker] = truth[40:61, marker] + [8.0, 0.0, 0.0]  # the ghost
+    X[61:90, marker] = np.nan
+    found = np.full((F, 3), np.nan)
+    found[30:88] = truth[30:88, marker]
+    A["positions"][:] = np.concatenate([X, found[:, None]], axis=1)
+    A["recon"][:] = np.where(np.isfinite(A["positions"][..., 0]), RECON_TRIANGULATED, 0)
+    kind = np.full(n, KIND_FACE, np.int8)
+    keep = np.ones(n, bool)
+    stitch(A, kind, keep, 25, 1.0)
+    assert not keep[25]
+    got = A["positions"][:, marker].astype(np.float64)
+    err = np.linalg.norm(got - truth[:, marker], axis=-1)
+    on = np.isfinite(err)
+    assert on[:26].all() and on[30:88].all() and on[90:].all()
+    assert err[on].max() < 0.2  # the ghost is gone

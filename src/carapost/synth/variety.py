@@ -9,10 +9,11 @@ drawn rig variant (camera aims, lenses, brim layout). Every random choice comes 
 the index, so a take is reproducible from it.
 
 Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
-developing the tracker, and `HELD_OUT_VARIANTS` and `HELD_OUT_VARIANTS_2`, takes that are
-only ever scored (``benchmarks/tracking.py --variety``) and never used to choose a
-parameter; the second set was declared before any of its takes was rendered or looked
-at, for a score untouched by every earlier round of tuning.
+developing the tracker, and `HELD_OUT_VARIANTS`, `HELD_OUT_VARIANTS_2` and
+`HELD_OUT_VARIANTS_3`, takes that are only ever scored (``benchmarks/tracking.py
+--variety``) and never used to choose a parameter; the second and third sets were each
+declared before any of their takes was rendered, and scored once, for figures untouched
+by every earlier round of tuning.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 
 from carapost.synth.scene import SynthConfig
 
-__all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "TUNING_VARIANTS", "other_rig_config"]
+__all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "HELD_OUT_VARIANTS_3",
+           "TUNING_VARIANTS", "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
 TUNING_VARIANTS = (1, 2, 3, 4, 5)
@@ -29,6 +31,9 @@ TUNING_VARIANTS = (1, 2, 3, 4, 5)
 HELD_OUT_VARIANTS = (101, 102, 103, 104)
 #: A second held-out set, scored once (never rendered while developing).
 HELD_OUT_VARIANTS_2 = (201, 202, 203, 204)
+#: A third held-out set (blink, fast, speech, dense speech, like 101-104), declared
+#: before any was rendered.
+HELD_OUT_VARIANTS_3 = (301, 302, 303, 304)
 
 _PRESETS = ("speech", "blink", "fast", "speech")
 

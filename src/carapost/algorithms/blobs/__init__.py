@@ -23,7 +23,8 @@ candidates; there is no Python loop per pixel or blob:
    ellipse is the local background, which removes shading gradients; each pixel's
    coverage is its contrast over the plane divided by the full paint contrast there
    (the core's, scaled by the light at that pixel), clipped to 0-1, inside the seed
-   ellipse grown by 1.5 px. Its centroid is the sub-pixel centre
+   ellipse grown by 1.5 px. Its centroid (leaving out the faintest coverage, the blur
+   tail at the support's edge and the skin's noise) is the sub-pixel centre
    and its second moments the ellipse (``a = 2 sqrt(lambda_1)``). Seeds larger than
    ~12 px are refined on a reduced copy (moments survive area reduction). A compiled
    kernel (numba) visits each seed's support and ring pixels once per pass; the numpy

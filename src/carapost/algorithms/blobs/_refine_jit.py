@@ -70,16 +70,18 @@ def _solve_plane(m: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> None:  # pr
 
 @numba.njit(cache=True, nogil=True)
 def refine_sums(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, c, s, zero,
-                core_fraction):  # pragma: no cover - jit
+                core_fraction, dead):  # pragma: no cover - jit
     """The sums of :func:`~carapost.algorithms.blobs.refine.refine_patches` (same order
     and meaning) for all seeds, one seed at a time, visiting only the pixels of its
     support and ring (compiled).
 
     ``rad`` is the half-width of the square around (xi, yi) searched for them (px);
-    ``core_fraction`` is ``refine.CORE_FRACTION``.
+    ``core_fraction`` is ``refine.CORE_FRACTION``; ``dead`` is the coverage below which
+    a pixel does not count in the centre sums (``refine.CENTRE_DEAD_ZONE``).
     """
     n = xi.size
-    out = np.zeros((n, 18))
+    out = np.zeros((n, 21))
+    span = 1.0 - 2.0 * dead
     cap = int(2 * rad.max() + 1) ** 2 if n else 1
     px = np.empty(cap)
     py = np.empty(cap)
@@ -169,6 +171,10 @@ def refine_sums(d, lw, lh, lb, sigma, rad, xi, yi, dx, dy, ai, bi, ao, bo, c, s,
                 o[3] += cov * x * x
                 o[4] += cov * y * y
                 o[5] += cov * x * y
+                wc = min(max((cov - dead) / span, 0.0), 1.0)
+                o[18] += wc
+                o[19] += wc * x
+                o[20] += wc * y
                 if above:
                     o[6] += 1.0
                     o[7] += x

@@ -214,6 +214,16 @@ def absorb(A: dict[str, NDArray[Any]], X: NDArray[np.float64], o: int, q: int) -
     X[gap, o] = X[gap, q]
 
 
+def replace_with(A: dict[str, NDArray[Any]], X: NDArray[np.float64], o: int, q: int
+                 ) -> None:
+    """Give point ``o`` point ``q``'s data in every frame where ``q`` has some (``o``'s
+    own data there is dropped)."""
+    has = np.isfinite(X[:, q]).all(-1)
+    for k in A:
+        A[k][has, o] = A[k][has, q]
+    X[has, o] = X[has, q]
+
+
 def stitch(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.bool_],
             P: int, merge_mm: float) -> None:
     """Join found points that are pieces of an earlier point's marker.
@@ -222,7 +232,9 @@ def stitch(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.
     coexist, so their distance cannot be compared. A found point joins an earlier one
     whose typical position is within half the marker spacing when, wherever both exist,
     they agree within ``merge_mm``, and the joined track has no hop relative to the
-    neighbours' motion (:func:`hop_segments`), i.e. continues on the same marker.
+    neighbours' motion (:func:`hop_segments`), i.e. continues on the same marker. Where
+    both exist and disagree, the found point's frames are taken instead of the earlier
+    point's (which was then off its marker), if that joined track has no hop.
     """
     X = A["positions"].astype(np.float64)
     X = np.where((A["recon"] == RECON_TRIANGULATED)[..., None], X, np.nan)
@@ -250,10 +262,16 @@ def stitch(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.
         order = np.argsort(dr)
         for o in others[order[dr[order] <= gate][:3]]:
             both = np.isfinite(X[:, o, 0]) & np.isfinite(X[:, q, 0])
-            if both.any() and np.median(np.linalg.norm(X[both, o] - X[both, q], axis=-1)) \
-                    > merge_mm:
-                continue
-            comb = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
+            # Where both exist and disagree, one of them is off its marker there (a lost
+            # point revived on a ghost of wrong matches while the marker was found
+            # again as a new point): the found piece is tried first in those frames,
+            # and the joined track must still keep to the marker (the hop test below).
+            over = bool(both.any()) and float(
+                np.median(np.linalg.norm(X[both, o] - X[both, q], axis=-1))) > merge_mm
+            if over:
+                comb = np.where(np.isfinite(X[:, q]), X[:, q], X[:, o])
+            else:
+                comb = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
             # the nearest other markers (pieces of this one excluded) as references
             dd, jj = tree.query(rest[o], k=kq)
             nbp = base[jj]
@@ -270,8 +288,12 @@ def stitch(A: dict[str, NDArray[Any]], kind: NDArray[np.int8], keep: NDArray[np.
             g = hop_segments(loc, nb, w, gate, rows=[0])[:, 0]
             # a few isolated frames off (noisy first frames of a piece) are cleared later
             if (g > 0).sum() <= 0.02 * (g >= 0).sum():
-                absorb(A, Xall, o, q)
-                X[:, o] = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
+                if over:
+                    replace_with(A, Xall, o, q)
+                    X[:, o] = np.where(np.isfinite(X[:, q]), X[:, q], X[:, o])
+                else:
+                    absorb(A, Xall, o, q)
+                    X[:, o] = np.where(np.isfinite(X[:, o]), X[:, o], X[:, q])
                 keep[q] = False
                 break
 
