@@ -603,12 +603,14 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
                 n = min(int(workers or os.cpu_count() or 1), len(todo))
                 own = _local_cluster(n, wait=False)  # waited for once the takes are queued
                 client = own[1]
-                n_workers = n  # the first is up; the others join while takes run
+                n_workers = n  # they join while the takes are queued
             else:
                 n_workers = len(client.scheduler_info().get("workers", {}))
             _run_tasks(client, tasks, _longest_first(tasks, todo), settings, outdir,
                        manifest, rows, state, retries, task, progress, started,
                        first_worker=own is not None)
+            # every take has ended: the report is written before the cluster is shut down
+            rep = report()
         except KeyboardInterrupt:
             log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
                         state["failed"], len(todo))
@@ -621,7 +623,7 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
             raise
         finally:
             _close(own)
-        return report()
+        return rep
     finally:
         os.close(lock)  # closing releases the lock
 
