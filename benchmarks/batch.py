@@ -17,11 +17,19 @@ Metrics (one JSON object per line):
   fork server they are forked from is stopped and waited for at the end of each batch);
 - with each ``batch_takes_per_min``: ``take_s_median`` / ``take_cpu_s_median``, the
   wall and CPU seconds of one take on its worker (from the report), and ``fixed_s``, the
-  batch's wall time that is not its takes (start-up, scheduling, shutdown).
+  batch's wall time that is not its takes (start-up, scheduling, shutdown); where it
+  goes: ``first_take_s`` (from the call of `run` to the first take starting on a
+  worker), ``tail_s`` (from the last take's end to `run` returning) and
+  ``imbalance_s`` (the rest: workers idle while another still runs a take, and takes
+  started late); and the CPU by process: ``driver_cpu_s`` (the calling process: finding
+  and hashing the takes, the scheduler, the nannies, the client; also ``driver_cpu_frac``,
+  its share of a core while the takes run) and ``workers_cpu_s`` (the fork server and
+  the workers, takes included).
 
 Usage: ``python benchmarks/batch.py [--takes 6] [--frames 40] [--repeats 2]``.
-Medians over the repeats; the configurations are interleaved so that a change of the
-machine's load hits all of them alike.
+Medians over the repeats; the configurations are interleaved, in alternating order
+(1 then 2 workers, then 2 then 1), so that a change of the machine's load hits all of
+them alike.
 """
 
 from __future__ import annotations
@@ -73,14 +81,34 @@ def direct(takes: list[Path], out: Path) -> tuple[float, float, list[float]]:
 def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float, dict]:
     """`carapost.batch.run` in a fresh process (so its CPU time is measurable): wall s,
     CPU s of the driver and its workers, and the per-take figures of its report (wall
-    and CPU seconds of each take on its worker)."""
-    code = ("import sys, json, time, resource\n"
-            "from carapost.batch import run\n"
+    and CPU seconds of each take on its worker) with the timeline of the batch (when
+    the first take started and the last ended, from a wrapper of the per-take task that
+    appends its times to a file) and the CPU of the driver and of its workers."""
+    times = out.parent / f"{out.name}.times.jsonl"
+    times.unlink(missing_ok=True)
+    code = ("import sys, json, os, time, resource\n"
+            "from carapost.batch import process_one, run\n"
+            "def timed(take, outputs, settings):\n"
+            "    start = time.time()\n"
+            "    row = process_one(take, outputs, settings)\n"
+            f"    with open({str(times)!r}, 'a') as f:\n"
+            "        f.write(json.dumps([start, time.time()]) + '\\n')\n"
+            "    return row\n"
+            "def cpu(who):\n"
+            "    r = resource.getrusage(who)\n"
+            "    return r.ru_utime + r.ru_stime\n"
+            "ticks = []\n"
+            "def progress(state):\n"  # the driver's CPU as each take ends
+            "    if state['done'] + state['failed']:\n"
+            "        ticks.append((time.perf_counter(), time.process_time()))\n"
             "if __name__ == '__main__':\n"
+            "    t0 = time.time()\n"
             "    t = time.perf_counter()\n"
             f"    rep = run({[str(t) for t in takes]!r}, {str(out)!r}, workers={workers},"
-            " force=True)\n"
+            " force=True, task=timed, progress=progress)\n"
             "    wall = time.perf_counter() - t\n"
+            "    t1 = time.time()\n"
+            "    driver_cpu = cpu(resource.RUSAGE_SELF)\n"
             "    assert rep['summary']['done'] == len(rep['takes']), rep['takes']\n"
             # the workers are children of the fork server: stop it and wait for it, so
             # that their CPU time reaches this process's children's (private API,
@@ -89,8 +117,14 @@ def batch(takes: list[Path], out: Path, workers: int) -> tuple[float, float, dic
             "    if getattr(forkserver._forkserver, '_forkserver_pid', None):\n"
             "        forkserver._forkserver._stop()\n"
             "    rows = rep['takes']\n"
+            f"    spans = [json.loads(line) for line in open({str(times)!r})]\n"
             "    print(json.dumps({'wall': wall, 'take_s': [r['seconds'] for r in rows],"
-            " 'take_cpu_s': [r['cpu_seconds'] for r in rows]}))\n")
+            " 'take_cpu_s': [r['cpu_seconds'] for r in rows],"
+            " 'first_take_s': min(s for s, _ in spans) - t0,"
+            " 'last_take_end_s': max(e for _, e in spans) - t0,"
+            " 'tail_s': t1 - max(e for _, e in spans),"
+            " 'driver_cpu_frac': (ticks[-1][1] - ticks[0][1]) / (ticks[-1][0] - ticks[0][0]),"
+            " 'driver_cpu_s': driver_cpu, 'workers_cpu_s': cpu(resource.RUSAGE_CHILDREN)}))\n")
     c0 = _children_cpu()
     res = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
                          text=True)
@@ -115,17 +149,28 @@ def main() -> None:
         per_take: list[float] = []
         take_s: dict[str, list[float]] = {"1": [], "2": []}
         take_cpu: dict[str, list[float]] = {"1": [], "2": []}
-        for _ in range(args.repeats):
+        # per batch: first_take_s, tail_s, driver_cpu_s, workers_cpu_s, driver_cpu_frac
+        parts: dict[str, dict[str, list[float]]] = {"1": {}, "2": {}}
+        for r in range(args.repeats):
             w, c, per = direct(takes, root / "direct")
             walls["direct"].append(w)
             cpus["direct"].append(c)
             per_take.extend(per)
-            for n in (1, 2):
+            for n in ((1, 2) if r % 2 == 0 else (2, 1)):
                 w, c, rep = batch(takes, root / f"batch{n}", n)
                 walls[str(n)].append(w)
                 cpus[str(n)].append(c)
                 take_s[str(n)].extend(rep["take_s"])
                 take_cpu[str(n)].extend(rep["take_cpu_s"])
+                p = parts[str(n)]
+                running = rep["last_take_end_s"] - rep["first_take_s"]
+                for key, value in (("first_take_s", rep["first_take_s"]),
+                                   ("tail_s", rep["tail_s"]),
+                                   ("imbalance_s", running - sum(rep["take_s"]) / n),
+                                   ("driver_cpu_s", rep["driver_cpu_s"]),
+                                   ("driver_cpu_frac", rep["driver_cpu_frac"]),
+                                   ("workers_cpu_s", rep["workers_cpu_s"])):
+                    p.setdefault(key, []).append(value)
     med = {k: statistics.median(v) for k, v in walls.items()}
     cpu = {k: statistics.median(v) for k, v in cpus.items()}
     n = args.takes
@@ -143,6 +188,7 @@ def main() -> None:
            "take_cpu_s_median": round(statistics.median(take_cpu[k]), 3),
            # what is not the takes: start-up, scheduling, shutdown (wall)
            "fixed_s": round(med[k] - sum(take_s[k]) / args.repeats / int(k), 2),
+           **{key: round(statistics.median(v), 3) for key, v in parts[k].items()},
            **common} for k in ("1", "2")),
         {"metric": "batch_scaling_2w", "value": round(med["1"] / med["2"], 3),
          "unit": "ratio", "target": 1.7, **common},

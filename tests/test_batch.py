@@ -23,6 +23,7 @@ from carapost.batch import (
     read_manifest,
     run,
 )
+from carapost.batch_cluster import LOCAL_CLUSTER_CONFIG
 from carapost.cli import main
 from tests.small_takes import copy_take, render_take
 
@@ -59,12 +60,14 @@ def client():
 def _worker_state() -> dict:
     import sys
 
+    import dask
     import numba
 
     return {"pipeline": "carapost.pipeline" in sys.modules and "scipy.signal" in sys.modules,
             "threads": (os.environ.get("OMP_NUM_THREADS"),
                         os.environ.get("OPENBLAS_NUM_THREADS"),
-                        numba.config.NUMBA_NUM_THREADS)}
+                        numba.config.NUMBA_NUM_THREADS),
+            "config": {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG}}
 
 
 def test_workers_start_with_the_pipeline_imported_and_one_thread_each(client):
@@ -76,6 +79,18 @@ def test_workers_start_with_the_pipeline_imported_and_one_thread_each(client):
         # numba thread (unless a detector pool of an earlier test started the program's
         # fork server first: then numba keeps its own count; no kernel is parallel)
         assert (s["pipeline"] and s["threads"][2] == 1) or not _FORK_SERVER_IS_OURS
+        # no profiler sampling the take's stack, slow monitors: the settings reached the
+        # worker processes, not only the scheduler's
+        assert s["config"] == LOCAL_CLUSTER_CONFIG
+
+
+def _profiler_running(dask_worker) -> bool:
+    return any(pc.is_running() for name, pc in dask_worker.periodic_callbacks.items()
+               if "profile" in name)
+
+
+def test_workers_keep_no_profiler_running(client):
+    assert set(client.run(_profiler_running).values()) == {False}
 
 
 _FORK_SERVER_IS_OURS = False
@@ -201,6 +216,22 @@ def test_without_retries_a_dead_worker_fails_only_its_take(shoot, client, tmp_pa
     assert rows["Take00"]["status"] == "failed"
     assert "worker running it died 1 time" in rows["Take00"]["error"]
     assert rows["Take01"]["status"] == "done"
+
+
+def test_takes_are_submitted_longest_first(tmp_path):
+    """The biggest takes start first (ties keep the input order), so that a long take
+    does not end the batch alone on one worker."""
+    from carapost.batch import TakeTask, _longest_first
+
+    tasks = []
+    for i, size in enumerate([10, 300, 10, 5000, 300]):
+        f = tmp_path / f"T{i}_cam0.mkv"
+        f.write_bytes(b"x" * size)
+        tasks.append(TakeTask(take=f, name=f"T{i}", outputs={}, files=[f]))
+    tasks.append(TakeTask(take=tmp_path / "gone", name="gone", outputs={},
+                          files=[tmp_path / "gone_cam0.mkv"]))  # unreadable: last
+    assert _longest_first(tasks, [0, 1, 2, 3, 4, 5]) == [3, 1, 4, 0, 2, 5]
+    assert _longest_first(tasks, [2, 0]) == [2, 0]
 
 
 def test_discovery_of_files_folders_and_wildcards(shoot):

@@ -55,6 +55,7 @@ from carapost.batch_cluster import (
     _local_cluster,
     local_cluster,
     start_fork_server,
+    wait_for_first_worker,
 )
 from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
@@ -544,6 +545,12 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
                              fbx=bool(fbx), patch_tracking=bool(patch_tracking),
                              stabilize=stabilize)
     started = time.perf_counter()
+    if client is None and not scheduler:
+        # the fork server imports the take's modules (~1.6 s CPU) on the other core while
+        # this process finds and checks the takes and starts the scheduler: the first
+        # worker is forked from it, so this was the start-up's longest wait. (Bad input
+        # found below leaves it idle; it ends with this program.)
+        start_fork_server()
     tasks = plan(inputs, out, settings)
     outdir = Path(out).absolute()
     own: tuple[Any, ...] | None = None
@@ -594,13 +601,16 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         try:
             if client is None:
                 n = min(int(workers or os.cpu_count() or 1), len(todo))
-                own = _local_cluster(n)
+                own = _local_cluster(n, wait=False)  # waited for once the takes are queued
                 client = own[1]
-                n_workers = n  # the first is up; the others join while takes run
+                n_workers = n  # they join while the takes are queued
             else:
                 n_workers = len(client.scheduler_info().get("workers", {}))
-            _run_tasks(client, tasks, todo, settings, outdir, manifest, rows, state, retries,
-                       task, progress, started)
+            _run_tasks(client, tasks, _longest_first(tasks, todo), settings, outdir,
+                       manifest, rows, state, retries, task, progress, started,
+                       first_worker=own is not None)
+            # every take has ended: the report is written before the cluster is shut down
+            rep = report()
         except KeyboardInterrupt:
             log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
                         state["failed"], len(todo))
@@ -613,12 +623,33 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
             raise
         finally:
             _close(own)
-        return report()
+        return rep
     finally:
         os.close(lock)  # closing releases the lock
 
 
 LOCK_NAME = ".batch.lock"
+
+
+def _longest_first(tasks: list[TakeTask], todo: list[int]) -> list[int]:
+    """``todo`` with the takes of most input bytes first (ties in input order).
+
+    The scheduler hands the takes out in submission order, so the long takes start
+    first and the short ones fill in at the end, instead of one long take finishing
+    alone on one worker while the others are idle (longest processing time first).
+    A take's size (its videos' bytes) stands for its cost; a file that cannot be read
+    counts as empty (its take fails quickly).
+    """
+    def size(i: int) -> int:
+        total = 0
+        for f in tasks[i].files:
+            try:
+                total += sum(n for _, n, _ in _stat_entries(f))
+            except OSError:
+                pass
+        return total
+
+    return sorted(todo, key=lambda i: -size(i))
 
 
 def _lock_outdir(outdir: Path) -> int:
@@ -653,8 +684,11 @@ def _lock_outdir(outdir: Path) -> int:
 def _run_tasks(client: Any, tasks: list[TakeTask], todo: list[int], settings: BatchSettings,
                outdir: Path, manifest: dict[str, Any], rows: dict[int, dict[str, Any]],
                state: dict[str, Any], retries: int, task: Callable[..., dict[str, Any]],
-               progress: BatchProgress | None, started: float) -> None:
-    """Submit the takes, resubmit those whose worker died, record each as it ends."""
+               progress: BatchProgress | None, started: float, first_worker: bool = False
+               ) -> None:
+    """Submit the takes (in the order of ``todo``), resubmit those whose worker died,
+    record each as it ends. ``first_worker``: the cluster is still starting; wait for
+    its first worker (`wait_for_first_worker`) once the takes are queued."""
     from distributed import as_completed
 
     token = os.urandom(4).hex()
@@ -672,6 +706,8 @@ def _run_tasks(client: Any, tasks: list[TakeTask], todo: list[int], settings: Ba
     finished_seconds: list[float] = []
     queue = as_completed(futures, loop=client.loop)
     try:
+        if first_worker:
+            wait_for_first_worker(client)
         for fut in queue:
             i, attempt = meta[fut.key]
             t = tasks[i]

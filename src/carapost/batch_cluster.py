@@ -14,8 +14,8 @@ from typing import Any
 
 log = logging.getLogger("carapost.batch")
 
-__all__ = ["WORKER_PRELOAD", "WORKER_START_TIMEOUT", "WORKER_THREADS_ENV", "local_cluster",
-           "start_fork_server"]
+__all__ = ["LOCAL_CLUSTER_CONFIG", "WORKER_PRELOAD", "WORKER_START_TIMEOUT",
+           "WORKER_THREADS_ENV", "local_cluster", "start_fork_server"]
 
 
 #: Modules a take imports (the pipeline imports its machinery lazily, so that
@@ -33,12 +33,34 @@ WORKER_PRELOAD = (
     "carapost.algorithms.tracking.take", "carapost.algorithms.init3d",
     "carapost.algorithms.bundle", "carapost.algorithms.gapfill",
     "carapost.algorithms.uncertainty", "carapost.algorithms.stabilise_auto",
+    "carapost.algorithms.brim", "carapost.algorithms.cleanup", "carapost.algorithms.labelling",
+    "carapost.algorithms.rom", "carapost.algorithms.spurious",
+    "carapost.algorithms.target_track", "carapost.commands.quality",
+    "carapost.model.properties", "threadpoolctl",
 )
 #: The environment numeric libraries read when they load: one thread each in a worker,
 #: whose parallelism is its neighbours' takes (oversubscribed cores slow every take).
 WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                       "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
                       "VECLIB_MAXIMUM_THREADS": "1", "NUMEXPR_NUM_THREADS": "1"}
+#: Dask settings of the batch's own LocalCluster, beyond those `_local_cluster` needs
+#: for its retries and scheduling. A take is one task of seconds to minutes on a
+#: single-threaded worker, so the machinery Dask keeps for many short tasks only takes
+#: CPU from the takes: with the defaults, a worker running a take used 15-28 % more CPU
+#: than the take's own thread (the statistical profiler sampling the task's stack every
+#: 10 ms, about half of it; the 20 ms event-loop tick and the 0.1-0.5 s system and
+#: memory monitors, the other half), and 3-4 % with these; the scheduler's process
+#: (scheduler and nannies) went from 3.4 % to 0.8 % of a core (docs/benchmarks.md).
+#: Nothing of a batch reads the profiles or the dashboard's fine-grained series; the
+#: memory monitor still stops a worker past its memory limit, within a second.
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    # one take per worker at a time, queued on the scheduler: nothing to steal
+    "distributed.scheduler.work-stealing": False,
+}
 #: Seconds to wait for the first local worker.
 WORKER_START_TIMEOUT = 120.0
 
@@ -88,14 +110,16 @@ def start_fork_server() -> bool:
     return True
 
 
-def _local_cluster(workers: int) -> tuple[Any, Any, Any]:
+def _local_cluster(workers: int, wait: bool = True) -> tuple[Any, Any, Any]:
     """An in-process cluster of single-threaded worker processes.
 
     The workers are forked from a fork server that has already imported the pipeline
     (`start_fork_server`), so a worker is up in a fraction of a second and its first
     take does not pay the imports; where there is no fork server they are spawned. The
     cluster starts with no worker and asks for ``workers``; this returns as soon as the
-    first one has joined, so takes start while the others are still starting.
+    first one has joined (``wait``; else at once: call `wait_for_first_worker` once the
+    takes are submitted, so that the first worker to join starts one without a round
+    trip), and takes start while the others are still starting.
     Returns the cluster, its client and the Dask settings held while it lives (for
     `_close`).
 
@@ -113,7 +137,8 @@ def _local_cluster(workers: int) -> tuple[Any, Any, Any]:
     _quiet_distributed()
     # held while the cluster lives: workers start (and restart) after this returns, and
     # each reads the start method then
-    config = dask.config.set({"distributed.scheduler.allowed-failures": 0,
+    config = dask.config.set({**LOCAL_CLUSTER_CONFIG,
+                              "distributed.scheduler.allowed-failures": 0,
                               "distributed.scheduler.worker-saturation": 1.0,
                               "distributed.worker.multiprocessing-method": _start_method()})
     cluster = client = None
@@ -126,16 +151,36 @@ def _local_cluster(workers: int) -> tuple[Any, Any, Any]:
         cluster.scale(workers)
         _quiet_distributed()
         client = Client(cluster, set_as_default=False)
-        client.wait_for_workers(1, timeout=WORKER_START_TIMEOUT)
+        if wait:
+            wait_for_first_worker(client)
     except BaseException as exc:
         _close((cluster, client, config))
         if isinstance(exc, TimeoutError | OSError):
-            from carapost.batch import BatchError
-
-            raise BatchError(f"no local Dask worker started in {WORKER_START_TIMEOUT:.0f} s "
-                             f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+            raise _no_worker(exc) from None
         raise
     return cluster, client, config
+
+
+def wait_for_first_worker(client: Any) -> None:
+    """Return once a worker has joined the client's cluster.
+
+    Raises
+    ------
+    BatchError
+        None joined within `WORKER_START_TIMEOUT` seconds (the caller closes the
+        cluster).
+    """
+    try:
+        client.wait_for_workers(1, timeout=WORKER_START_TIMEOUT)
+    except (TimeoutError, OSError) as exc:
+        raise _no_worker(exc) from None
+
+
+def _no_worker(exc: BaseException) -> Exception:
+    from carapost.batch import BatchError
+
+    return BatchError(f"no local Dask worker started in {WORKER_START_TIMEOUT:.0f} s "
+                      f"({' '.join(str(exc).split()) or type(exc).__name__})")
 
 
 @contextmanager
