@@ -220,7 +220,7 @@ class AVReader:
             self.n_frames = max(min(index.decodable, index.n_frames), 1)
         rate = self._stream.average_rate or self._stream.guessed_rate
         self.fps = float(rate) if rate else 0.0
-        self.size = (int(self._stream.width), int(self._stream.height))
+        self.size = self._size
 
     def verify(self) -> int:
         """Check that the last frame decodes, dropping trailing frames that do not.
@@ -252,6 +252,13 @@ class AVReader:
             self._container.close()
             raise CaraFileError(self.path, "holds no video stream")
         self._stream = self._container.streams.video[0]
+        try:
+            # A stream of a codec FFmpeg cannot decode has no codec context, so no size.
+            self._size = (int(self._stream.width), int(self._stream.height))
+        except (AttributeError, TypeError, ValueError) as exc:
+            self._container.close()
+            raise CaraFileError(self.path, "holds a video stream that cannot be decoded "
+                                "(unknown codec or damaged header)") from exc
         # A fresh file is positioned at its start: the decode iterator yields frame 0.
         self._frames: Any = self._container.decode(self._stream)
         self._next = 0  # index the iterator yields next (-1: not positioned)
