@@ -501,7 +501,10 @@ class TargetTrackJob(Job):
                                               and tr.limit else res.reason)
             cancelled = cancelled or res.reason == STOP_CANCELLED
             i = index[tr.point]
-            ok = res.tracked
+            # the start frame carries the 2D point the run began from (a keyframe, a
+            # detection or an earlier track): the run did not track it, so it is not
+            # rewritten, and a run lost on its first step changes nothing
+            ok = res.tracked & (res.frames != res.frames[0])
             fr = res.frames[ok] - self.first
             if len(fr):
                 block["obs"][fr, i, tr.camera] = res.xy[ok].astype(np.float32)
