@@ -66,12 +66,16 @@ def cubic6_weights(t: float) -> NDArray[np.float64]:
     >>> round(float(w.sum()), 12), round(float(w @ np.arange(-2, 4)), 12)
     (1.0, 0.37)
     """
-    s = np.abs(np.arange(-MARGIN_BEFORE, MARGIN_AFTER + 1, dtype=np.float64) - t)
-    s2, s3 = s * s, s * s * s
-    return np.where(
-        s < 1, 4.0 / 3.0 * s3 - 7.0 / 3.0 * s2 + 1.0,
-        np.where(s < 2, -7.0 / 12.0 * s3 + 3.0 * s2 - 59.0 / 12.0 * s + 2.5,
-                 np.where(s < 3, s3 / 12.0 - 2.0 / 3.0 * s2 + 1.75 * s - 1.5, 0.0)))
+    # the samples at -2 .. 3 lie at distances 2 + t, 1 + t, t, 1 - t, 2 - t, 3 - t, each
+    # on a fixed piece of the kernel (scalar arithmetic: this runs for every resampling)
+    a, b, c, d, e, f = 2.0 + t, 1.0 + t, t, 1.0 - t, 2.0 - t, 3.0 - t
+    return np.array((
+        ((a / 12.0 - 2.0 / 3.0) * a + 1.75) * a - 1.5,
+        ((-7.0 / 12.0 * b + 3.0) * b - 59.0 / 12.0) * b + 2.5,
+        (4.0 / 3.0 * c - 7.0 / 3.0) * c * c + 1.0,
+        (4.0 / 3.0 * d - 7.0 / 3.0) * d * d + 1.0,
+        ((-7.0 / 12.0 * e + 3.0) * e - 59.0 / 12.0) * e + 2.5,
+        ((f / 12.0 - 2.0 / 3.0) * f + 1.75) * f - 1.5))
 
 
 def shift_patch(crop: NDArray[np.float64], x: float, y: float, size: int
