@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
+from carapost.algorithms.target_identity import first_step as _assigned_step
 from carapost.algorithms.target_refine import marker_weight, shift_patch
 
 __all__ = [
@@ -158,6 +159,9 @@ class TargetTrackerParameters:
     max_refine_px: float = param(
         1.5, min=0.0, min_exclusive=True,
         help="A refinement moving farther than this from the integer peak failed.")
+    assign_first_step: bool = param(
+        True, help="Check a run's first step against every disc like the marker around "
+                   "it (carapost.algorithms.target_identity); ambiguous: stop.")
 
     def __post_init__(self) -> None:
         validate(self)
@@ -651,6 +655,10 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             # until the motion is known, the whole search region (and its ambiguity check)
             xy, score = match_patch(img, tpl, pos + velocity,
                                     params if moving else back_params_first, ref)
+            if not moving and params.assign_first_step:
+                prev_img = get_image(prev_frame) if prev_img is None else prev_img
+                xy, score = _assigned_step(img, prev_img, tpl, ref, pos, velocity, xy, score,
+                                           back_params)
             if np.all(np.isfinite(xy)) and (not moving
                                             or np.hypot(*(xy - pos)) > params.check_step_px):
                 if prev_img is None:
