@@ -193,9 +193,9 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
 
     Notes
     -----
-    The new frame is searched over 1.5 x the search region (a first step is not
-    predicted), the previous one over twice the region, so that a neighbour entering
-    the new frame's region is explained by its own move.
+    Both frames are searched over 1.5 x the search region (a first step is not
+    predicted; twice the region in the previous frame found no more and cost twice as
+    much).
     """
     from dataclasses import replace
 
@@ -203,12 +203,12 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
 
     def discs(image: NDArray[Any], centre: Any, size: int) -> list:
         return _candidates(image, tpl, centre, replace(params, search_size=size), refiner,
-                           n=16)
+                           n=10)
 
     S = params.search_size
     wide = int(1.5 * S) | 1
     new = discs(img, pos + velocity, wide)
-    prev = discs(prev_img, pos, 2 * S - 1)
+    prev = discs(prev_img, pos, wide)
     # a disc appearing or vanishing costs half of (half the search region)^2: a match
     # is never longer than half the search region
     hit = assign_first_step(prev, new, pos, velocity, S / 2.0 / 2 ** 0.5,
