@@ -59,6 +59,12 @@ def test_ambiguous_first_step_gives_no_position():
     # one disc only in the new frame, 10 px from each: either could be it
     new = [(np.array([0.0, -10.0]), 0.9)]
     assert assign_first_step(prev, new, np.zeros(2), np.zeros(2), 40.0, 1.5) is None
+    # two places equally far: a disc that matches the pattern clearly worse is no rival
+    new = [(np.array([0.0, 10.0]), 0.95), (np.array([0.0, -10.0]), 0.8)]
+    hit = assign_first_step(prev[:1], new, np.zeros(2), np.zeros(2), 40.0, 1.5)
+    assert hit is not None and hit.tolist() == [0.0, 10.0]
+    new = [(np.array([0.0, 10.0]), 0.95), (np.array([0.0, -10.0]), 0.9)]
+    assert assign_first_step(prev[:1], new, np.zeros(2), np.zeros(2), 40.0, 1.5) is None
     # unlike discs (low NCC) are not candidates
     assert assign_first_step(prev, [(np.array([0.0, 1.0]), 0.5)], np.zeros(2),
                              np.zeros(2), 40.0, 1.5) is None

@@ -42,6 +42,9 @@ NCC_BELOW_BEST = 0.2
 #: both, do not count).
 GAP_FRACTION = 0.25
 MIN_GAP_PX2 = 25.0
+#: A choice whose disc matches the pattern this much worse (NCC) than the best choice's
+#: is no rival for the ambiguity test.
+RIVAL_NCC = 0.1
 
 def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: int,
                      shift: NDArray[np.float64], unmatched: float
@@ -144,7 +147,8 @@ def assign_first_step(candidates_prev: Sequence[tuple[NDArray[np.float64], float
     top = max((s for _, s in candidates_new), default=0.0)
     least = max(SIMILAR_NCC, top - NCC_BELOW_BEST)
     prev = [np.asarray(xy, float) for xy, s in candidates_prev if s >= least]
-    new = [np.asarray(xy, float) for xy, s in candidates_new if s >= least]
+    kept = [(np.asarray(xy, float), s) for xy, s in candidates_new if s >= least]
+    new = [xy for xy, _ in kept]
     if not new:
         return None
     own = next((i for i, xy in enumerate(prev) if np.hypot(*(xy - pos)) < own_px), None)
@@ -157,8 +161,11 @@ def assign_first_step(candidates_prev: Sequence[tuple[NDArray[np.float64], float
         return None
     best = new[ranked[0][1]]
     own_cost = float(((best - prev[own] - shift) ** 2).sum())
-    if len(ranked) > 1 and ranked[1][0] - ranked[0][0] < max(MIN_GAP_PX2,
-                                                          GAP_FRACTION * own_cost):
+    # the runner-up: another choice about as like the pattern as the best (a disc that
+    # matches it clearly worse is no rival), or no match at all
+    rivals = [cost for cost, c in ranked[1:]
+              if c < 0 or kept[c][1] >= kept[ranked[0][1]][1] - RIVAL_NCC]
+    if rivals and rivals[0] - ranked[0][0] < max(MIN_GAP_PX2, GAP_FRACTION * own_cost):
         return None
     return best
 
