@@ -201,16 +201,37 @@ class Bench:
     def steps(self, count: int = 30) -> None:
         self.stalls.phase = "steps"
         n = self.p.n_frames
-        times = []
+        times, cpu, waits, misses = [], [], [], 0
+        frames = self.w.context.frames
+        sched = f"/proc/self/task/{threading.get_native_id()}/schedstat"
+
+        def runq() -> float:
+            try:
+                with open(sched) as fh:
+                    return int(fh.read().split()[1]) / 1e6
+            except OSError:
+                return 0.0
+
         for direction in (1, -1):
             start = n // 3 if direction > 0 else 2 * n // 3
             self.go(start)
             self.pump(1.5)  # the read-ahead runs while the artist looks
             for k in range(1, count + 1):
-                times.append(self.go(start + direction * k) * 1e3)
+                f = start + direction * k
+                misses += any(frames.cached(f, c) is None for c in range(self.p.n_cameras))
+                c0, r0 = time.thread_time(), runq()
+                times.append(self.go(f) * 1e3)
+                cpu.append((time.thread_time() - c0) * 1e3)
+                waits.append(runq() - r0)
                 self.pump(0.1)
+        # where a step's time goes: the GUI thread's own CPU, its wait for a core (run
+        # queue) and the rest (blocked: the GIL, or a miss waiting for a decoder)
         emit("step_ms_p95", p95(times), "ms", median=round(statistics.median(times), 1),
-             steps=len(times))
+             steps=len(times), cache_misses=misses,
+             gui_cpu_ms_median=round(statistics.median(cpu), 2),
+             gui_cpu_ms_p95=round(p95(cpu), 2), runqueue_ms_p95=round(p95(waits), 1),
+             blocked_ms_p95=round(p95([t - c - w for t, c, w in
+                                       zip(times, cpu, waits, strict=True)]), 1))
 
     def playback(self, seconds: float = 6.0) -> None:
         self.stalls.phase = "playback"

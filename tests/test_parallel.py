@@ -125,3 +125,25 @@ def test_cancel_while_slow_reads_fill_the_queue_stops_reading():
     out = parallel.map_arrays(slow_get, range(40), np.sum, workers=2,
                               progress=lambda done, total: not state["cancel"])
     assert fetched == [0, 1, 2] and sorted(out) == [0, 1, 2]
+
+
+def test_start_warms_the_processes_in_the_background_and_the_idle_shutdown_follows():
+    import time
+
+    pool = parallel.ProcessPool(preload=["numpy"], idle_s=1.0)
+    try:
+        t0 = time.perf_counter()
+        thread = pool.start(2)
+        assert time.perf_counter() - t0 < 0.5  # the caller does not wait for them
+        thread.join(60)
+        assert not thread.is_alive() and len(pool.pids()) == 2
+        pids = pool.pids()
+        out = parallel.map_arrays(lambda k: np.ones(3), range(4), np.sum, workers=2,
+                                  pool=pool)
+        assert out == {k: 3.0 for k in range(4)} and pool.pids() == pids  # the warm ones
+        deadline = time.perf_counter() + 30
+        while pool.running and time.perf_counter() < deadline:
+            time.sleep(0.05)
+        assert not pool.running  # stopped after idle_s without work
+    finally:
+        pool.shutdown()

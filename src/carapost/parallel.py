@@ -36,6 +36,7 @@ Examples
 from __future__ import annotations
 
 import ctypes
+import logging
 import multiprocessing as mp
 import os
 import signal
@@ -58,6 +59,7 @@ import numpy as np
 __all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays"]
 
 K = TypeVar("K", bound=Hashable)
+log = logging.getLogger("carapost.parallel")
 
 #: Seconds without work after which a pool stops its worker processes.
 IDLE_SHUTDOWN_S = 120.0
@@ -108,7 +110,10 @@ def lifeline(parent: int | None = None, every_s: float = 0.5, *,
 # signal there: the forkserver may be started from a worker thread, and the kernel
 # sends that signal when the starting *thread* ends.)
 _PARENT_ENV = PARENT_PID_ENV = "CARAPOST_PARENT_PID"
-if os.environ.get(_PARENT_ENV) == str(os.getppid()):
+#: True in the forkserver of the program's pools (and in a spawned worker where there is
+#: no forkserver): a preload module may prepare there what every worker inherits.
+IN_POOL_SERVER = os.environ.get(_PARENT_ENV) == str(os.getppid())
+if IN_POOL_SERVER:
     lifeline(os.getppid(), pdeathsig=False)
 
 
@@ -215,6 +220,30 @@ class ProcessPool:
                                                      initargs=(self._initializer,))
                 self._workers = workers
             return self._executor
+
+    def start(self, workers: int) -> threading.Thread:
+        """Start ``workers`` processes in the background (a warm start), so that the
+        next batch finds them ready instead of waiting for them to start.
+
+        Returns at once; the returned (daemon) thread ends when every process has
+        started and run its initialiser. The idle shutdown counts from then, as after a
+        batch. Starting a pool that already runs ``workers`` processes only restarts its
+        idle countdown.
+        """
+        def work() -> None:
+            executor = self.acquire(workers)
+            try:
+                # One short task per process: a submit that finds no idle process
+                # starts one, and each task outlasts the next submit.
+                wait([executor.submit(time.sleep, 0.05) for _ in range(workers)])
+            except Exception:  # the next batch reports a broken pool
+                log.debug("warm start of the worker processes failed", exc_info=True)
+            finally:
+                self.release()
+
+        thread = threading.Thread(target=work, name="carapost-pool-start", daemon=True)
+        thread.start()
+        return thread
 
     def shutdown(self) -> None:
         """Stop the worker processes (a later batch starts new ones)."""

@@ -210,8 +210,48 @@ def test_pause_keeps_what_was_tracked_as_one_entry(session):
 
     s.target_track(+1, progress=progress)
     assert s.history()[-1].description.endswith("(cancelled: partial)")
-    assert (pts.source[1:5, col, 0] == SOURCE_TARGET).all()
-    assert pts.source[6, col, 0] != SOURCE_TARGET
+    # every camera was tracked up to the pause (lockstep), none beyond it
+    cams = np.flatnonzero(scene.visible[0, col])
+    assert len(cams) >= 2
+    assert (pts.source[1:5, col, cams] == SOURCE_TARGET).all()
+    assert (pts.source[6:, col, cams] != SOURCE_TARGET).all()
+    assert calls == [1, 2, 3, 4]
+
+
+def test_a_run_tracks_every_camera_in_lockstep_as_each_alone(session, take):
+    from carapost.algorithms.target_track import track_target
+
+    s, scene = session
+    get = take[2]
+    pts = s.project.points
+    col = _from_truth(s, scene, _marker(scene, "Cheek_L"))
+    s.select(points=[int(pts.ids[col])])
+    s.set_property("Target Tracker", "tracker_overwrite_existing_tracks", True)
+    s.current_frame = 0
+    pts.sigma[:, col] = 0.05                 # an earlier estimate of the 3D's uncertainty
+    before = snapshot(s.project)
+    job = s.prepare_target_track(+1)
+    assert len(job.tracks) >= 2
+    alone = {tr.camera: track_target(lambda f, c=tr.camera: get(f, c), tr.keys,
+                                     start=job.start, stop=tr.stop, direction=1,
+                                     params=tr.params or job.params, start_xy=tr.start_xy,
+                                     start_velocity=tr.velocity) for tr in job.tracks}
+    wanted, calls = [], []
+    job.request = lambda f, cams, d: wanted.append((f, tuple(cams), d))
+    s.apply(job.compute(lambda done, total: calls.append((done, total))))
+    # the progress goes once through the range, each frame's cameras are asked at once
+    assert calls == [(d, FRAMES - 1) for d in range(1, FRAMES)]
+    cams = tuple(sorted(alone))
+    assert wanted == [(f, cams, 1) for f in range(1, FRAMES)]
+    for c, res in alone.items():
+        ok = res.tracked
+        np.testing.assert_array_equal(pts.obs[res.frames[ok], col, c],
+                                      res.xy[ok].astype(np.float32))
+        np.testing.assert_array_equal(pts.quality[res.frames[ok], col, c],
+                                      res.score[ok].astype(np.float16))
+    # the re-solved frames' old uncertainty is gone with their old 3D; undo brings it back
+    assert np.isnan(pts.sigma[1:, col]).all() and pts.sigma[0, col] == np.float32(0.05)
+    assert s.undo() and snapshot(s.project) == before
 
 
 def test_bad_input_is_refused_and_changes_nothing(session):

@@ -67,6 +67,10 @@ def private_settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """QSettings in a temporary folder: the user's own settings are never touched."""
     folder = tmp_path / "settings"
     monkeypatch.setenv("CARAPOST_SETTINGS_DIR", str(folder))
+    # no detector processes for every take a test opens (the tests that need them ask)
+    from carapost.ui.settings import make_settings, set_preference
+
+    set_preference(make_settings(), "start_detector_after_import", False)
     return folder
 
 

@@ -97,7 +97,7 @@ def test_detect_current_frame_reads_through_the_shared_service(make_window, take
     assert frames.worker_copy() is frames  # no second set of decoders per job
     w.set_frame(12)
     w.action("process.blobs_current").trigger()
-    qtbot.waitUntil(lambda: not w.runner.busy, timeout=20000)
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
     assert len(p.detections.get(12, 0)["centre"]) == 1
     assert len(p.detections.get(12, 1)["centre"]) == 1
 

@@ -73,6 +73,8 @@ def test_dragging_the_handles_sets_this_tracks_sizes(make_window, take, qtbot): 
     w.action("edit.undo").trigger()
     w.action("edit.undo").trigger()
     assert snapshot(p) == before and p.target_sizes == {}
+    assert p.current_frame == 1          # the run showed the frame it tracked
+    w.context.set_frame(0)
     w.flush()
     assert _extent(view.targets.box) == 21.0
 

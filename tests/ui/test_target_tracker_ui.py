@@ -123,6 +123,10 @@ def test_fill_a_gap_between_two_keyframes_tracking_backwards(make_window, take, 
     w.context.set_frame(16)
     before = snapshot(p)
     _run(w, qtbot, "back_to_start")
+    # the run stopped short of the start at the keyframe before the gap, and says so
+    qtbot.waitUntil(lambda: "stopped: keyframe 7" in w.statusBar().currentMessage(),
+                    timeout=5000)
+    assert p.current_frame == 8
     err = np.linalg.norm(pts.obs[8:16, col][:, cams] - scene.uv[8:16, col][:, cams], axis=-1)
     assert np.isfinite(err).all() and err.max() < 0.3
     assert np.isfinite(pts.positions[8:16, col]).all()
@@ -138,10 +142,14 @@ def test_frame_by_frame_with_a_keyframe_added_at_the_failure(make_window, take, 
     w.context.session.set_property("Target Tracker", "tracker_overwrite_existing_tracks",
                                    True)
     w.context.set_frame(12)
-    for _ in range(3):
-        before = snapshot(p)
+    for k in range(3):
+        n = len(w.stack.history())
         _run(w, qtbot, "back_one")
-        w.context.set_frame(p.current_frame - 1)
+        # each click is one History entry and shows the frame it tracked, so the next
+        # click goes on from there (the guide's "keep tracking backwards frame by frame")
+        assert len(w.stack.history()) == n + 1
+        assert p.current_frame == 11 - k
+        qtbot.waitUntil(lambda: "tracked" in w.statusBar().currentMessage(), timeout=5000)
     tracked = pts.source[9:12, col]
     assert (tracked[np.isfinite(pts.obs[9:12, col, :, 0])] == SOURCE_TARGET).all()
     # the marker "fails" here: the artist keys the last good frame and goes on

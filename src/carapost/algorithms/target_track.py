@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import first_step as _assigned_step
 from carapost.algorithms.target_refine import marker_weight, shift_patch
@@ -162,6 +163,11 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
+    follow_appearance: bool = param(True, help=(
+        "Where the keyframe match fails after a tracked frame, match the marker's look "
+        "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
+    anchor_score: float = param(0.7, min=0.0, max=1.0, help=(
+        "An appearance step holds while the keyframe pattern's centre matches this well."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -666,6 +672,11 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 if not _consistent_backwards(img, prev_img, xy, pos, back_params,
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
+            if params.follow_appearance and moving and not score >= params.break_threshold:
+                prev_img = get_image(prev_frame) if prev_img is None else prev_img
+                xy, score = target_appearance.appearance_step(
+                    img, prev_img, pos, pos + velocity, tpl, params,
+                    (get_image(pp.frame), keys[pp.frame]), (xy, score))
             prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)

@@ -165,16 +165,19 @@ class DetectBlobsJob(Job):
     """Blob detection of some images (snapshot: image keys, parameters, image source)."""
 
     def __init__(self, keys: list[tuple[int, int]], params: Any,
-                 get_image: Callable[[int, int], NDArray], workers: int, description: str):
+                 get_image: Callable[[int, int], NDArray], workers: int, description: str,
+                 processes: bool | None = None):
         self.keys, self.params, self.get_image = keys, params, get_image
         self.workers, self.description = workers, description
+        self.processes = processes
 
     def compute(self, progress: Progress = None) -> DetectionsResult:
         from carapost.algorithms.blobs import detect_blobs_batch
 
         get_image = self.get_image
         result = detect_blobs_batch(lambda k: get_image(*k), list(self.keys), self.params,
-                                    workers=self.workers, progress=progress)
+                                    workers=self.workers, progress=progress,
+                                    processes=self.processes)
         if not result:
             raise refuse("Detect Blobs: cancelled before any image was finished")
         images = [k for k in self.keys if k in result]
@@ -190,7 +193,8 @@ class DetectBlobsJob(Job):
 def prepare_detect_blobs(project: Project, frames: tuple[int, int] | None = None,
                          cameras: Sequence[int] | None = None,
                          get_image: Callable[[int, int], NDArray] | None = None,
-                         workers: int = 2, description: str | None = None) -> DetectBlobsJob:
+                         workers: int = 2, description: str | None = None,
+                         processes: bool | None = None) -> DetectBlobsJob:
     """Detect Blobs [Active Range] / [Current Frame] with the project's Blob Parameters.
 
     Parameters
@@ -203,9 +207,14 @@ def prepare_detect_blobs(project: Project, frames: tuple[int, int] | None = None
     get_image : callable (frame, camera) -> ndarray [H, W]
         The grey image of one camera at one frame (called on the worker thread).
     workers : int
-        Detector threads.
+        Detector processes or threads.
     description : str, optional
         The History entry (default "Detect Blobs [frames a-b]").
+    processes : bool, optional
+        Detect in the detector processes (True) or on threads (False); default: processes
+        for large batches (:func:`carapost.algorithms.blobs.detect_blobs_batch`). A
+        window asks for processes even for one frame: threads would hold the GIL
+        and stall its drawing.
     """
     what = "Detect Blobs"
     from carapost.algorithms.blobs import BlobParameters
@@ -226,7 +235,8 @@ def prepare_detect_blobs(project: Project, frames: tuple[int, int] | None = None
         raise refuse(f"{what}: {exc}") from None
     keys: list[Hashable] = [(f, int(c)) for f in range(a, b + 1) for c in cams]
     desc = description or (f"{what} [frames {a}-{b}]" if b > a else f"{what} [frame {a}]")
-    return DetectBlobsJob(keys, params, get_image, workers, desc)  # type: ignore[arg-type]
+    return DetectBlobsJob(keys, params, get_image, workers, desc,  # type: ignore[arg-type]
+                          processes)
 
 
 class DetectBlobs(ApplyResult):

@@ -6,6 +6,8 @@ Frame, Edit > Gaps To Keys and Clear Tracked Points are plain commands; a tracki
 (:mod:`carapost.commands.recipe`): :func:`prepare_target_track` snapshots the selected
 points' keyframes and 2D data, :class:`TargetTrackJob` runs
 :func:`carapost.algorithms.target_track.track_target` per point and camera on a worker,
+every camera in lockstep (:class:`carapost.algorithms.target_lockstep.LockstepTracker`:
+one frame step advances every track still going),
 and its :class:`TargetTrackResult` writes the tracked 2D observations (source
 ``SOURCE_TARGET``, the score in ``quality``) and the re-solved 3D of every tracked frame
 as one History entry. A paused (cancelled) run keeps what it tracked.
@@ -37,11 +39,13 @@ from carapost.algorithms.codes import (
     SOURCE_TARGET,
 )
 from carapost.algorithms.params import from_mapping
+from carapost.algorithms.target_lockstep import LockstepTracker, TrackRun
 from carapost.algorithms.target_track import (
     STOP_CANCELLED,
+    STOP_END,
+    STOP_THRESHOLD,
     TargetTrackerParameters,
     check_keyframe,
-    track_target,
 )
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
@@ -66,7 +70,7 @@ __all__ = [
 
 #: The per-point arrays a tracking run or a keyframe edit writes.
 _NAMES = ("positions", "recon", "residual", "obs", "source", "detection", "quality",
-          "keyframe")
+          "keyframe", "sigma")
 
 ImageFn = Callable[[int, int], NDArray[np.uint8]]
 
@@ -189,7 +193,9 @@ def _resolve_frames(project: Project, col: int, frames: NDArray, single: bool,
     p, r, e = resolve_3d(o, cal.R[frames], cal.t[frames], _intrinsics(project), ref, single)
     unsolved = ~cal.solved[frames]
     p[unsolved], r[unsolved], e[unsolved] = np.nan, RECON_NONE, np.nan
-    return {"positions": p, "recon": r, "residual": e}
+    # the old uncertainty belonged to the old 3D: unknown until estimated again
+    return {"positions": p, "recon": r, "residual": e,
+            "sigma": np.full(len(frames), np.nan, np.float32)}
 
 
 def _write_cells(project: Project, journal: Journal, col: int, frames: NDArray,
@@ -381,6 +387,9 @@ class _Track:
     stop: int
     #: the run's settings with this track's own pattern and search sizes (None: the run's)
     params: TargetTrackerParameters | None = None
+    #: why ``stop`` is short of the run's end: a keyframe ahead (Stop On Next Keyframe)
+    #: or 2D data ahead (Overwrite Existing Tracks off); "" when it is the run's end
+    limit: str = ""
 
 
 @dataclass
@@ -428,6 +437,15 @@ class TargetTrackJob(Job):
     #: camera, frame, score) per tracked frame (the window draws the span growing, and
     #: shows the frame being tracked). Read it from another thread by slicing.
     live: list[tuple[int, int, int, float]] = field(default_factory=list, repr=False)
+    #: ``request(frame, cameras, direction)``: the images of ``frame`` for these cameras
+    #: are wanted next (the window's frame service starts decoding them all, and reads
+    #: ahead in the direction of travel); called from the worker before each frame.
+    request: Callable[[int, list[int], int], None] | None = field(default=None,
+                                                                   repr=False)
+    #: The latest tracked position of each (point id, camera): (frame, x, y), replaced
+    #: as the run goes (the views draw it while they follow the run). Read a copy.
+    live_xy: dict[tuple[int, int], tuple[int, float, float]] = field(default_factory=dict,
+                                                                     repr=False)
 
     @property
     def stop(self) -> int:
@@ -438,9 +456,6 @@ class TargetTrackJob(Job):
     def compute(self, progress: Progress = None) -> TargetTrackResult:
         d, P = self.direction, self.params
         block = {k: v.copy() for k, v in self.block.items()}
-        totals = [abs(tr.stop - self.start) for tr in self.tracks]
-        total = max(sum(totals), 1)
-        done_before = 0
         cancelled = False
         reasons: dict[tuple[int, int], str] = {}
         tracked = 0
@@ -453,29 +468,38 @@ class TargetTrackJob(Job):
             block["detection"][r, i, c] = -1
             block["quality"][r, i, c] = 1.0
         last = self.start
-        for tr, n in zip(self.tracks, totals, strict=True):
-            if cancelled:
-                break
-            if n == 0:
-                continue
 
-            def step(done: int, _total: int, base: int = done_before) -> bool:
-                if progress is None:
-                    return True
-                return progress(base + done, total) is not False
-
-            def seen(f: int, _xy: NDArray, score: float, tr: _Track = tr) -> None:
+        def seen_by(tr: _Track) -> Callable[[int, NDArray, float], None]:
+            def seen(f: int, xy: NDArray, score: float) -> None:
                 if f not in tr.keys:
                     self.live.append((tr.point, tr.camera, int(f), float(score)))
+                    if np.isfinite(xy).all():
+                        self.live_xy[(tr.point, tr.camera)] = (int(f), float(xy[0]),
+                                                               float(xy[1]))
+            return seen
 
-            res = track_target(lambda f, c=tr.camera: self.get_image(f, c), tr.keys,
-                               start=self.start, stop=tr.stop, direction=d,
-                               params=tr.params if tr.params is not None else P,
-                               start_xy=tr.start_xy, start_velocity=tr.velocity,
-                               progress=step, on_frame=seen)
-            done_before += n
-            reasons[(tr.point, tr.camera)] = res.reason
-            cancelled = res.reason == STOP_CANCELLED
+        # every (point, camera) one frame per step: the views, the timeline and the
+        # progress bar go once through the range, and a frame's images are wanted at once
+        lock = LockstepTracker([
+            TrackRun(lambda f, c=tr.camera: self.get_image(f, c), tr.keys, self.start,
+                     tr.stop, d, tr.params if tr.params is not None else P, tr.start_xy,
+                     tr.velocity, seen_by(tr)) for tr in self.tracks])
+
+        def step(done: int, total: int) -> bool:
+            return progress is None or progress(done, total) is not False
+
+        def wanted(frame: int, runs: list[int]) -> None:
+            if self.request is not None:
+                self.request(frame, sorted({self.tracks[i].camera for i in runs}), d)
+
+        results = lock.run(step, wanted)
+        for tr, res in zip(self.tracks, results, strict=True):
+            if res is None:
+                continue
+            # reaching a stop set by a keyframe or data ahead is that, not the take's end
+            reasons[(tr.point, tr.camera)] = (tr.limit if res.reason == STOP_END
+                                              and tr.limit else res.reason)
+            cancelled = cancelled or res.reason == STOP_CANCELLED
             i = index[tr.point]
             ok = res.tracked
             fr = res.frames[ok] - self.first
@@ -504,13 +528,34 @@ class TargetTrackJob(Job):
             block["positions"][rows, i] = p
             block["recon"][rows, i] = r
             block["residual"][rows, i] = e
-        why = sorted(set(reasons.values()))
-        message = (f"Target Tracker: {tracked} observations tracked "
-                   f"({len(self.tracks)} point-cameras; stopped: {', '.join(why) or '-'})")
+            block["sigma"][rows, i] = np.nan     # the old 3D's uncertainty, not this one's
+        message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
+
+
+def _run_message(tracks: list[_Track], results: list[Any], tracked: int, last: int,
+                 threshold: float) -> str:
+    """What a run did, for the status bar and the log: how far it got and, for every
+    track that lost its marker, where and with what match (the artist keys there)."""
+    why = sorted({tr.limit if r.reason == STOP_END and tr.limit else r.reason
+                  for tr, r in zip(tracks, results, strict=True) if r is not None})
+    text = (f"Target Tracker: {tracked} observation{'s' if tracked != 1 else ''} tracked "
+            f"in {len(tracks)} point-camera{'s' if len(tracks) != 1 else ''}, up to frame "
+            f"{last}")
+    lost = [(tr, r) for tr, r in zip(tracks, results, strict=True)
+            if r is not None and r.reason == STOP_THRESHOLD]
+    if lost:
+        # the match truncated, never rounded up to the threshold it fell below
+        where = ", ".join(f"point {tr.point} camera {tr.camera} at frame "
+                          f"{int(r.frames[-1])} (match "
+                          f"{np.floor(float(r.score[-1]) * 1000) / 1000:.3f})"
+                          for tr, r in lost[:4])
+        more = f" and {len(lost) - 4} more" if len(lost) > 4 else ""
+        text += f"; lost the marker: {where}{more}, below the Break Threshold {threshold:g}"
+    return f"{text} (stopped: {', '.join(why) or '-'})"
 
 
 def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *,
@@ -594,26 +639,27 @@ def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *
                 except ValueError as exc:
                     raise CommandError(f"{what}: point {pid}, camera {c}, keyframe "
                                        f"{kf}: {exc}") from None
-            stop = end
+            stop, limit = end, ""
             if params.stop_on_next_keyframe:   # any selected point's keyframe, any camera
                 ahead = np.flatnonzero(keyed_any)
                 ahead = ahead[ahead > s] if direction > 0 else ahead[ahead < s][::-1]
                 if len(ahead):
                     k = int(ahead[0])
-                    stop = min(stop, k - 1) if direction > 0 else max(stop, k + 1)
+                    cut = min(stop, k - 1) if direction > 0 else max(stop, k + 1)
+                    stop, limit = cut, (f"keyframe {k}" if cut != end else limit)
             if not params.overwrite_existing_tracks:   # keep existing 2D data
                 rng = (np.arange(s + 1, stop + 1) if direction > 0
                        else np.arange(s - 1, stop - 1, -1))
                 busy = rng[np.isfinite(pts.obs[rng, col, c, 0])] if len(rng) else rng
                 if len(busy):
-                    stop = int(busy[0]) - direction
+                    stop, limit = int(busy[0]) - direction, f"2D data at {int(busy[0])}"
             prev = s - direction
             vel = None
             if 0 <= prev < F and np.isfinite(pts.obs[prev, col, c]).all():
                 vel = xy - pts.obs[prev, col, c].astype(np.float64)
             if (stop - s) * direction > 0:
                 tracks.append(_Track(int(pid), int(c), keys, xy, vel, int(stop),
-                                     None if tp is params else tp))
+                                     None if tp is params else tp, limit))
     if not tracks:
         raise CommandError(f"{what}: nothing to track from frame {s} (the next frame is "
                            "a keyframe or already has 2D data; see Overwrite Existing "

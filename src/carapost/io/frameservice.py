@@ -10,12 +10,15 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
   looking at and returns at once. Each camera's thread serves the newest request only:
   a request that was superseded before its decode began is dropped (counted in
   ``dropped``), and a decode heading for a superseded frame stops at the next frame.
-  ``on_ready(frame, camera)`` is called from the thread when an image lands.
+  ``on_ready(frame, camera)`` is called from the thread when a requested image lands
+  (the frame asked for, or the one the views show now; not for each frame read ahead,
+  which the views find in the cache).
 - **Read-ahead** in the direction of travel while a thread is idle: forward in decode
   order, backward a keyframe interval at a time (the frames from the keyframe before the
   wanted one are decoded in order and all kept), up to ``read_ahead`` frames from the
-  current one and never more than half the cache; then, unless playing, a third of that
-  the other way (a step back after a jump or a change of direction is a cache hit).
+  current one and never more than half the cache; unless playing, the two nearest
+  frames on both sides come first and a third of the run the other way last (a step
+  back after a jump or a change of direction is a cache hit; `_ahead_order`).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
@@ -57,6 +60,10 @@ DEFAULT_CACHE_MB = 1500.0
 #: cycle the GUI does not use.
 DECODER_NICE = 4
 
+#: Screen pixels per image pixel above which a view counts as zoomed in (playback then
+#: shows that camera's original instead of its proxy).
+ZOOMED_IN = 1.02
+
 _Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
 _UNOPENED: Any = object()
 # Proxy images share the cache under (frame, camera + _PROXY_KEY).
@@ -83,8 +90,8 @@ class FrameService(TakeFrames):
     cache_mb : float
         Upper bound of the decoded-image cache in megabytes (default 1500).
     on_ready : callable, optional
-        ``on_ready(frame, camera)`` from a decoder thread when an image lands in the
-        cache (requested or read ahead).
+        ``on_ready(frame, camera)`` from a decoder thread when an image a view or a
+        job may be waiting for lands in the cache (not for frames read ahead).
     read_ahead : int
         Frames decoded ahead of the current one in the direction of travel (while
         playing, set it to about two seconds of the take: `set_read_ahead`).
@@ -108,6 +115,8 @@ class FrameService(TakeFrames):
         self._open_locks = [threading.Lock() for _ in range(take.n_cameras)]
         self._playing = False
         self._proxies: dict[int, Any] = {}  # camera -> ProxyReader
+        # camera -> {view: screen pixels per original image pixel} (`set_view_scale`)
+        self._view_scales: dict[int, dict[Any, float]] = {}
         # cameras whose last frame was never checked to decode (see `_verify`)
         self._unverified: set[int] = set()
         self.dropped = 0
@@ -189,8 +198,37 @@ class FrameService(TakeFrames):
         """Number of cameras with an open proxy."""
         return len(self._proxies)
 
+    def proxy_downscale(self, camera: int) -> float:
+        """How many times smaller than the original the camera's proxy is (1.0 without
+        a proxy or for a full-resolution one)."""
+        proxy = self._proxies.get(camera)
+        if proxy is None:
+            return 1.0
+        width = int(self.take.cameras[camera].image_size[0])
+        return max(width / max(int(proxy.size[0]), 1), 1.0)
+
+    def set_view_scale(self, camera: int, scale: float | None, owner: Any = None) -> None:
+        """A view of ``camera`` shows its image at ``scale`` screen pixels per image
+        pixel (None: the view is gone). While any view of the camera is zoomed in
+        beyond Actual Size (``scale`` > `ZOOMED_IN`), playback reads the camera's
+        original."""
+        # copied, changed and swapped in: decoder threads read it without a lock
+        scales = dict(self._view_scales.get(int(camera), {}))
+        if scale is None:
+            scales.pop(owner, None)
+        else:
+            scales[owner] = float(scale)
+        self._view_scales[int(camera)] = scales
+
     def _use_proxy(self, camera: int) -> bool:
-        return self._playing and camera in self._proxies
+        if not self._playing or camera not in self._proxies:
+            return False
+        scales = self._view_scales.get(camera)
+        # Zoomed in beyond Actual Size (1:1), the artist looks at pixels: the original.
+        # Below it the proxy plays, stretched up to 2x when it is half size (a one- or
+        # two-view layout), as video editors play their proxies; 2 % of slack so a view
+        # fitted at 1:1 is not "zoomed in".
+        return not scales or max(scales.values()) <= ZOOMED_IN
 
     @property
     def showing_proxies(self) -> bool:
@@ -200,12 +238,18 @@ class FrameService(TakeFrames):
     def get_display(self, frame: int, camera: int) -> NDArray[np.uint8] | None:
         """What a view shows without waiting: the original if cached, else while playing
         the proxy image if decoded, else (blank frames outside a video) `get_cached`."""
+        return self.display(frame, camera)[0]
+
+    def display(self, frame: int, camera: int) -> tuple[NDArray[np.uint8] | None, bool]:
+        """`get_display` and whether the image is a proxy's (smaller than the original
+        by `proxy_downscale`: a view stretches it over the original's pixels)."""
         img = self.get_cached(frame, camera)
         if img is None and self._use_proxy(camera):
             img = self._cache_get((int(frame), int(camera) + _PROXY_KEY))
-        return img
+            return img, img is not None
+        return img, False
 
-    def _decode_proxy(self, frame: int, camera: int) -> None:
+    def _decode_proxy(self, frame: int, camera: int, kind: str = "view") -> None:
         index = self._video_index(frame, camera)
         proxy = self._proxies.get(camera)
         src = self._sources.get(camera)
@@ -227,7 +271,7 @@ class FrameService(TakeFrames):
                             self.take.cameras[camera].name, exc)
                 self._proxies.pop(camera, None)
                 return
-        self._notify(frame, camera)
+        self._landed(frame, camera, frame if kind == "view" else None)
 
     def reset_sources(self) -> None:
         """Reopen videos on next use (after a camera's video path changed)."""
@@ -336,21 +380,15 @@ class FrameService(TakeFrames):
         if src is None:  # no video: nothing to read ahead (and no busy loop)
             return None
         offset = int(self.take.cameras[camera].frame_offset)
-        # The direction of travel first; then, unless playing, a third as far the other
-        # way, so that a step back after a jump (or after stepping forwards) is a cache
-        # hit too (with a keyframe on every frame, a jump decodes no frame before it).
-        runs = [(step, limit)] if self._playing else [(step, limit), (-step, limit // 3)]
-        for sign, count in runs:
-            for k in range(1, count + 1):
-                f = state.origin + sign * k
-                if not 0 <= f < self.take.n_frames:
-                    break
-                if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
-                    continue  # outside a short video: blank, nothing to decode
-                if (self._cache_get((f, key_cam)) is None
-                        and self._cache_get((f, camera)) is None
-                        and (f, camera) not in self._frame_errors):
-                    return f
+        for f in _ahead_order(state.origin, step, limit, self._playing):
+            if not 0 <= f < self.take.n_frames:
+                continue
+            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
+                continue  # outside a short video: blank, nothing to decode
+            if (self._cache_get((f, key_cam)) is None
+                    and self._cache_get((f, camera)) is None
+                    and (f, camera) not in self._frame_errors):
+                return f
         return None
 
     def _run(self, camera: int) -> None:
@@ -385,7 +423,7 @@ class FrameService(TakeFrames):
                 continue
             if kind != "job" and self._use_proxy(camera):
                 state.target = None
-                self._decode_proxy(frame, camera)
+                self._decode_proxy(frame, camera, kind)
                 continue
             try:
                 img = self._decode_to(frame, camera, kind)
@@ -510,9 +548,19 @@ class FrameService(TakeFrames):
                 raise
             if 0 <= f < self.take.n_frames and self._cache_get((f, camera)) is None:
                 self._cache_put((f, camera), img)
-                self._notify(f, camera)
+                self._landed(f, camera, None if kind == "ahead" else frame)
             i += 1
         return img
+
+    def _landed(self, frame: int, camera: int, target: int | None) -> None:
+        """An image landed in the cache: tell the views if one may be waiting for it
+        (the ``target`` of a view request or job, or the frame the views show now).
+
+        Read-ahead fills the cache with frames the views will find there when they get
+        to them; a signal for each would wake the GUI thread four times per decoded
+        frame for nothing (during playback hundreds of times a second)."""
+        if frame == target or frame == self._cams[camera].origin:
+            self._notify(frame, camera)
 
     def _notify(self, frame: int, camera: int) -> None:
         callback = self.on_ready
@@ -537,6 +585,38 @@ class FrameService(TakeFrames):
         for proxy in self._proxies.values():
             proxy.close()
         self._proxies.clear()
+
+
+#: Frames read ahead on each side of the current one before the rest (not playing).
+NEAREST_FIRST = 2
+
+
+def _ahead_order(origin: int, step: int, limit: int, playing: bool) -> list[int]:
+    """Frames to read ahead from ``origin``, in order (the caller skips those cached or
+    outside the take).
+
+    Playing: ``limit`` frames in the direction of travel. Otherwise the `NEAREST_FIRST`
+    frames on both sides first (after a jump the user may step either way, and those
+    frames cost a decode each in an all-intra video), then the rest of ``limit`` in the
+    direction of travel, then a third as far the other way, so a step back after
+    stepping forwards is a cache hit too.
+
+    Examples
+    --------
+    >>> _ahead_order(10, 1, 6, playing=False)
+    [11, 12, 9, 8, 13, 14, 15, 16]
+    >>> _ahead_order(10, -1, 3, playing=True)
+    [9, 8, 7]
+    """
+    if playing:
+        return [origin + step * k for k in range(1, limit + 1)]
+    back = limit // 3
+    near = min(NEAREST_FIRST, limit)
+    order = [origin + step * k for k in range(1, near + 1)]
+    order += [origin - step * k for k in range(1, min(near, back) + 1)]
+    order += [origin + step * k for k in range(near + 1, limit + 1)]
+    order += [origin - step * k for k in range(min(near, back) + 1, back + 1)]
+    return order
 
 
 def _lower_priority(increment: int) -> None:

@@ -1,18 +1,21 @@
 """Playback proxies: an all-intra MJPEG copy of a camera video that decodes fast.
 
 The lossless FFV1 originals decode at ~26 ms per 1280x720 frame on one core and only
-from a keyframe on; an MJPEG copy at full resolution decodes in ~2.5 ms and every frame
+from a keyframe on; an MJPEG copy decodes in ~2.5 ms at full resolution and every frame
 is a keyframe (measured, docs/benchmarks.md "Frame access"; FFV1 with a keyframe on
-every frame is no faster than the original, half-resolution MJPEG saves another 1.8 ms
-but would have to be scaled back in the views). Full resolution keeps the views' pixel
-coordinates unchanged, so a proxy can stand in for its original at any zoom.
+every frame is no faster than the original). Proxies of videos at least
+`MIN_DOWNSCALED_WIDTH` pixels wide are written at half width and height
+(`PROXY_DOWNSCALE`): a quarter of the pixels decodes ~3x faster again and takes a
+quarter of the cache, and a camera view in a four-view layout shows a 1280x720 image at
+about half size anyway. The views draw a proxy image stretched over the original's
+pixel rectangle (image coordinates are unchanged) and read the original instead when
+zoomed in beyond Actual Size (1:1), and when playback stops.
 
-Proxies are for display only: the views play from them and switch back to the original
-frame when playback stops; processing always reads the originals. They live in the
+Proxies are for display only: processing always reads the originals. They live in the
 user cache (`carapost.io.decode.cache_dir`, subfolder ``proxies``), named after the
-original's path, size and modification time, so a changed video never plays a stale
-proxy; deleting them loses nothing. A proxy is written to a temporary file and renamed
-when complete, so an interrupted write leaves no half proxy.
+original's path, size and modification time and the proxy format, so a changed video
+never plays a stale proxy; deleting them loses nothing. A proxy is written to a
+temporary file and renamed when complete, so an interrupted write leaves no half proxy.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -33,10 +37,37 @@ from carapost.io.errors import CaraFileError
 
 log = logging.getLogger("carapost.io")
 
-__all__ = ["PROXY_QUALITY", "ProxyReader", "proxy_path", "write_proxy"]
+__all__ = ["MIN_DOWNSCALED_WIDTH", "PROXY_DOWNSCALE", "PROXY_QUALITY", "ProxyReader",
+           "proxy_downscale", "proxy_path", "write_proxy"]
 
 #: MJPEG quantiser (2 best - 31 worst): grey levels within a few units of the original.
 PROXY_QUALITY = 4
+#: Proxies of videos at least `MIN_DOWNSCALED_WIDTH` wide are this many times smaller
+#: in width and height than the original.
+PROXY_DOWNSCALE = 2
+MIN_DOWNSCALED_WIDTH = 640
+# Part of a proxy's file name: proxies written by another version of this scheme (full
+# resolution) are not reused, they are written again.
+_FORMAT = "h2"
+
+
+def proxy_downscale(width: int, height: int) -> int:
+    """How many times smaller than a ``width`` x ``height`` original its proxy is.
+
+    Examples
+    --------
+    >>> proxy_downscale(1280, 720), proxy_downscale(320, 240)
+    (2, 1)
+    """
+    return PROXY_DOWNSCALE if width >= MIN_DOWNSCALED_WIDTH and height >= 32 else 1
+
+
+def _proxy_size(width: int, height: int, downscale: int) -> tuple[int, int]:
+    """(width, height) of a proxy: the original's divided by ``downscale``, rounded to
+    even numbers (4:2:0 JPEG)."""
+    if downscale <= 1:
+        return width, height
+    return (max(2 * round(width / downscale / 2), 2), max(2 * round(height / downscale / 2), 2))
 
 
 class ProxyReader(AVReader):
@@ -82,7 +113,8 @@ def proxy_path(video: str | Path) -> Path | None:
     except OSError:
         return None
     digest = hashlib.sha1(str(video.absolute()).encode("utf-8")).hexdigest()[:16]
-    return cache_dir() / "proxies" / f"{video.stem}-{digest}-{st.st_size}-{st.st_mtime_ns}.avi"
+    return cache_dir() / "proxies" / (f"{video.stem}-{digest}-{st.st_size}-{st.st_mtime_ns}"
+                                      f"-{_FORMAT}.avi")
 
 
 def existing_proxy(video: str | Path) -> Path | None:
@@ -92,7 +124,7 @@ def existing_proxy(video: str | Path) -> Path | None:
 
 
 def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | None = None,
-                ) -> Path | None:
+                downscale: int | None = None) -> Path | None:
     """Write the MJPEG proxy of ``video`` (or return the existing one).
 
     Parameters
@@ -101,6 +133,9 @@ def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | Non
         An original camera video.
     progress : callable (done, total) -> bool, optional
         Called after each frame; returning False cancels (no file is left).
+    downscale : int, optional
+        Times smaller than the original in width and height (default: `proxy_downscale`
+        of the original's size). Images are shrunk by pixel-area averaging.
 
     Returns
     -------
@@ -129,13 +164,22 @@ def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | Non
         out = av.open(str(tmp), "w")
         try:
             first = reader.read(0)
+            height, width = first.shape
+            scale = proxy_downscale(width, height) if downscale is None else int(downscale)
+            size = _proxy_size(width, height, scale)
+
+            def shrink(img: NDArray[np.uint8]) -> NDArray[np.uint8]:
+                if size == (width, height):
+                    return img
+                return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+
             stream = out.add_stream("mjpeg", rate=int(round(reader.fps or 60)))
-            stream.width, stream.height = int(first.shape[1]), int(first.shape[0])
+            stream.width, stream.height = size
             stream.pix_fmt = "yuvj420p"
             stream.options = {"q:v": str(PROXY_QUALITY)}
             stream.codec_context.qmin = stream.codec_context.qmax = PROXY_QUALITY
             for i in range(reader.n_frames):
-                img = first if i == 0 else reader.read(i)
+                img = shrink(first if i == 0 else reader.read(i))
                 frame = av.VideoFrame.from_ndarray(img, format="gray")
                 frame.pts = i
                 for packet in stream.encode(frame):

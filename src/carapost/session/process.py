@@ -124,7 +124,8 @@ class ProcessActions:
 
     def prepare_detect_blobs(self, frames: str | Sequence[int] = "current",
                              cameras: Iterable[int] | None = None, *, workers: int = 2,
-                             get_image: ImageFn | None = None) -> Job:
+                             get_image: ImageFn | None = None,
+                             processes: bool | None = None) -> Job:
         """Prepare :meth:`detect_blobs` (see :meth:`prepare`)."""
         from carapost.commands.process import prepare_detect_blobs
 
@@ -134,11 +135,12 @@ class ProcessActions:
         title = {"current": "Current Frame", "active": "Active Range"}.get(
             frames.strip().lower() if isinstance(frames, str) else "")
         return prepare_detect_blobs(self.project, rng, cams, images, workers,
-                                    f"Detect Blobs [{title}]" if title else None)
+                                    f"Detect Blobs [{title}]" if title else None, processes)
 
     def detect_blobs(self, frames: str | Sequence[int] = "current",
                      cameras: Iterable[int] | None = None, *,
-                     progress: ProgressFn | None = None, workers: int = 2) -> ApplyResult | None:
+                     progress: ProgressFn | None = None, workers: int = 2,
+                     processes: bool | None = None) -> ApplyResult | None:
         """Process > Detect Blobs [Current Frame] / [Active Range] with the Blob Parameters.
 
         Parameters
@@ -150,10 +152,13 @@ class ProcessActions:
             ``progress(done, total)`` over the images; False cancels (the finished
             images are kept).
         workers : int
-            Detector threads.
+            Detector processes or threads.
+        processes : bool, optional
+            Detect in worker processes (True) or on threads (False); default: processes
+            for batches of 16 images or more. The results are the same either way.
         """
-        return self.run(self.prepare_detect_blobs(frames, cameras, workers=workers),
-                        progress)
+        return self.run(self.prepare_detect_blobs(frames, cameras, workers=workers,
+                                                  processes=processes), progress)
 
     def load_rom(self, path: str | Path) -> Command:
         """Process > Load ROM: keep a ``.cara`` project to initialise this take from."""

@@ -46,8 +46,9 @@ NOT_RECORDED = frozenset({
     "export_fbx", "export_xcp", "missing_files", "script_steps", "has_images", "caddies",
     "current_frame",
 })
-#: Arguments that are callbacks or live objects, not settings: left out of the record.
-_DROPPED = frozenset({"progress", "get_image", "images", "relocate"})
+#: Arguments that are callbacks, live objects or choices of how to compute (the same
+#: result either way), not settings: left out of the record.
+_DROPPED = frozenset({"progress", "get_image", "images", "relocate", "processes"})
 
 
 def to_plain(value: Any) -> Any:

@@ -18,6 +18,7 @@ pushes one History entry keeping what was tracked.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable
 from typing import Any
 
@@ -26,6 +27,8 @@ from carapost.commands.stack import Command, CommandError
 from carapost.session.process import ImageFn, ProgressFn
 
 __all__ = ["TargetActions"]
+
+log = logging.getLogger("carapost.commands")
 
 
 class TargetActions:
@@ -107,7 +110,14 @@ class TargetActions:
         camera where they have a 2D position there, with the Target Tracker settings of
         the properties; ``overrides`` set parameter fields for this run
         (``pattern_size=25``). One History entry; ``progress`` returning False pauses
-        (what was tracked is kept).
+        (what was tracked is kept). None when nothing was tracked (the marker was lost
+        on the first frame: the log says where, with its match score).
         """
-        return self.run(self.prepare_target_track(direction, single_frame, to,
-                                                  points=points, **overrides), progress)
+        job = self.prepare_target_track(direction, single_frame, to, points=points,
+                                        **overrides)
+        result = job.compute(progress)
+        if result.changes_nothing() and not result.cancelled:
+            # the marker was lost on the first frame: no History entry that changes nothing
+            log.warning("%s; nothing changed", result.message)
+            return None
+        return self.apply(result)  # type: ignore[attr-defined]

@@ -240,9 +240,9 @@ ACTIONS: tuple[ActionSpec, ...] = (
        partial(view_menu.center_selection, frame=True)),
     # --- Process ---------------------------------------------------------------------------
     _proc("process.blobs_range", "Detect Blobs [Active Range]", "detect_blobs", images=True,
-          frames="active"),
+          frames="active", processes=True),
     _proc("process.blobs_current", "Detect Blobs [Current Frame]", "detect_blobs",
-          images=True, frames="current"),
+          images=True, frames="current", processes=True),
     _A("process.load_rom", "Process", "Load ROM...", "", process_menu.load_rom,
        separator=True),
     _proc("process.init_rom", "Initialize from ROM", "initialize_from_rom"),

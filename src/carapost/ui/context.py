@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -22,7 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from PySide6.QtCore import QObject, QSettings, Qt, Signal
+from PySide6.QtCore import QObject, QSettings, Qt, QTimer, Signal
 
 from carapost.commands.recipe import Result
 from carapost.commands.stack import CommandError, CommandStack
@@ -41,9 +42,13 @@ from carapost.ui.settings import (
     make_settings,
     preference,
     preference_signals,
+    start_detector,
 )
+from carapost.ui.warm_start import start_detector_processes
 
 log = logging.getLogger("carapost.ui")
+#: Milliseconds after a take opens before the blob detector's processes are started.
+DETECTOR_START_DELAY_MS = 1000
 
 
 @dataclass
@@ -153,18 +158,27 @@ class ViewContext(QObject):
         #: the user settings the Display preferences are read from (the owner's, when
         #: it has one; a store of its own otherwise)
         self.settings: QSettings | None = None
+        self._label_mode: tuple[QSettings, tuple[bool, bool, bool, int]] | None = None
         self.changed.connect(self._invalidate)
         # a Display preference changed here or in another window: redraw the labels
         preference_signals().changed.connect(self._preference_changed)
 
     def _preference_changed(self, key: str) -> None:
+        self._label_mode = None
         if key in DISPLAY_PREFERENCES:
             self.options_changed.emit()
 
     # -- caches ------------------------------------------------------------------------------
     def set_project(self, project: Project, frames: FrameSource) -> None:
         """Switch to another project."""
-        self.frames.close()
+        old = self.frames
+        if getattr(old, "asynchronous", False):
+            # the old take's decoder threads finish the frame in hand before they stop:
+            # the GUI thread does not wait for them
+            threading.Thread(target=old.close, name="carapost-close-frames",
+                             daemon=True).start()
+        else:
+            old.close()
         self.project = project
         self.frames = frames
         self._proj_cache.clear()
@@ -239,12 +253,19 @@ class ViewContext(QObject):
 
     def label_mode(self) -> tuple[bool, bool, bool, int]:
         """(all, selected, pre-selected, font size) from the Display preferences of the
-        user settings (they are about the user, not the take)."""
+        user settings (they are about the user, not the take).
+
+        Read from the settings once per change of a preference (every camera view asks
+        twice per frame drawn; four settings reads each time were ~0.1 ms)."""
         s = self.user_settings()
-        return (bool(preference(s, "point_labels_all")),
-                bool(preference(s, "point_labels_selected")),
-                bool(preference(s, "point_labels_preselected")),
-                int(preference(s, "label_font_size")))
+        cached = self._label_mode
+        if cached is None or cached[0] is not s:
+            cached = (s, (bool(preference(s, "point_labels_all")),
+                          bool(preference(s, "point_labels_selected")),
+                          bool(preference(s, "point_labels_preselected")),
+                          int(preference(s, "label_font_size"))))
+            self._label_mode = cached
+        return cached[1]
 
     def labelled_columns(self) -> NDArray[np.intp]:
         """Columns whose label should be drawn now."""
@@ -428,6 +449,10 @@ class ActionContext(QObject):
         self.view.set_project(project, frames)
         self._bind_images()
         self._start_proxies()
+        if self.view.frames.has_images and start_detector(self.settings):
+            # the first Detect Blobs finds them ready; started once the take is on
+            # screen, so their start-up does not compete with the first images
+            QTimer.singleShot(DETECTOR_START_DELAY_MS, self, start_detector_processes)
         self.bridge.attach(project)
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
@@ -447,7 +472,9 @@ class ActionContext(QObject):
         if build_proxies(self.settings):
             self.proxies.start(frames)
         else:
-            frames.attach_proxies()
+            # in a slice of its own: opening the proxies reads their keyframe indexes
+            QTimer.singleShot(0, self, lambda: frames is self.view.frames
+                              and frames.attach_proxies())
 
     def set_frames(self, frames: FrameSource) -> None:
         """Replace the image source (Relocate Files, synthetic takes, tests)."""
@@ -541,8 +568,16 @@ class ActionContext(QObject):
         p.set_current_frame(frame)
 
     def on_frame_ready(self, frame: int, camera: int) -> None:
-        """Decoder-thread callback: hop to the GUI thread through a queued signal."""
+        """Decoder-thread callback: hop to the GUI thread through a queued signal.
+
+        Only for the current frame: the read-ahead decodes dozens of frames that no
+        view waits for, and each signal would wake the GUI thread for nothing (a view
+        that moves to such a frame finds its image in the cache; the image cached
+        before the frame changes is found there, the one after is signalled).
+        """
         try:
+            if frame != self.project.current_frame:
+                return
             self.view.frame_ready.emit(frame, camera)
         except RuntimeError:  # the context is already gone at shutdown
             pass

@@ -51,6 +51,15 @@ class FrameSource:
         """The image if it is available without decoding (None otherwise)."""
         return None
 
+    def display(self, frame: int, camera: int) -> tuple[NDArray[np.uint8] | None, bool]:
+        """`cached`, and whether the image is a playback proxy's (smaller than the
+        original: a view stretches it over the original's pixel rectangle)."""
+        return self.cached(frame, camera), False
+
+    def set_view_scale(self, camera: int, scale: float | None, owner: object = None) -> None:
+        """A view shows ``camera`` at ``scale`` screen pixels per image pixel (None:
+        the view is gone); zoomed in beyond Actual Size, originals are shown."""
+
     def prefetch(self, frames: range, cameras: list[int]) -> None:
         """Hint that these images will be wanted soon."""
 
@@ -169,6 +178,16 @@ class VideoFrameSource(FrameSource):
     def require(self, frame: int, camera: int) -> NDArray[np.uint8]:
         """The image, or `CaraFileError` saying which video is missing or damaged."""
         return self._frames.get(frame, camera)
+
+    def display(self, frame: int, camera: int) -> tuple[NDArray[np.uint8] | None, bool]:
+        try:
+            return self._frames.display(frame, camera)
+        except Exception as exc:  # a missing or broken video shows as no image
+            log.debug("camera %d frame %d: no image (%s)", camera, frame, exc)
+            return None, False
+
+    def set_view_scale(self, camera: int, scale: float | None, owner: object = None) -> None:
+        self._frames.set_view_scale(camera, scale, owner)
 
     def request(self, frame: int, camera: int | None = None, direction: int = 0) -> None:
         self._frames.request(frame, None if camera is None else [camera], direction=direction)

@@ -122,6 +122,7 @@ class LabellingPane(QWidget):
         ctx.view.changed.connect(self._changed)
         self._last_selection: frozenset[int] = frozenset()
         self._drawn_states: list[str] = []  # state each row is coloured for
+        self._row_names: list[str] = []  # the names of the list's rows, in order
         # the colours follow the frame: a few times a second while playing
         self._throttle = FrameThrottle(ctx.view, self.refresh)
 
@@ -243,16 +244,19 @@ class LabellingPane(QWidget):
     def refresh(self) -> None:
         """Rebuild the list when the labels changed; colours follow the frame."""
         names = list(self.ctx.project.labels)
-        if [self.list.item(i).text() for i in range(self.list.count())] != names:
+        # the rows' names, kept beside the list: reading them back from the widget on
+        # every frame change cost more than the rest of the refresh
+        if self._row_names != names or self.list.count() != len(names):
             current = self.current_label()
             self.list.clear()
             self._drawn_states = []
             self.list.addItems(names)
+            self._row_names = names
             self._apply_filter(self.filter.text())
             if current in names:
                 self.list.setCurrentRow(names.index(current))
         colours = {"unassigned": RED, "assigned": GREY, "absent": YELLOW}
-        states = self.label_states([self.list.item(i).text() for i in range(self.list.count())])
+        states = self.label_states(self._row_names)
         if len(self._drawn_states) != len(states):
             self._drawn_states = [""] * len(states)
         for i, state in enumerate(states):

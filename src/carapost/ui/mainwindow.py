@@ -34,6 +34,7 @@ from carapost.ui.menus import MenuBar
 from carapost.ui.settings import make_settings, recent_files
 from carapost.ui.statusbar import JobStatus
 from carapost.ui.timebar import Timebar
+from carapost.ui.tracker_progress import TrackerProgress
 from carapost.ui.workspace import FloatingWorkspace, Workspace
 
 log = logging.getLogger("carapost.ui")
@@ -73,6 +74,8 @@ class MainWindow(QMainWindow):
         lay.setSpacing(0)
         lay.addWidget(self.workspace, 1)
         lay.addWidget(self.timebar)
+        self.tracker_progress = TrackerProgress(ctx)   # below the play controls
+        lay.addWidget(self.tracker_progress)
         self.setCentralWidget(central)
         self.empty_hint = EmptyHint(self.workspace, ctx)  # how to start, without a take
         # the timebar and the views (continuity chart, graphs) ask for frames and ranges

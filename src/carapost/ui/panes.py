@@ -159,9 +159,11 @@ class PropertiesPane(QWidget):
 
     def __init__(self, ctx: ActionContext, sections: tuple[str, ...] | None = None,
                  preferences: tuple[str, ...] | None = None,
-                 preferences_title: str = PREFERENCES_TITLE) -> None:
+                 preferences_title: str = PREFERENCES_TITLE, compact: bool = False) -> None:
         super().__init__()
         self.ctx = ctx
+        #: a narrow pane (the Tracker's): each check box carries its name across the row
+        self.compact = compact
         layout = _vbox(self)
         self.tree = QTreeWidget()
         self.tree.setColumnCount(3)
@@ -190,7 +192,7 @@ class PropertiesPane(QWidget):
                 top.addChild(item)
                 editor = self._editor(spec)
                 editor.setToolTip(tip)
-                self.tree.setItemWidget(item, 1, editor)
+                self._place(item, editor, spec.label)
                 self.editors[spec.key] = editor
             top.setExpanded(section in ("Display", "Selection", "Blob Parameters"))
         main_pane = preferences is None and sections is None
@@ -214,7 +216,16 @@ class PropertiesPane(QWidget):
         header.setSectionResizeMode(1, QHeaderView.ResizeMode.Fixed)
         header.setSectionResizeMode(2, QHeaderView.ResizeMode.ResizeToContents)
         self.tree.setColumnWidth(1, 110)
+        if compact:   # the values as wide as their editors, the names get the rest
+            self.tree.setIndentation(12)
+            self.tree.setColumnWidth(1, max([72] + [
+                e.sizeHint().width() for e in (*self.editors.values(),
+                                               *self.preference_editors.values())
+                if not isinstance(e, QCheckBox)]))
+            self.tree.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.tree.setTextElideMode(Qt.TextElideMode.ElideMiddle)
+        for i in range(self.tree.topLevelItemCount()):   # spanning needs the item in a tree
+            self.tree.topLevelItem(i).setFirstColumnSpanned(True)
         self.refresh(None)
         ctx.view.changed.connect(self.refresh)
 
@@ -261,10 +272,21 @@ class PropertiesPane(QWidget):
                 box.toggled.connect(lambda v, k=key: set_preference(settings, k, bool(v)))
                 editor = box
             editor.setToolTip(tip)
-            self.tree.setItemWidget(item, 1, editor)
+            self._place(item, editor, pref.label)
             editors[key] = editor
         top.setExpanded(True)
         return editors
+
+    def _place(self, item: QTreeWidgetItem, editor: QWidget, label: str) -> None:
+        """Put a row's editor in the Value column; in a compact pane a check box takes
+        the whole row with its name (clicking the name toggles it, nothing is elided)."""
+        if self.compact and isinstance(editor, QCheckBox):
+            item.setText(0, "")
+            item.setFirstColumnSpanned(True)
+            editor.setText(label)
+            self.tree.setItemWidget(item, 0, editor)
+        else:
+            self.tree.setItemWidget(item, 1, editor)
 
     def _show_preference(self, key: str) -> None:
         editor = self.preference_editors.get(key)
@@ -432,7 +454,7 @@ class TrackerPane(QWidget):
         layout.addWidget(self.settings_box)
         self.settings = PropertiesPane(ctx, (TARGET_TRACKER,), preferences=(
             "tracker_update_timeline_every_frame", "tracker_update_2d_view_every_frame"),
-            preferences_title="Display while tracking (this computer)")
+            preferences_title="While Tracking (this computer)", compact=True)
         self.settings.restore_button.hide()
         self.settings.tree.expandAll()
         layout.addWidget(self.settings, 1)
@@ -481,7 +503,9 @@ class SelectedPointPane(QWidget):
         super().__init__()
         layout = _vbox(self)
         self.chart = ContinuityView(ctx.view, single=True)
-        self.chart.setMinimumHeight(90)
+        # tall enough to name every row of a four-camera rig (the point and its cameras):
+        # shorter, the row names are thinned to every other one
+        self.chart.setMinimumHeight(ContinuityView.ROW_PX * 5 + 44)
         layout.addWidget(self.chart)
         # the sample at the current frame: how it was made, its estimated error (sigma:
         # from the cameras that see it, or the self-test of Interpolate Gaps for a fill)

@@ -109,6 +109,10 @@ FRAME_PREFERENCES: tuple[Preference, ...] = (
                "take opens, so playback runs at the take's frame rate (View > Build "
                "Playback Proxies writes them on request). Display only; deleting them "
                "loses nothing."),
+    Preference("start_detector_after_import", "Start Blob Detector When a Take Opens", True,
+               "Start the blob detector's two worker processes in the background when a "
+               "take with images opens, so the first Detect Blobs does not wait for them "
+               "(about 250 MB while they run; they stop after two minutes without work)."),
 )
 _PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES + FRAME_PREFERENCES}
 
@@ -135,6 +139,12 @@ def build_proxies(settings: QSettings) -> bool:
     cache, for display only) are written in the background when a take opens (the
     ``build_proxies_after_import`` preference)."""
     return bool(preference(settings, "build_proxies_after_import"))
+
+
+def start_detector(settings: QSettings) -> bool:
+    """Whether the blob detector's processes are started when a take opens (the
+    ``start_detector_after_import`` preference)."""
+    return bool(preference(settings, "start_detector_after_import"))
 
 
 def set_build_proxies(settings: QSettings, on: bool) -> None:

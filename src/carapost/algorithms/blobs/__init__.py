@@ -60,7 +60,7 @@ The package is split by stage; this module re-exports the public API:
 - :mod:`.candidates` -- all candidates of one colour (steps 1-4 for one image);
 - :mod:`.detect` -- :func:`detect_blobs`, :func:`preview_blobs`,
   :func:`detect_blobs_batch` (worker processes of :mod:`carapost.parallel`),
-  :func:`warm_up`, :func:`shutdown_workers`.
+  :func:`warm_up`, :func:`start_workers`, :func:`shutdown_workers`.
 
 Examples
 --------
@@ -94,7 +94,7 @@ _LAZY = {
     "blob_candidates": "candidates",
     "PROCESS_CHUNK": "detect", "PROCESS_MIN_IMAGES": "detect", "detect_blobs": "detect",
     "detect_blobs_batch": "detect", "preview_blobs": "detect", "shutdown_workers": "detect",
-    "warm_up": "detect",
+    "warm_up": "detect", "start_workers": "detect",
     "MODEL_HIDDEN": "score", "MODEL_INPUTS": "score", "MODEL_KINDS": "score",
     "ScoreNet": "score", "blob_probability": "score", "net_logit": "score",
 }
@@ -108,6 +108,7 @@ if TYPE_CHECKING:
         detect_blobs_batch,
         preview_blobs,
         shutdown_workers,
+        start_workers,
         warm_up,
     )
     from carapost.algorithms.blobs.score import (
@@ -142,5 +143,6 @@ __all__ = [
     "PROCESS_MIN_IMAGES",
     "PROCESS_CHUNK",
     "warm_up",
+    "start_workers",
     "shutdown_workers",
 ]

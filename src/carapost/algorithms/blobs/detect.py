@@ -27,7 +27,7 @@ from carapost.algorithms.blobs.image import as_uint8, check_mask, noise_sigma
 from carapost.algorithms.blobs.params import BlobParameters
 
 __all__ = ["PROCESS_MIN_IMAGES", "PROCESS_CHUNK", "detect_blobs", "preview_blobs",
-           "detect_blobs_batch", "warm_up", "shutdown_workers"]
+           "detect_blobs_batch", "warm_up", "start_workers", "shutdown_workers"]
 
 
 def _detect8(image8: np.ndarray, params: BlobParameters, mask: np.ndarray | None
@@ -148,7 +148,23 @@ def warm_up() -> None:
 
 #: The detector processes, started on the first large batch and kept for the next ones;
 #: the forkserver imports this module once, so a new process starts in ~10 ms.
-_POOL = parallel.ProcessPool(initializer=_worker_init, preload=[__name__])
+_POOL = parallel.ProcessPool(initializer=_worker_init,
+                             preload=[__name__, "carapost.algorithms.blobs._preload"])
+
+
+def start_workers(workers: int = 2) -> None:
+    """Start the detector processes in the background (returns at once), so that the
+    first batch on processes, even a small one (Detect Blobs [Current Frame] with
+    ``processes=True``), does not wait for them. A window calls this when a take opens.
+    They stop after :data:`carapost.parallel.IDLE_SHUTDOWN_S` without work, as after a
+    batch.
+
+    Examples
+    --------
+    >>> start_workers(1)
+    >>> shutdown_workers()
+    """
+    _POOL.start(workers)
 
 
 def shutdown_workers() -> None:
@@ -233,6 +249,8 @@ def detect_blobs_batch(
             check_mask(mask, img.shape)
 
     mask8 = None if mask is None else np.ascontiguousarray(np.asarray(mask) != 0)
+    # a small batch (the current frame) is shared among all the processes
+    chunk = max(1, min(PROCESS_CHUNK, -(-len(keys) // (2 * workers))))
     return parallel.map_arrays(get_image, keys, _detect_in_process, (params, mask8),
-                               workers=workers, pool=_POOL, chunk=PROCESS_CHUNK,
+                               workers=workers, pool=_POOL, chunk=chunk,
                                check=check, progress=progress)

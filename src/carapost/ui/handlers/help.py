@@ -18,6 +18,7 @@ THIRD_PARTY = (
     ("lxml", "BSD-3-Clause"), ("av (PyAV)", "BSD-3-Clause; its bundled FFmpeg LGPL-2.1+"),
     ("threadpoolctl", "BSD-3-Clause"), ("rich", "MIT"),
     ("dask (and distributed)", "BSD-3-Clause"),
+    ("greenlet", "MIT AND PSF-2.0"),
 )
 
 

@@ -29,21 +29,15 @@ def follow_tracking(ctx: ActionContext, job: Job) -> Callable[[], None]:
     (the current frame follows the job's progress); returns the function that stops it.
 
     Slower, as the guide says: every frame's images are decoded for the views too.
-    A Target Tracker run (a job with a ``live`` list) tracks one camera after the other:
-    the views show the frame each camera's track has reached, so every camera being
-    tracked is followed, not just the first.
+    A Target Tracker run tracks every camera in lockstep, so its progress is the frame
+    all its cameras have reached, like any other job's.
     """
     start, stop = getattr(job, "start", None), getattr(job, "stop", None)
     if start is None or stop is None or not preference(ctx.settings, FOLLOW_TRACKING):
         return lambda: None
     step, span = (1 if stop >= start else -1), abs(stop - start)
-    live = getattr(job, "live", None)
 
     def show(done: int, total: int) -> None:
-        if live is not None:
-            if live:
-                ctx.set_frame(int(live[-1][2]))
-            return
         ctx.set_frame(start + step * min(int(done), span))
 
     ctx.runner.progressed.connect(show)

@@ -4,9 +4,10 @@ Every item calls a :class:`~carapost.session.Session` Target Tracker method. A t
 run is prepared on the GUI thread (``session.prepare_target_track``), computed on the
 worker with a worker copy of the window's frame source, and applied as one History
 entry; pressing the running track button again (it reads Pause) cancels, which keeps
-what was tracked. With Update 2D View Every Frame the views follow the tracked frame of
-every camera; with Update Timeline Every Frame the charts draw the tracked span as it
-grows (:mod:`carapost.ui.handlers.target_live`).
+what was tracked. Every camera is tracked in lockstep (one frame at a time, all cameras):
+with Update 2D View Every Frame the views follow the tracked frame once through the
+range; with Update Timeline Every Frame the charts draw the tracked span as it grows
+(:mod:`carapost.ui.handlers.target_live`).
 """
 
 from __future__ import annotations
@@ -15,13 +16,14 @@ import logging
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt
+from PySide6.QtCore import Qt, QTimer
 
 from carapost.algorithms.codes import SOURCE_KEYFRAME, SOURCE_TARGET
 from carapost.commands.stack import CommandError
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers.process import follow_tracking
 from carapost.ui.handlers.target_live import live_timeline
+from carapost.ui.handlers.target_live_view import live_views
 
 log = logging.getLogger("carapost.ui")
 
@@ -59,16 +61,38 @@ def track(ctx: ActionContext, direction: int, single_frame: bool = False,
             source.close()
         ctx.report_error(title, str(exc), show=False)
         return False
+
+    def request(frame: int, cameras: list[int], direction: int) -> None:
+        for c in cameras:   # the frame's images of every tracked camera decode at once
+            source.request(frame, c, direction)
+
+    job.request = request
     unfollow = follow_tracking(ctx, job)
     unlive = live_timeline(ctx, job)
+    unviews = live_views(ctx, job)
 
     def finished(*_: Any) -> None:
         unfollow()
         unlive()
+        unviews()
         if source is not frames:
             source.close()
 
-    started = ctx.runner.start_job(job, ctx.apply, title=title, finished=finished)
+    def applied(result: Any) -> None:
+        if result.changes_nothing() and not result.cancelled:   # lost on the first frame
+            text = f"{result.message}; nothing changed"
+            ctx.report_error(title, text, show=False)
+            # after the runner's own "finished" message, which would replace it
+            QTimer.singleShot(0, lambda: ctx.status(text, 8000))
+            return
+        if ctx.apply(result):
+            QTimer.singleShot(0, lambda: ctx.status(result.message, 8000))
+            # show where the run stopped: the next click of a one-frame button goes on
+            # from there, and a lost marker is keyed on its last good frame
+            if result.last_frame is not None:
+                ctx.set_frame(int(result.last_frame))
+
+    started = ctx.runner.start_job(job, applied, title=title, finished=finished)
     if not started:
         finished()
     return started

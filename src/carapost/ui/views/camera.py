@@ -22,6 +22,7 @@ from carapost.algorithms.codes import RECON_INTERPOLATED
 from carapost.model.events import Change
 from carapost.ui.context import OPTION_TITLES_2D, ViewContext
 from carapost.ui.views import BaseView
+from carapost.ui.views.camera_image import CameraImageMixin
 from carapost.ui.views.geometry import (
     cross_segments,
     crossed_circle,
@@ -50,7 +51,45 @@ def _curve(colour: tuple[int, int, int], width: float = 1.0, z: float = 0) -> pg
 
 
 class _Scatter(pg.ScatterPlotItem):
-    """A scatter that never takes clicks (picking is done by the view, vectorised)."""
+    """A scatter that never takes clicks (picking is done by the view, vectorised) and
+    computes its bounding rectangle once per change.
+
+    Qt asks for an item's bounding rectangle four or more times per paint; pyqtgraph
+    recomputes it each time (data bounds, then the pixel size through the device
+    transform, in Python), which cost more than drawing the markers. Every change of
+    data, style or view transform replaces ``self.bounds`` with a new list, so the
+    rectangle computed for the current list is still right.
+    """
+
+    _rect_for: tuple[object, QRectF] | None = None
+
+    def boundingRect(self) -> QRectF:
+        cached = self._rect_for
+        if cached is not None and cached[0] is self.bounds:
+            return QRectF(cached[1])
+        rect = super().boundingRect()
+        self._rect_for = (self.bounds, QRectF(rect))
+        return rect
+
+    def set_positions(self, pos: NDArray) -> None:
+        """``setData(pos=pos)`` for markers that all look alike, cheaply when their
+        number is unchanged (the common case from one frame to the next).
+
+        ``setData`` rebuilds the point table and looks every marker up in the symbol
+        atlas in Python; with the same count and style only the coordinates change, so
+        they are written into the table in place.
+        """
+        pos = np.asarray(pos, np.float64).reshape(-1, 2)
+        data = self.data
+        if len(pos) == 0 or data is None or len(data) != len(pos):
+            self.setData(pos=pos)
+            return
+        data["x"] = pos[:, 0]
+        data["y"] = pos[:, 1]
+        self.prepareGeometryChange()
+        self.informViewBoundsChanged()
+        self.bounds = [None, None]
+        self.invalidate()
 
     def mouseClickEvent(self, ev) -> None:
         ev.ignore()
@@ -87,7 +126,7 @@ class _ViewBox(pg.ViewBox):
         super().mouseDragEvent(ev, axis)
 
 
-class CameraView(BaseView):
+class CameraView(CameraImageMixin, BaseView):
     """One camera: ``camera`` is its index in the take."""
 
     kind = "sensor"
@@ -173,11 +212,14 @@ class CameraView(BaseView):
         self.notice.hide()
         self._current_image: NDArray | None = None
         self._image_frame: int | None = None  # frame of the image shown
+        self._stretched = False  # the image is a proxy's, scaled to the original's size
         self.report = QLabel(self.gv)
         self.report.setStyleSheet("color: #8ff; background: rgba(0,0,0,140); padding: 2px;")
         self.report.move(4, 26)
         self.report.hide()
         self.gv.scene().sigMouseMoved.connect(self._mouse_moved)
+        # the zoom decides whether a playback proxy is detailed enough (`_tell_scale`)
+        self._init_image_scale()
         self.refresh(None)
 
     # -- geometry ----------------------------------------------------------------------------
@@ -288,42 +330,6 @@ class CameraView(BaseView):
                 self.errors, self.sticks, self.points, self.selected, self.proj_conn,
                 self.proj_unconn, self.rom, self.interp]
 
-    def _draw_image(self, frame: int) -> None:
-        opts = self.ctx.options
-        img = None
-        note = None
-        if opts.image:
-            src = self.ctx.frames
-            img = src.cached(frame, self.camera)
-            if src.asynchronous:
-                note = src.message(frame, self.camera)
-            if img is None and src.asynchronous:
-                # Decoded on the frame service's threads: keep the previous image until
-                # ``frame_ready`` brings this one (the GUI never waits for a decoder).
-                src.request(frame, self.camera)
-                if note is None and self._current_image is not None:
-                    self._image_frame = None
-                    self._set_notice(None)
-                    return
-            elif img is None:
-                img = src.image(frame, self.camera)
-        if img is None:
-            self.image.hide()
-        else:
-            self._image_shape = img.shape[:2]
-            # No levels: a uint8 image becomes a Grayscale8 QImage over the array itself,
-            # which Qt scales cheapest. Levels (even 0-255) make pyqtgraph build a
-            # 256-colour table in Python and paint an indexed image, every frame: 4x
-            # the cost (0.16 against 0.04 ms for 1280x720 into 700x394, measured with a
-            # new image per frame; an RGB32 copy costs more than it saves).
-            self.image.setImage(img, autoLevels=False,
-                                levels=None if img.dtype == np.uint8 else (0, 255))
-            self.image.show()
-        self.border.setVisible(opts.border or img is None)
-        self._current_image = img
-        self._image_frame = frame if img is not None and note is None else None
-        self._set_notice(note)
-
     def _set_notice(self, text: str | None) -> None:
         if not text:
             self.notice.hide()
@@ -372,7 +378,7 @@ class CameraView(BaseView):
         # blob preview
         self.preview.hide()
         if (opts.blob_preview and self._current_image is not None
-                and self._image_frame == frame):
+                and self._image_frame == frame and not self._stretched):
             prev = ctx.blob_preview(frame, c, self._current_image)
             if prev is not None and len(prev.centre):
                 xy, conn = ellipse_polyline(prev.centre.astype(np.float64),
@@ -386,7 +392,7 @@ class CameraView(BaseView):
             np.zeros((0, 2))
         valid = ~np.isnan(obs[:, 0]) if P else np.zeros(0, bool)
         if opts.points and valid.any():
-            self.points.setData(pos=obs[valid])
+            self.points.set_positions(obs[valid])
             self.points.show()
         else:
             self.points.hide()
@@ -401,7 +407,7 @@ class CameraView(BaseView):
                 elif proj is not None and not np.isnan(proj[col, 0]):
                     sel_xy.append(proj[col])
         if sel_xy:
-            self.selected.setData(pos=np.array(sel_xy))
+            self.selected.set_positions(np.array(sel_xy))
             self.selected.show()
         else:
             self.selected.hide()
@@ -414,10 +420,10 @@ class CameraView(BaseView):
             conn = has & valid
             unconn = has & ~valid
             if opts.connected and conn.any():
-                self.proj_conn.setData(pos=proj[conn])
+                self.proj_conn.set_positions(proj[conn])
                 self.proj_conn.show()
             if opts.unconnected and unconn.any():
-                self.proj_unconn.setData(pos=proj[unconn])
+                self.proj_unconn.set_positions(proj[unconn])
                 self.proj_unconn.show()
         if proj is not None and opts.errors:
             conn = ~np.isnan(proj[:, 0]) & valid
@@ -452,13 +458,13 @@ class CameraView(BaseView):
         if proj is not None and opts.points and P:
             fill = (pts.recon[frame] == RECON_INTERPOLATED) & ~np.isnan(proj[:, 0])
             if fill.any():
-                self.interp.setData(pos=proj[fill])
+                self.interp.set_positions(proj[fill])
                 self.interp.show()
         # ROM points: the loaded ROM's frame projected through this frame's camera (the
         # Initialize from ROM troubleshooting compares them with the detections)
         rom_xy = rom_overlay(p, frame, c)
         if rom_xy is not None and len(rom_xy):
-            self.rom.setData(pos=rom_xy)
+            self.rom.set_positions(rom_xy)
             self.rom.show()
         else:
             self.rom.hide()
@@ -712,7 +718,8 @@ class CameraView(BaseView):
             return
         q = self.to_image(scene_pos)
         x, y = int(round(q.x())), int(round(q.y()))
-        img = getattr(self, "_current_image", None)
+        # grey levels are the original's (a proxy's pixels are averages)
+        img = None if self._stretched else getattr(self, "_current_image", None)
         grey = ""
         if img is not None and 0 <= y < img.shape[0] and 0 <= x < img.shape[1]:
             grey = f"  grey {int(img[y, x])}"

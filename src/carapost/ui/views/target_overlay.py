@@ -111,11 +111,29 @@ class TargetOverlay:
         self.handles.setZValue(8)
         self.items = (self.box, self.cross, self.centre, self.key_centre, self.tracked,
                       self.handles)
-        for item in self.items:
+        # a run's tracked position not yet in the model (Update 2D View Every Frame):
+        # apart from ``items``, so a redraw of the model's tracks leaves it alone
+        self.live = _curve(BLUE, 1.5, dashed=True)
+        for item in (*self.items, self.live):
             item.setParentItem(parent)
             item.setAcceptedMouseButtons(Qt.MouseButton.NoButton)
             item.setAcceptHoverEvents(False)
             item.hide()
+
+    def show_live(self, xy: NDArray, pattern: NDArray) -> None:
+        """Draw positions a running Target Tracker run has just tracked: (n, 2) raw px,
+        with their pattern sizes (n,) px (a broken blue circle, as a tracked frame)."""
+        if not len(xy):
+            self.live.hide()
+            return
+        pts, conn = circle_polyline(np.asarray(xy, np.float64),
+                                    np.asarray(pattern, np.float64) / 4.0)
+        self.live.setData(pts[:, 0], pts[:, 1], connect=conn)
+        self.live.show()
+
+    def clear_live(self) -> None:
+        """The run ended: its result is in the model and drawn from there."""
+        self.live.hide()
 
     def _selected_keys(self, project, frame: int, camera: int
                        ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:

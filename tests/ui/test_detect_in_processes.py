@@ -1,0 +1,70 @@
+"""Detect Blobs in the window runs in the detector processes, never on a thread of the
+window (where the detector would hold the GIL and stall its drawing), and the
+processes are started in the background when a take with images opens."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from carapost import api
+from carapost.algorithms.blobs import BlobParameters, detect, detect_blobs
+from carapost.algorithms.params import from_mapping
+from carapost.model.project import new_project
+from carapost.ui.settings import make_settings, set_preference
+
+
+@pytest.fixture
+def detector_at_open():
+    """The user's preference on (the test settings turn it off); the processes stopped
+    afterwards."""
+    set_preference(make_settings(), "start_detector_after_import", True)
+    yield
+    detect.shutdown_workers()
+
+
+def test_opening_a_take_starts_the_processes_only_when_the_user_wants(
+        make_window, qtbot, synth_take, monkeypatch):
+    import carapost.ui.context as context
+
+    started: list[int] = []
+    monkeypatch.setattr(context, "start_detector_processes", lambda: started.append(1))
+    monkeypatch.setattr(context, "DETECTOR_START_DELAY_MS", 50)
+    make_window(api.import_take(synth_take))
+    qtbot.wait(300)
+    assert started == []  # the preference is off in the test settings
+    set_preference(make_settings(), "start_detector_after_import", True)
+    make_window(api.import_take(synth_take))
+    assert started == []  # not while the take's first images are decoded and drawn
+    qtbot.waitUntil(lambda: started == [1], timeout=5000)
+    make_window(new_project(5, 2))  # no images: nothing to detect in
+    qtbot.wait(300)
+    assert started == [1]
+
+
+def test_detect_current_frame_runs_in_the_warm_processes(
+        make_window, qtbot, synth_take, detector_at_open, monkeypatch):
+    project = api.import_take(synth_take)
+    w = make_window(project)
+    qtbot.waitUntil(lambda: len(detect._POOL.pids()) == 2, timeout=60_000)
+    pids = detect._POOL.pids()
+
+    def on_a_thread(*_args):
+        raise AssertionError("Detect Blobs ran on a thread of the window")
+
+    monkeypatch.setattr(detect, "_detect_in_thread", on_a_thread)
+    w.set_frame(3)
+    w.action("process.blobs_current").trigger()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    assert w.last_error == "", w.last_error
+    assert len(w.stack) == 1 and detect._POOL.pids() == pids  # the warm ones
+    params = from_mapping(BlobParameters, project.properties)
+    for c in range(project.n_cameras):
+        expect = detect_blobs(w.context.frames.require(3, c), params)
+        got = project.detections.centres(3, c)
+        assert len(got) == len(expect) > 20
+        np.testing.assert_array_equal(got, expect.centre)
+    assert project.detections.counts()[[0, 1, 2, 4]].max() == 0
+    # the History script records what was done, not how it was computed
+    (step,) = w.context.session._script()["entries"][-1]
+    assert step["call"] == "detect_blobs" and step["kwargs"] == {"frames": "current"}
