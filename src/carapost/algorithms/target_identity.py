@@ -212,6 +212,10 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
         return _candidates(image, tpl, centre, replace(params, search_size=size), refiner,
                            n=10)
 
+    if np.all(np.isfinite(xy)) and np.hypot(*(xy - pos - velocity)) <= params.check_step_px:
+        # a short step needs no assignment (the tracker's own checks hold it): among
+        # texture spots the joint optimum can prefer another place for a marker at rest
+        return xy, score
     S = params.search_size
     wide = int(1.5 * S) | 1
     new = discs(img, pos + velocity, wide)
