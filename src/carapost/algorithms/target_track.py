@@ -15,7 +15,8 @@ camera:
    tracked frames. A small penalty on the distance from the prediction breaks near-ties
    in favour of the expected place.
 3. The integer peak is refined by Lucas-Kanade on the patch with a gain and a bias term
-   (the image is resampled with bicubic interpolation; the pattern's gradients are
+   (the image is resampled with 6-point cubic convolution; the fit weighs the marker blob
+   and a rim around it, see :mod:`carapost.algorithms.target_refine`; the pattern's gradients are
    fixed, so the 4 x 4 normal matrix is inverted once per pattern).
 4. The score is the normalised cross-correlation between the pattern and the image patch
    at the refined position, clipped to [0, 1]. Tracking stops when it falls below the
@@ -43,6 +44,8 @@ from numpy.typing import NDArray
 
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
+from carapost.algorithms.target_identity import first_step as _assigned_step
+from carapost.algorithms.target_refine import marker_weight, shift_patch
 
 __all__ = [
     "STOP_CANCELLED",
@@ -157,6 +160,9 @@ class TargetTrackerParameters:
     max_refine_px: float = param(
         1.5, min=0.0, min_exclusive=True,
         help="A refinement moving farther than this from the integer peak failed.")
+    assign_first_step: bool = param(
+        True, help="Check a run's first step against every disc like the marker around "
+                   "it (carapost.algorithms.target_identity); ambiguous: stop.")
     follow_appearance: bool = param(True, help=(
         "Where the keyframe match fails after a tracked frame, match the marker's look "
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
@@ -231,7 +237,7 @@ def check_keyframe(xy: Any, shape: tuple[int, ...], pattern_size: int) -> None:
     ValueError: the pattern box (21 px) around (5, 50) does not fit in the 200 x 100 image
     """
     x, y = (float(v) for v in xy)
-    h = pattern_size // 2 + 2   # two more pixels for the bicubic sampling and gradients
+    h = pattern_size // 2 + 2   # two more pixels for the resampling and gradients
     H, W = shape[:2]
     if not (np.isfinite(x) and np.isfinite(y) and h <= x <= W - 1 - h
             and h <= y <= H - 1 - h):
@@ -239,33 +245,14 @@ def check_keyframe(xy: Any, shape: tuple[int, ...], pattern_size: int) -> None:
                          f"not fit in the {W} x {H} image")
 
 
-def _cubic_weights(t: float) -> tuple[float, float, float, float]:
-    """Keys' cubic convolution weights (a = -0.5) of the samples at -1, 0, 1, 2."""
-    t2, t3 = t * t, t * t * t
-    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0,
-            -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
-
-
 def _shift(crop: NDArray[np.float64], x: float, y: float, size: int) -> NDArray[np.float64]:
-    """The ``size`` x ``size`` patch of ``crop`` centred on (x, y) in crop pixels.
-
-    Separable bicubic interpolation in float64: every pixel of the patch has the same
-    sub-pixel phase, so the patch is four shifted slices per axis (exact, unlike
-    ``cv2.remap``'s 1/32 px fixed-point tables). The caller guarantees the margin.
-    """
-    h = size // 2
-    ix, iy = math.floor(x), math.floor(y)
-    wx, wy = _cubic_weights(x - ix), _cubic_weights(y - iy)
-    c0, r0 = ix - h - 1, iy - h - 1
-    rows = crop[r0:r0 + size + 3]
-    tmp = (wy[0] * rows[0:size] + wy[1] * rows[1:size + 1] + wy[2] * rows[2:size + 2]
-           + wy[3] * rows[3:size + 3])
-    return (wx[0] * tmp[:, c0:c0 + size] + wx[1] * tmp[:, c0 + 1:c0 + size + 1]
-            + wx[2] * tmp[:, c0 + 2:c0 + size + 2] + wx[3] * tmp[:, c0 + 3:c0 + size + 3])
+    """The ``size`` x ``size`` patch of ``crop`` centred on (x, y) in crop pixels
+    (separable 6-point cubic: :func:`carapost.algorithms.target_refine.shift_patch`)."""
+    return shift_patch(crop, x, y, size)
 
 
 def sample_patch(image: NDArray[Any], xy: Any, size: int) -> NDArray[np.float32]:
-    """The ``size`` x ``size`` patch centred on sub-pixel ``xy``, bicubic.
+    """The ``size`` x ``size`` patch centred on sub-pixel ``xy`` (6-point cubic convolution).
 
     Parameters
     ----------
@@ -340,7 +327,7 @@ class _Refiner:
     """
 
     def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0,
-                 shading: bool = True) -> None:
+                 shading: bool = True, marker: bool = True) -> None:
         gy, gx = np.gradient(tpl.astype(np.float64))
         self.size = n = tpl.shape[0]
         g = (np.arange(n) - n // 2) / max(n // 2, 1)
@@ -353,8 +340,10 @@ class _Refiner:
             wt = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / weight_sigma ** 2)
         else:
             wt = np.ones((n, n))
-        self.wt = wt.ravel() / wt.sum()
-        JW = J * self.wt
+        self.wt = wt.ravel() / wt.sum()   # the score's window
+        # the fit weighs the marker blob and its rim, not the lid or lip edges around it
+        fit = marker_weight(tpl, weight_sigma).ravel() if marker else self.wt
+        JW = J * (fit / fit.sum())
         self.J = JW
         self.Hinv = np.linalg.pinv(JW @ J.T)
         t = tpl.ravel().astype(np.float64)
@@ -455,7 +444,7 @@ def _search(image: NDArray[Any], tpl: NDArray[np.float32], predicted: Any,
     H, W = image.shape[:2]
     cx, cy = int(round(float(predicted[0]))), int(round(float(predicted[1])))
     nan = np.array([np.nan, np.nan])
-    # the search crop, with 3 px more on each side for the bicubic refinement
+    # the search crop, with 3 px more on each side for the sub-pixel refinement
     m = 3
     x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
     y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
@@ -672,6 +661,10 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             # until the motion is known, the whole search region (and its ambiguity check)
             xy, score = match_patch(img, tpl, pos + velocity,
                                     params if moving else back_params_first, ref)
+            if not moving and params.assign_first_step:
+                prev_img = get_image(prev_frame) if prev_img is None else prev_img
+                xy, score = _assigned_step(img, prev_img, tpl, ref, pos, velocity, xy, score,
+                                           back_params)
             if np.all(np.isfinite(xy)) and (not moving
                                             or np.hypot(*(xy - pos)) > params.check_step_px):
                 if prev_img is None:

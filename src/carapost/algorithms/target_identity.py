@@ -1,0 +1,237 @@
+"""Which disc is the tracked marker: the first step of a Target Tracker run.
+
+The first step of a run is taken before the marker's motion is known. On a fast
+expression a lip marker moves 20-35 px between two frames while its neighbours move
+about as far, so a neighbour may arrive next to the place the tracked marker left and
+match the pattern better than the marker itself, which is now farther away. Looking at
+the tracked marker alone cannot tell them apart (both are discs like the pattern's).
+
+Looking at all the discs can: every disc like the pattern's near the marker in the
+previous frame (the tracked one among them) must go somewhere in the new frame, and
+the discs found there must come from somewhere. :func:`assign_first_step` matches the
+two sets (:func:`scipy.optimize.linear_sum_assignment`, squared displacement, a disc
+may also appear or vanish at a fixed price) and takes the tracked marker's match from
+the best joint assignment. A neighbour that moved into the marker's place is then
+explained by the neighbour's own move, and the marker by the longer one. When the best
+assignment that gives the marker another disc (or none) costs nearly as much, the step
+is ambiguous and the run stops there: no position is better than a neighbour's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["assign_first_step", "best_assignments", "first_step"]
+
+#: Candidates whose marker-weighted NCC with the pattern is below this are not discs
+#: like the tracked marker (texture, shading, half a lid edge).
+SIMILAR_NCC = 0.75
+#: Only candidates this close (in NCC) to the new frame's best one take part, in both
+#: frames: discs like the marker, not texture spots (a spot the departing neighbour
+#: uncovers must not stand in for it, and a spot that has to vanish must not take a
+#: disc).
+NCC_BELOW_BEST = 0.2
+#: The runner-up assignment (another match for the tracked marker, or none) must cost
+#: more than the best by at least this fraction of the tracked marker's own squared
+#: move in the best, and by at least MIN_GAP_PX2 (the other discs' costs, the same in
+#: both, do not count).
+GAP_FRACTION = 0.25
+MIN_GAP_PX2 = 25.0
+#: A choice whose disc matches the pattern this much worse (NCC) than the best choice's
+#: is no rival for the ambiguity test.
+RIVAL_NCC = 0.1
+
+def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: int,
+                     shift: NDArray[np.float64], unmatched: float
+                     ) -> list[tuple[float, int]]:
+    """The cost of the best joint assignment for each choice of the tracked disc's match.
+
+    Parameters
+    ----------
+    prev : ndarray, shape (D, 2)
+        Disc positions in the previous frame (px); ``prev[own]`` is the tracked marker.
+    new : ndarray, shape (C, 2)
+        Disc positions in the new frame (px).
+    own : int
+        Index of the tracked marker in ``prev``.
+    shift : ndarray, shape (2,)
+        Expected motion of every disc (px; zero when unknown).
+    unmatched : float
+        Cost of a disc that appears or vanishes (px^2): a match costs its squared
+        displacement from the expected place, so no match is longer than
+        ``sqrt(2 * unmatched)``; discs rarely vanish between two frames, so this is
+        high (the square of half the search region).
+
+    Returns
+    -------
+    list of (cost, choice)
+        Sorted by cost, one entry per choice: ``choice`` is the index in ``new`` of the
+        tracked marker's match, or -1 for none.
+
+    Examples
+    --------
+    Two discs 25 px apart both move 30 px down: the tracked one (index 0) is matched to
+    the far disc, because its neighbour explains the near one.
+
+    >>> prev = np.array([[0.0, 0.0], [0.0, -25.0]])
+    >>> new = np.array([[0.0, 30.0], [0.0, 5.0]])
+    >>> best_assignments(prev, new, 0, np.zeros(2), 40.0 ** 2)[0][1]
+    0
+    """
+    D, C = len(prev), len(new)
+    d2 = ((new[None, :, :] - prev[:, None, :] - shift) ** 2).sum(-1)     # (D, C)
+    big = 1e12
+    n = D + C
+    out = []
+    for choice in range(-1, C):
+        # the augmented square problem: D discs x (C matches + D "vanished"), and C
+        # "appeared" rows; the tracked disc's row is forced to its choice
+        m = np.full((n, n), big)
+        m[:D, :C] = np.minimum(d2, big)
+        m[:D, C:] = np.where(np.eye(D, dtype=bool), unmatched, big)
+        m[D:, :C] = np.where(np.eye(C, dtype=bool), unmatched, big)
+        m[D:, C:] = 0.0
+        m[own, :] = big
+        if choice >= 0:
+            m[own, choice] = d2[own, choice]
+            m[:, choice] = np.where(np.arange(n) == own, d2[own, choice], big)
+        else:
+            m[own, C + own] = unmatched
+        r, c = linear_sum_assignment(m)
+        cost = float(m[r, c].sum())
+        if cost < big:
+            out.append((cost, choice))
+    out.sort()
+    return out
+
+
+def assign_first_step(candidates_prev: Sequence[tuple[NDArray[np.float64], float]],
+                      candidates_new: Sequence[tuple[NDArray[np.float64], float]],
+                      pos: NDArray[np.float64], shift: NDArray[np.float64],
+                      search_half: float, own_px: float) -> NDArray[np.float64] | None:
+    """The tracked marker's position in the new frame by joint assignment, or None.
+
+    Parameters
+    ----------
+    candidates_prev, candidates_new : sequence of (xy, ncc)
+        Discs found by the pattern in the previous and the new frame (refined
+        positions in px, marker-weighted NCC), e.g. from the tracker's candidate search
+        over the search region around the marker and around its prediction.
+    pos : ndarray, shape (2,)
+        The tracked marker in the previous frame (px).
+    shift : ndarray, shape (2,)
+        Expected motion (px; zero when unknown).
+    search_half : float
+        A disc that appears or vanishes costs its square (px^2).
+    own_px : float
+        A previous-frame candidate this near ``pos`` is the tracked marker itself.
+
+    Returns
+    -------
+    ndarray, shape (2,) or None
+        The matched disc's position; None when the tracked marker is matched to no disc,
+        or when another choice costs nearly as much (ambiguous).
+
+    Examples
+    --------
+    >>> prev = [(np.array([0.0, 0.0]), 1.0), (np.array([0.0, -25.0]), 0.95)]
+    >>> new = [(np.array([0.0, 5.0]), 0.93), (np.array([0.0, 30.0]), 0.93)]
+    >>> assign_first_step(prev, new, np.zeros(2), np.zeros(2), 40.0, 1.5).tolist()
+    [0.0, 30.0]
+    """
+    top = max((s for _, s in candidates_new), default=0.0)
+    least = max(SIMILAR_NCC, top - NCC_BELOW_BEST)
+    prev = [np.asarray(xy, float) for xy, s in candidates_prev if s >= least]
+    kept = [(np.asarray(xy, float), s) for xy, s in candidates_new if s >= least]
+    new = [xy for xy, _ in kept]
+    if not new:
+        return None
+    own = next((i for i, xy in enumerate(prev) if np.hypot(*(xy - pos)) < own_px), None)
+    if own is None:
+        prev.insert(0, np.asarray(pos, float))
+        own = 0
+    ranked = best_assignments(np.array(prev), np.array(new), own,
+                              np.asarray(shift, float), search_half ** 2)
+    if not ranked or ranked[0][1] < 0:
+        return None
+    best = new[ranked[0][1]]
+    own_cost = float(((best - prev[own] - shift) ** 2).sum())
+    # the runner-up: another choice about as like the pattern as the best (a disc that
+    # matches it clearly worse is no rival), or no match at all
+    rivals = [cost for cost, c in ranked[1:]
+              if c < 0 or kept[c][1] >= kept[ranked[0][1]][1] - RIVAL_NCC]
+    if rivals and rivals[0] - ranked[0][0] < max(MIN_GAP_PX2, GAP_FRACTION * own_cost):
+        return None
+    return best
+
+
+def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float32],
+               refiner: Any, pos: NDArray[np.float64], velocity: NDArray[np.float64],
+               xy: NDArray[np.float64], score: float, params: Any
+               ) -> tuple[NDArray[np.float64], float]:
+    """The first step of a run (motion unknown), checked against every disc around it.
+
+    Parameters
+    ----------
+    img, prev_img : ndarray (H, W)
+        The new and the previous frame.
+    tpl : ndarray (P, P) float32
+        The pattern (zero mean, unit variance) and ``refiner`` its Lucas-Kanade refiner.
+    refiner : carapost.algorithms.target_track._Refiner
+    pos, velocity : ndarray, shape (2,)
+        The marker in the previous frame and its expected motion (px).
+    xy, score : ndarray (2,), float
+        The tracker's own match in the new frame (NaN when none).
+    params : TargetTrackerParameters
+        With no distance penalty or ambiguity margin (the tracker's backwards settings).
+
+    Returns
+    -------
+    xy, score
+        The step to take: the tracker's own match when the joint assignment agrees,
+        the disc it assigns to the marker otherwise (a longer move that the search
+        region's best match missed), NaN and 0 when the marker's match is ambiguous or
+        none.
+
+    Notes
+    -----
+    Both frames are searched over 1.5 x the search region (a first step is not
+    predicted; twice the region in the previous frame found no more and cost twice as
+    much).
+    """
+    from dataclasses import replace
+
+    from carapost.algorithms.target_track import _candidates, match_patch
+
+    def discs(image: NDArray[Any], centre: Any, size: int) -> list:
+        return _candidates(image, tpl, centre, replace(params, search_size=size), refiner,
+                           n=10)
+
+    if np.all(np.isfinite(xy)) and np.hypot(*(xy - pos - velocity)) <= params.check_step_px:
+        # a short step needs no assignment (the tracker's own checks hold it): among
+        # texture spots the joint optimum can prefer another place for a marker at rest
+        return xy, score
+    S = params.search_size
+    wide = int(1.5 * S) | 1
+    new = discs(img, pos + velocity, wide)
+    prev = discs(prev_img, pos, wide)
+    # a disc appearing or vanishing costs half of (half the search region)^2: a match
+    # is never longer than half the search region
+    hit = assign_first_step(prev, new, pos, velocity, S / 2.0 / 2 ** 0.5,
+                            params.max_refine_px)
+    nan = np.array([np.nan, np.nan])
+    if hit is None:
+        return nan, 0.0
+    if np.all(np.isfinite(xy)) and np.hypot(*(hit - xy)) < params.max_refine_px:
+        return xy, score
+    # another disc than the search region's best match: refined and scored like it
+    xy2, score2 = match_patch(img, tpl, hit, replace(
+        params, search_size=params.pattern_size + 6), refiner)
+    if not (np.all(np.isfinite(xy2)) and np.hypot(*(xy2 - hit)) < params.max_refine_px):
+        return nan, 0.0
+    return xy2, score2
