@@ -129,8 +129,9 @@ def neighbour_prediction(X: ArrayLike, tri: ArrayLike, *, k: int = NEIGHBOURS,
             have = g >= 0
             gg = np.where(have, g, 0)
             # neighbours' displacement from g to f, over those triangulated at both
-            both = tri[frames][:, n] & tri[gg][:, n] & have[:, None]  # (F, n)
-            disp = np.where(both[..., None], X[:, n] - X[gg][:, n], 0.0).sum(1)
+            # (index the neighbours first: a whole-take copy per point would cost F*P^2)
+            both = tri[:, n] & tri[gg[:, None], n] & have[:, None]  # (F, n)
+            disp = np.where(both[..., None], X[:, n] - X[gg[:, None], n], 0.0).sum(1)
             cnt = both.sum(1)
             ok = have & (cnt > 0)
             est = X[gg, p] + disp / np.maximum(cnt, 1)[:, None]

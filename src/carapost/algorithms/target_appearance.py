@@ -11,20 +11,22 @@ marker:
   falls below the Break Threshold one to three frames before the marker disappears.
 - *A fading marker* (sweat, a smudge, a grazing light): its contrast against the skin
   falls, the skin's texture does not, so the pattern taken at full contrast stops
-  matching a few frames into the fade.
+  matching a few frames into the fade. This step does **not** follow it: a marker whose
+  contrast has left 0.8-1.25 times its keyframe's (`MIN_CONTRAST`) is refused, since
+  following a faint disc frame to frame drifts; the artist keys it on a faded frame.
 
 :func:`follow_appearance` is the step the tracker takes when the keyframe match of a
-frame fails right after a confident frame. It matches the *appearance* of the marker in
-the previous frame (the patch at the previous tracked position: one frame of change,
-not the many since the keyframe), with a robust Lucas-Kanade refinement whose Tukey
-weights drop the pixels that changed (the lash line sliding in, the lid's edge). The
-position is then refined once more, robustly, against the keyframe pattern itself, so
-that the chain of appearances cannot walk away from the marker frame by frame; and the
-step is accepted only while the keyframe pattern's centre (the marker disc, weighted
-like the tracker's own score) still matches at the new place above the Anchor Score.
-When the marker disappears, the disc the previous appearance shows is missing: the
-centre no longer matches the keyframe and the robust match of the appearance falls, so
-the track still stops at the first hidden frame.
+frame fails after a tracked frame (a keyframe match or an earlier appearance step). It
+matches the *appearance* of the marker in the previous frame (the patch at the previous
+tracked position: one frame of change, not the many since the keyframe), with a robust
+Lucas-Kanade refinement whose Tukey weights drop the pixels that changed (the lash line
+sliding in, the lid's edge). The position is then refined once more, robustly, against
+the keyframe pattern itself, so that the chain of appearances cannot walk away from the
+marker frame by frame; and the step is accepted only while the keyframe pattern's centre
+(the marker disc, weighted like the tracker's own score) still matches at the new place
+above the Anchor Score. When the marker disappears, the disc the previous appearance
+shows is missing: the centre no longer matches the keyframe and the robust match of the
+appearance falls, so the track still stops at the first hidden frame.
 
 Coordinates are raw pixels with OpenCV's pixel-centre convention, as in
 :mod:`carapost.algorithms.target_track`.
@@ -60,8 +62,8 @@ MIN_REWEIGHTS = 3
 
 
 def _shift(crop: NDArray[np.float64], x: float, y: float, size: int) -> NDArray[np.float64]:
-    # the tracker's exact separable bicubic sampler (imported late: the tracker imports
-    # this module inside its loop)
+    # the tracker's own sampler (6-point cubic, padded at the crop's border), so both
+    # steps resample alike; imported late because target_track imports this module
     from carapost.algorithms.target_track import _shift as shift
     return shift(crop, x, y, size)
 

@@ -65,7 +65,7 @@ def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: i
         Cost of a disc that appears or vanishes (px^2): a match costs its squared
         displacement from the expected place, so no match is longer than
         ``sqrt(2 * unmatched)``; discs rarely vanish between two frames, so this is
-        high (the square of half the search region).
+        high (the caller passes an eighth of the search region's size squared).
 
     Returns
     -------

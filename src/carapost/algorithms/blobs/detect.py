@@ -250,7 +250,7 @@ def detect_blobs_batch(
 
     mask8 = None if mask is None else np.ascontiguousarray(np.asarray(mask) != 0)
     # a small batch (the current frame) is shared among all the processes
-    chunk = max(1, min(PROCESS_CHUNK, -(-len(keys) // (2 * workers))))
+    chunk = max(1, min(PROCESS_CHUNK, -(-len(keys) // (2 * max(int(workers), 1)))))
     return parallel.map_arrays(get_image, keys, _detect_in_process, (params, mask8),
                                workers=workers, pool=_POOL, chunk=chunk,
                                check=check, progress=progress)

@@ -64,7 +64,8 @@ REFINE_RADIUS = 12.0
 EDGE_COVERAGE = 1.5
 EDGE_FRACTION = 0.03
 #: Coverage below which a pixel does not count in the blob's centre (the ellipse
-#: moments keep every pixel); coverage above it is stretched linearly to 0-1, which
+#: moments keep every pixel); coverage from it to 0.9 is stretched linearly to 0-1 (and
+#: saturates above 0.9), which
 #: keeps the centre of a symmetric blob where it is. The lowest coverages are the
 #: optics' blur tail at the edge of the support, which pixels of it fall inside the
 #: support depending on the sub-pixel position (a thin oblique marker: centre error

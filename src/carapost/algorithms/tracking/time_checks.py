@@ -119,6 +119,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
     o["recon"][lost] = RECON_NONE
     o["positions"][lost] = np.nan
+    o["residual"][lost] = np.nan
     return n
 
 
