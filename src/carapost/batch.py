@@ -545,13 +545,13 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
                              fbx=bool(fbx), patch_tracking=bool(patch_tracking),
                              stabilize=stabilize)
     started = time.perf_counter()
-    if client is None and not scheduler:
-        # the fork server imports the take's modules (~1.6 s CPU) on the other core while
-        # this process finds and checks the takes and starts the scheduler: the first
-        # worker is forked from it, so this was the start-up's longest wait. (Bad input
-        # found below leaves it idle; it ends with this program.)
-        start_fork_server()
     tasks = plan(inputs, out, settings)
+    if client is None and not scheduler:
+        # the input is good (bad input is refused above, before any work): the fork
+        # server imports the take's modules (~1.6 s CPU) on the other core while this
+        # process reads the manifest and starts the scheduler; the first worker is forked
+        # from it, so this was the start-up's longest wait
+        start_fork_server()
     outdir = Path(out).absolute()
     own: tuple[Any, ...] | None = None
     if client is None and scheduler:

@@ -111,7 +111,8 @@ def lifeline(parent: int | None = None, every_s: float = 0.5, *,
 # sends that signal when the starting *thread* ends.)
 _PARENT_ENV = PARENT_PID_ENV = "CARAPOST_PARENT_PID"
 #: True in the forkserver of the program's pools (and in a spawned worker where there is
-#: no forkserver): a preload module may prepare there what every worker inherits.
+#: no forkserver), and so also in every worker forked from it, which inherits the
+#: module's state: a preload module may prepare there what every worker inherits.
 IN_POOL_SERVER = os.environ.get(_PARENT_ENV) == str(os.getppid())
 if IN_POOL_SERVER:
     lifeline(os.getppid(), pdeathsig=False)
@@ -178,7 +179,12 @@ class ProcessPool:
             if self._idle_timer is not None:
                 self._idle_timer.cancel()
                 self._idle_timer = None
-        return self.executor(workers)
+        try:
+            return self.executor(workers)
+        except BaseException:
+            with self._lock:  # not acquired: the idle shutdown must still come
+                self._users -= 1
+            raise
 
     def release(self) -> None:
         """A batch is done: stop the processes after ``idle_s`` seconds without work."""
@@ -231,7 +237,11 @@ class ProcessPool:
         idle countdown.
         """
         def work() -> None:
-            executor = self.acquire(workers)
+            try:
+                executor = self.acquire(workers)
+            except Exception:  # not acquired: nothing to release; the next batch reports
+                log.debug("warm start of the worker processes failed", exc_info=True)
+                return
             try:
                 # One short task per process: a submit that finds no idle process
                 # starts one, and each task outlasts the next submit.

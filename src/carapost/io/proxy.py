@@ -135,7 +135,10 @@ def write_proxy(video: str | Path, *, progress: Callable[[int, int], bool] | Non
         Called after each frame; returning False cancels (no file is left).
     downscale : int, optional
         Times smaller than the original in width and height (default: `proxy_downscale`
-        of the original's size). Images are shrunk by pixel-area averaging.
+        of the original's size). Images are shrunk by pixel-area averaging. The file
+        name does not carry the scale: another scale is for measurements only (it is
+        the video's proxy afterwards, and an existing proxy is returned whatever its
+        scale).
 
     Returns
     -------

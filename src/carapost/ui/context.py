@@ -146,6 +146,8 @@ class ViewContext(QObject):
         #: Target Track point edit mode shown in the camera views ("add", "edit", "")
         self.point_mode = ""
         self.frames: FrameSource = FrameSource()
+        #: threads closing earlier takes' frame services (joined at shutdown)
+        self.closing: list[threading.Thread] = []
         self.options = DisplayOptions()
         self.preselected: int | None = None  # point id under the mouse
         self.active_camera: int | None = None
@@ -175,8 +177,11 @@ class ViewContext(QObject):
         if getattr(old, "asynchronous", False):
             # the old take's decoder threads finish the frame in hand before they stop:
             # the GUI thread does not wait for them
-            threading.Thread(target=old.close, name="carapost-close-frames",
-                             daemon=True).start()
+            closing = threading.Thread(target=old.close, name="carapost-close-frames",
+                                       daemon=True)
+            closing.start()
+            # joined at shutdown: PyAV must not be closing a file while Python exits
+            self.closing = [t for t in self.closing if t.is_alive()] + [closing]
         else:
             old.close()
         self.project = project
@@ -604,3 +609,5 @@ class ActionContext(QObject):
         self.bridge.detach()
         self.session.close()
         self.view.frames.close()
+        for closing in self.view.closing:
+            closing.join(10)

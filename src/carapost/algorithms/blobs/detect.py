@@ -14,6 +14,7 @@ Examples
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Hashable, Sequence
 
 import cv2
@@ -152,19 +153,19 @@ _POOL = parallel.ProcessPool(initializer=_worker_init,
                              preload=[__name__, "carapost.algorithms.blobs._preload"])
 
 
-def start_workers(workers: int = 2) -> None:
+def start_workers(workers: int = 2) -> threading.Thread:
     """Start the detector processes in the background (returns at once), so that the
     first batch on processes, even a small one (Detect Blobs [Current Frame] with
     ``processes=True``), does not wait for them. A window calls this when a take opens.
     They stop after :data:`carapost.parallel.IDLE_SHUTDOWN_S` without work, as after a
-    batch.
+    batch. Returns the (daemon) thread that starts them.
 
     Examples
     --------
-    >>> start_workers(1)
+    >>> start_workers(1).join()
     >>> shutdown_workers()
     """
-    _POOL.start(workers)
+    return _POOL.start(workers)
 
 
 def shutdown_workers() -> None:

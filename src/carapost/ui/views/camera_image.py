@@ -79,6 +79,10 @@ class CameraImageMixin:
                 # Decoded on the frame service's threads: keep the previous image until
                 # ``frame_ready`` brings this one (the GUI never waits for a decoder).
                 src.request(frame, self.camera)
+                # a decoder reading ahead may have cached it between the two calls,
+                # and then no signal follows: look once more
+                img, proxy = src.display(frame, self.camera)
+            if img is None and src.asynchronous:
                 if note is None and self._current_image is not None:
                     self._image_frame = None
                     self._set_notice(None)
