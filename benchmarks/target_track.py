@@ -95,12 +95,18 @@ def render(cfg: SynthConfig):
         key = hashlib.sha1(repr(cfg).encode()).hexdigest()[:16]
         path = os.path.join(CACHE_DIR, f"target_track_{key}.npy")
         if os.path.exists(path):
-            return scene, np.load(path, mmap_mode="r")
+            try:
+                return scene, np.load(path, mmap_mode="r")
+            except ValueError:  # a render cut short by an older, non-atomic writer
+                os.remove(path)
     imgs = np.stack([np.stack([render_frame(scene, f, c) for c in range(scene.n_cameras)])
                      for f in range(cfg.frames)])
     if path is not None:
         os.makedirs(CACHE_DIR, exist_ok=True)
-        np.save(path, imgs)
+        # written aside and renamed: a run stopped mid-write leaves no truncated cache
+        part = f"{path}.{os.getpid()}.partial.npy"
+        np.save(part, imgs)
+        os.replace(part, path)
     return scene, imgs
 
 
