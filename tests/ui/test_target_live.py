@@ -18,7 +18,7 @@ from carapost.ui.handlers import target_live
 from carapost.ui.settings import set_preference
 from carapost.ui.views.continuity import KEYFRAME, N_QUALITY, TARGET0, camera_codes
 from tests.commands.test_edit_commands import snapshot
-from tests.ui.test_target_tracker_ui import _click_image, take  # noqa: F401 (fixture)
+from tests.ui.test_target_tracker_ui import _keyed_point, take  # noqa: F401 (fixture)
 
 
 def _slow_window(make_window, take, qtbot, delay: float = 0.01):  # noqa: F811
@@ -37,17 +37,6 @@ def _slow_window(make_window, take, qtbot, delay: float = 0.01):  # noqa: F811
     return w, p, scene
 
 
-def _keyed_point(w, scene, cameras=(0, 1), label="Cheek_L") -> tuple[int, int, int]:
-    m = list(scene.labels).index(label)
-    w.action("edit.add_target_track").trigger()
-    _click_image(w, cameras[0], scene.uv[0, m, cameras[0]])
-    (pid,) = w.context.project.selection.points
-    w.action("edit.edit_target_track").trigger()
-    for c in cameras[1:]:
-        _click_image(w, c, scene.uv[0, m, c])
-    w.action("edit.stop_point_edit").trigger()
-    col = int(w.context.project.points.index_of([pid])[0])
-    return pid, col, m
 
 
 @pytest.mark.parametrize("live", [True, False])

@@ -12,6 +12,7 @@ from tests.commands.test_edit_commands import snapshot
 from tests.ui.test_target_sizes_ui import _drag
 from tests.ui.test_target_tracker_ui import (  # noqa: F401 (take is a fixture)
     _click_image,
+    _keyed_point,
     _run,
     _view,
     _window,
@@ -19,17 +20,6 @@ from tests.ui.test_target_tracker_ui import (  # noqa: F401 (take is a fixture)
 )
 
 BUTTONS = ("back_to_start", "back_one", "forward_one", "forward_to_end")
-
-
-def _keyed(w, scene, label="Cheek_L"):
-    m = list(scene.labels).index(label)
-    w.action("edit.add_target_track").trigger()
-    _click_image(w, 0, scene.uv[0, m, 0])
-    w.action("edit.edit_target_track").trigger()
-    _click_image(w, 1, scene.uv[0, m, 1])
-    w.action("edit.stop_point_edit").trigger()
-    (pid,) = w.context.project.selection.points
-    return pid, m
 
 
 def _refused(w, before, n, text, qtbot=None):
@@ -65,7 +55,7 @@ def test_keyframe_outside_the_image(make_window, take, qtbot):  # noqa: F811
     for xy in ((2.0, 2.0), (639.0, 180.0), (320.0, 355.0)):   # its box leaves the image
         _click_image(w, 0, xy)
         _refused(w, before, n, "does not fit")
-    pid, m = _keyed(w, scene)
+    pid, _, m = _keyed_point(w, scene)
     before, n = snapshot(p), len(w.stack.history())
     w.action("edit.edit_target_track").trigger()
     _click_image(w, 2, (637.0, 4.0))
@@ -74,7 +64,7 @@ def test_keyframe_outside_the_image(make_window, take, qtbot):  # noqa: F811
 
 def test_pattern_larger_than_allowed_or_the_image(make_window, take, qtbot):  # noqa: F811
     w, p, scene = _window(make_window, take, qtbot)
-    pid, m = _keyed(w, scene)
+    pid, _, m = _keyed_point(w, scene)
     w.flush()
     col = int(p.points.index_of([pid])[0])
     centre = p.points.obs[0, col, 0].astype(float)
@@ -101,7 +91,7 @@ def test_no_images_for_the_take(make_window, take, qtbot):  # noqa: F811
 
 def test_marker_lost_on_the_first_frame_says_where(make_window, take, qtbot):  # noqa: F811
     w, p, scene = _window(make_window, take, qtbot)
-    pid, m = _keyed(w, scene)
+    pid, _, m = _keyed_point(w, scene)
     # no match is perfect: every track is lost on its first frame
     w.context.session.set_property("Target Tracker", "tracker_break_threshold", 1.0)
     before, n = snapshot(p), len(w.stack.history())

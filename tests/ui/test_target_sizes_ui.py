@@ -10,6 +10,7 @@ from tests.commands.test_edit_commands import snapshot
 from tests.ui.test_target_tracker_ui import (  # noqa: F401 (take is a fixture)
     _click_image,
     _Drag,
+    _keyed_point,
     _view,
     _window,
     take,
@@ -31,14 +32,7 @@ def _extent(item) -> float:
 
 def test_dragging_the_handles_sets_this_tracks_sizes(make_window, take, qtbot):  # noqa: F811
     w, p, scene = _window(make_window, take, qtbot)
-    m = list(scene.labels).index("Cheek_L")
-    w.action("edit.add_target_track").trigger()
-    _click_image(w, 0, scene.uv[0, m, 0])
-    w.action("edit.edit_target_track").trigger()
-    _click_image(w, 1, scene.uv[0, m, 1])
-    w.action("edit.stop_point_edit").trigger()
-    (pid,) = p.selection.points
-    col = int(p.points.index_of([pid])[0])
+    pid, col, m = _keyed_point(w, scene)
     centre = p.points.obs[0, col, 0].astype(float)
     view = _view(w, 0)
     w.flush()
@@ -81,12 +75,7 @@ def test_dragging_the_handles_sets_this_tracks_sizes(make_window, take, qtbot): 
 
 def test_a_drag_inside_the_box_still_moves_the_keyframe(make_window, take, qtbot):  # noqa: F811
     w, p, scene = _window(make_window, take, qtbot)
-    m = list(scene.labels).index("Cheek_L")
-    w.action("edit.add_target_track").trigger()
-    _click_image(w, 0, scene.uv[0, m, 0])
-    w.action("edit.stop_point_edit").trigger()
-    (pid,) = p.selection.points
-    col = int(p.points.index_of([pid])[0])
+    pid, col, m = _keyed_point(w, scene, cameras=(0,))
     centre = p.points.obs[0, col, 0].astype(float)
     _drag(_view(w, 0), centre + [3.0, 2.0], centre + [4.0, 2.0])
     assert p.target_sizes == {}

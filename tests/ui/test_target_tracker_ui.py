@@ -49,6 +49,23 @@ def _click_image(w, camera: int, xy) -> None:
                Qt.KeyboardModifier.NoModifier, False)
 
 
+def _keyed_point(w, scene, cameras=(0, 1), label="Cheek_L") -> tuple[int, int, int]:
+    """A new target-tracked point keyed at the marker's truth on frame 0, through the
+    window's actions: Add Target Track in the first camera, Edit Target Track in the
+    others. Returns (point id, its column, the marker's truth index)."""
+    m = list(scene.labels).index(label)
+    w.action("edit.add_target_track").trigger()
+    _click_image(w, cameras[0], scene.uv[0, m, cameras[0]])
+    (pid,) = w.context.project.selection.points
+    if len(cameras) > 1:
+        w.action("edit.edit_target_track").trigger()
+        for c in cameras[1:]:
+            _click_image(w, c, scene.uv[0, m, c])
+    w.action("edit.stop_point_edit").trigger()
+    col = int(w.context.project.points.index_of([pid])[0])
+    return pid, col, m
+
+
 def _run(w, qtbot, button: str) -> None:
     pane = w.pane("Tracker")
     pane.buttons[button].click()
@@ -201,12 +218,7 @@ class _Drag:
 
 def test_dragging_a_keyframe_is_one_undo_step(make_window, take, qtbot):
     w, p, scene = _window(make_window, take, qtbot)
-    m = list(scene.labels).index("Cheek_L")
-    w.action("edit.add_target_track").trigger()
-    _click_image(w, 0, scene.uv[0, m, 0])
-    w.action("edit.stop_point_edit").trigger()
-    (pid,) = p.selection.points
-    col = int(p.points.index_of([pid])[0])
+    pid, col, m = _keyed_point(w, scene, cameras=(0,))
     before = snapshot(p)
     view = _view(w, 0)
     start = scene.uv[0, m, 0] + 1.0
