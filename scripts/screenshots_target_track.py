@@ -15,17 +15,9 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from PySide6.QtCore import QRectF
-
-
-def _settle(app, seconds: float = 0.4) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        app.processEvents()
-        time.sleep(0.01)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     from carapost.ui.app import application
     from carapost.ui.frames import ArrayFrameSource
     from carapost.ui.mainwindow import MainWindow
+    from carapost.ui.screenshots import _settle
 
     app = application()
     project, scene, render = scene_project(60, (1280, 720))
@@ -63,27 +56,27 @@ def main(argv: list[str] | None = None) -> int:
     ws.containers[0].set_spec("sensor:0")
     ws.containers[1].set_spec("continuity")
     w.docks["Tracker"].raise_()
-    _settle(app)
+    _settle(app, 0.4)
     view = ws.containers[0].view
     x, y = scene.uv[0, m, 0]
     view.vb.setRange(QRectF(x - 60, y - 40, 120, 80), padding=0)
-    _settle(app)
+    _settle(app, 0.4)
     w.grab().save(str(out / "target-track-selected.png"))
     w.set_frame(20)
     w.docks["Selected Point"].show()
     w.docks["Selected Point"].raise_()
-    _settle(app)
+    _settle(app, 0.4)
     w.grab().save(str(out / "target-track-selected-point.png"))
     s.set_target_track_size(pid, 0, pattern=15)
     s.set_target_track_size(pid, 0, search=121)
     w.set_frame(0)
     ws.containers[1].set_spec("sensor:1")
     w.docks["Tracker"].raise_()
-    _settle(app)
+    _settle(app, 0.4)
     for c, container in enumerate(ws.containers[:2]):
         x, y = scene.uv[0, m, c]
         container.view.vb.setRange(QRectF(x - 80, y - 55, 160, 110), padding=0)
-    _settle(app)
+    _settle(app, 0.4)
     w.grab().save(str(out / "target-track-sizes.png"))
     w.stack.clear()
     w.stack.mark_clean()

@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     from carapost.ui.app import application
     from carapost.ui.frames import ArrayFrameSource
     from carapost.ui.mainwindow import MainWindow
+    from carapost.ui.screenshots import _settle
     from carapost.ui.settings import set_preference
 
     app = application()
@@ -47,13 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     w.set_project(project, ArrayFrameSource(slow, cache_size=64))
     w.show()
 
-    def settle(seconds: float = 0.5) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            app.processEvents()
-            time.sleep(0.01)
-
-    settle(1.0)
+    _settle(app, 1.0)
     set_preference(w.context.settings, "tracker_update_2d_view_every_frame", True)
     w.docks["Tracker"].show()
     w.docks["Tracker"].raise_()
@@ -71,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     for c in range(1, scene.n_cameras):
         click(c, scene.uv[0, m, c])
     w.action("edit.stop_point_edit").trigger()
-    settle(0.3)
+    _settle(app, 0.3)
     w.pane("Tracker").buttons["forward_to_end"].click()
     t0 = time.monotonic()
     shot = False
