@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.target_refine import gaussian_window, shift_patch
+
 __all__ = ["appearance_step", "follow_appearance", "robust_refine", "robust_score",
            "window_contrast"]
 
@@ -61,18 +63,8 @@ MIN_CONTRAST = 0.8
 MIN_REWEIGHTS = 3
 
 
-def _shift(crop: NDArray[np.float64], x: float, y: float, size: int) -> NDArray[np.float64]:
-    # the tracker's own sampler (6-point cubic, padded at the crop's border), so both
-    # steps resample alike; imported late because target_track imports this module
-    from carapost.algorithms.target_track import _shift as shift
-    return shift(crop, x, y, size)
-
-
 def _window(size: int, sigma: float) -> NDArray[np.float64]:
-    g = np.arange(size) - size // 2
-    if sigma <= 0:
-        return np.full(size * size, 1.0 / (size * size))
-    w = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / sigma ** 2).ravel()
+    w = gaussian_window(size, sigma).ravel()  # the tracker's score window, sum 1
     return w / w.sum()
 
 
@@ -165,7 +157,7 @@ def robust_refine(crop: NDArray[np.float64], origin: tuple[int, int],
         cx, cy = p[0] - ox, p[1] - oy
         if not (lo <= cx <= hi_x and lo <= cy <= hi_y):
             return nan, wt / wt.sum(), 0.0
-        w = _shift(crop, cx, cy, size).ravel()
+        w = shift_patch(crop, cx, cy, size).ravel()
         JW = J * wt
         try:
             sol = np.linalg.solve(JW @ J.T, JW @ w)
@@ -189,7 +181,7 @@ def robust_refine(crop: NDArray[np.float64], origin: tuple[int, int],
     cx, cy = p[0] - ox, p[1] - oy
     if not (lo <= cx <= hi_x and lo <= cy <= hi_y):
         return nan, wt / wt.sum(), 0.0
-    w = _shift(crop, cx, cy, size).ravel()
+    w = shift_patch(crop, cx, cy, size).ravel()
     return p, wt / wt.sum(), _weighted_ncc(w, tn.ravel(), wt)
 
 
@@ -327,7 +319,7 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
     if not np.all(np.isfinite(xk)) or np.hypot(*(xk - pred)) > max_move:
         return nan, 0.0
     ox, oy = xk[0] - x0, xk[1] - y0
-    w = _shift(crop, ox, oy, P).ravel()
+    w = shift_patch(crop, ox, oy, P).ravel()
     if key_contrast is not None and not (
             MIN_CONTRAST <= window_contrast(w, weight_sigma) / max(key_contrast, 1e-9)
             <= 1.0 / MIN_CONTRAST):

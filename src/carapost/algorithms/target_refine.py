@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["TAPS", "cubic6_weights", "marker_weight", "shift_patch"]
+__all__ = ["TAPS", "cubic6_weights", "gaussian_window", "marker_weight", "shift_patch"]
 
 #: Samples per axis of the resampling kernel (6-point cubic): offsets -2 .. 3.
 TAPS = 6
@@ -124,6 +124,19 @@ def shift_patch(crop: NDArray[np.float64], x: float, y: float, size: int
     return out[:size, :size]
 
 
+def gaussian_window(size: int, sigma: float) -> NDArray[np.float64]:
+    """The ``size`` x ``size`` Gaussian centred on the middle pixel, peak 1 (px sigma);
+    all ones when ``sigma <= 0``. The tracker's score window and fit weights start here.
+
+    >>> float(gaussian_window(3, 0.0).sum()), round(float(gaussian_window(3, 1.0)[0, 1]), 4)
+    (9.0, 0.6065)
+    """
+    if sigma <= 0:
+        return np.ones((size, size))
+    g = np.arange(size) - size // 2
+    return np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / sigma ** 2)
+
+
 def marker_weight(tpl: NDArray[np.floating], sigma: float, *, rim: int = 4,
                   min_contrast: float = 2.0) -> NDArray[np.float64]:
     """Refinement weights that follow the marker in a pattern, not its surroundings.
@@ -169,11 +182,7 @@ def marker_weight(tpl: NDArray[np.floating], sigma: float, *, rim: int = 4,
     """
     n = tpl.shape[0]
     c = n // 2
-    g = np.arange(n) - c
-    if sigma > 0:
-        gauss = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / sigma ** 2)
-    else:
-        gauss = np.ones((n, n))
+    gauss = gaussian_window(n, sigma)
     k = max(int(n * 0.5) | 1, 3)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
     t = np.ascontiguousarray(tpl, dtype=np.float32)

@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import first_step as _assigned_step
-from carapost.algorithms.target_refine import marker_weight, shift_patch
+from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
 
 __all__ = [
     "STOP_CANCELLED",
@@ -245,12 +245,6 @@ def check_keyframe(xy: Any, shape: tuple[int, ...], pattern_size: int) -> None:
                          f"not fit in the {W} x {H} image")
 
 
-def _shift(crop: NDArray[np.float64], x: float, y: float, size: int) -> NDArray[np.float64]:
-    """The ``size`` x ``size`` patch of ``crop`` centred on (x, y) in crop pixels
-    (separable 6-point cubic: :func:`carapost.algorithms.target_refine.shift_patch`)."""
-    return shift_patch(crop, x, y, size)
-
-
 def sample_patch(image: NDArray[Any], xy: Any, size: int) -> NDArray[np.float32]:
     """The ``size`` x ``size`` patch centred on sub-pixel ``xy`` (6-point cubic convolution).
 
@@ -285,7 +279,7 @@ def sample_patch(image: NDArray[Any], xy: Any, size: int) -> NDArray[np.float32]
     if crop.shape != (n, n):   # at the border: pad by repeating it
         crop = np.pad(crop, ((max(-y0, 0), n - crop.shape[0] - max(-y0, 0)),
                              (max(-x0, 0), n - crop.shape[1] - max(-x0, 0))), mode="edge")
-    return _shift(crop, x - x0, y - y0, size).astype(np.float32)
+    return shift_patch(crop, x - x0, y - y0, size).astype(np.float32)
 
 
 def _normalise(p: NDArray[np.float32]) -> NDArray[np.float32] | None:
@@ -335,11 +329,7 @@ class _Refiner:
         if shading:   # a shading ramp across the box (skin curving away from the light)
             cols += [np.tile(g, n), np.repeat(g, n)]
         J = np.stack(cols)                                        # (4 or 6, N)
-        if weight_sigma > 0:   # weigh the marker at the centre over its surroundings
-            g = np.arange(n) - n // 2
-            wt = np.exp(-0.5 * (g[:, None] ** 2 + g[None, :] ** 2) / weight_sigma ** 2)
-        else:
-            wt = np.ones((n, n))
+        wt = gaussian_window(n, weight_sigma)  # the marker at the centre over its surroundings
         self.wt = wt.ravel() / wt.sum()   # the score's window
         # the fit weighs the marker blob and its rim, not the lid or lip edges around it
         fit = marker_weight(tpl, weight_sigma).ravel() if marker else self.wt
@@ -369,7 +359,7 @@ class _Refiner:
             cx, cy = p[0] - ox, p[1] - oy
             if not (lo <= cx <= hi_x and lo <= cy <= hi_y):
                 return np.array([np.nan, np.nan]), 0.0, False
-            w = _shift(crop, cx, cy, size).ravel()
+            w = shift_patch(crop, cx, cy, size).ravel()
             sol = self.Hinv @ (self.J @ w)       # (a dx, a dy, a, b)
             a = sol[2]
             if not a > 1e-6:                      # contrast inverted or gone: no marker
@@ -386,7 +376,7 @@ class _Refiner:
         # not a look-alike neighbour) and the NCC weighted to the centre like the
         # refinement (the marker itself is there: one that vanishes from an unchanged
         # background scores low)
-        w = _shift(crop, cx, cy, size).ravel()
+        w = shift_patch(crop, cx, cy, size).ravel()
         wc = w - self.wt @ w
         den = math.sqrt(float(self.wt @ (wc * wc)))
         ncc_w = float(self.tpl_w @ wc) / den if den > 1e-9 else 0.0
