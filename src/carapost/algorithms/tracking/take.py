@@ -34,7 +34,11 @@ from carapost.algorithms.tracking.identity import (
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
 from carapost.algorithms.tracking.sequence import Spawner, track
-from carapost.algorithms.tracking.time_checks import place_single_sensor, reject_by_motion
+from carapost.algorithms.tracking.time_checks import (
+    detach_observations,
+    place_single_sensor,
+    reject_by_motion,
+)
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
     brim_pose_covariance,
@@ -388,8 +392,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             X, res, used = _resolve_rejecting(obs, R, t, intr, redo, target)
             ok = redo & np.isfinite(X).all(-1)
             drop = ok[..., None] & np.isfinite(obs).all(-1) & ~used
-            for k in ("obs", "source", "detection", "quality"):  # not its keyframes
-                o[k][drop] = POINT_FILLS[k]
+            detach_observations(o, drop)
             obs[drop] = np.nan
         else:
             X, res = retriangulate(obs, R, t, intr, redo)

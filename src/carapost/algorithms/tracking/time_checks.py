@@ -42,7 +42,7 @@ from carapost.algorithms.single_sensor import (
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
 from carapost.algorithms.uncertainty import retriangulate
 
-__all__ = ["place_single_sensor", "reject_by_motion"]
+__all__ = ["detach_observations", "place_single_sensor", "reject_by_motion"]
 
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
@@ -52,7 +52,7 @@ MAX_GAP = 2
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
 
 
-def _detach(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
+def detach_observations(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
     """Remove the (F, P, C) ``drop`` observations from the arrays (not keyframes)."""
     for k in ("obs", "source", "detection", "quality"):
         o[k][drop] = POINT_FILLS[k]
@@ -105,7 +105,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     n = int(flag.sum())
     if n == 0:
         return 0
-    _detach(o, flag)
+    detach_observations(o, flag)
     obs[flag] = np.nan
     redo = flag.any(-1)
     left = np.isfinite(obs).all(-1).sum(-1)
