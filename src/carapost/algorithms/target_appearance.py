@@ -42,8 +42,8 @@ from numpy.typing import NDArray
 
 from carapost.algorithms.target_refine import gaussian_window, shift_patch
 
-__all__ = ["appearance_step", "follow_appearance", "robust_refine", "robust_score",
-           "window_contrast"]
+__all__ = ["appearance_step", "follow_appearance", "keyframe_contrast", "robust_refine",
+           "robust_score", "window_contrast"]
 
 #: Tukey's biweight constant, in robust standard deviations of the residual: pixels whose
 #: residual after the fit is beyond it get no weight (what changed in the pattern).
@@ -337,30 +337,33 @@ def follow_appearance(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: An
 
 def appearance_step(image: NDArray[Any], prev_image: NDArray[Any], prev_xy: Any,
                     predicted: Any, key_tpl: NDArray[Any], params: Any,
-                    key: tuple[NDArray[Any], Any] | None = None,
+                    key_contrast: float | None = None,
                     failed: tuple[NDArray[np.float64], float] | None = None
                     ) -> tuple[NDArray[np.float64], float]:
     """:func:`follow_appearance` with the settings of a ``TargetTrackerParameters``.
 
-    ``key`` (the image and position of the keyframe behind) sets the marker's contrast
-    as keyed: a step where the marker shows less than `MIN_CONTRAST` of it (or more
-    than its inverse) fails.
+    ``key_contrast`` (:func:`keyframe_contrast` of the keyframe behind) is the marker's
+    contrast as keyed: a step where the marker shows less than `MIN_CONTRAST` of it (or
+    more than its inverse) fails.
     ``failed`` is what the keyframe match found, returned when the step fails too (so
     the frame keeps the keyframe match's score).
     """
-    contrast = None
-    if key is not None:
-        from carapost.algorithms.target_track import sample_patch
-        contrast = window_contrast(sample_patch(key[0], key[1], params.pattern_size),
-                                   params.weight_fraction * params.pattern_size)
     xy, score = follow_appearance(
         image, prev_image, prev_xy, predicted, key_tpl, pattern_size=params.pattern_size,
         weight_sigma=params.weight_fraction * params.pattern_size,
         anchor_score=params.anchor_score, max_move=max(float(params.near_px), 2.0),
-        max_anchor_px=AGREE_PX, key_contrast=contrast)
+        max_anchor_px=AGREE_PX, key_contrast=key_contrast)
     if failed is not None and not (np.all(np.isfinite(xy)) and score >= failed[1]):
         return failed
     return xy, score
+
+
+def keyframe_contrast(image: NDArray[Any], xy: Any, params: Any) -> float:
+    """The marker's contrast at a keyframe (:func:`window_contrast` of its pattern), for
+    :func:`appearance_step`; a run computes it once per keyframe."""
+    from carapost.algorithms.target_track import sample_patch
+    return window_contrast(sample_patch(image, xy, params.pattern_size),
+                           params.weight_fraction * params.pattern_size)
 
 
 def window_contrast(patch: NDArray[Any], weight_sigma: float) -> float:

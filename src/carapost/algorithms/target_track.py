@@ -604,6 +604,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
         velocity = np.asarray(start_velocity, dtype=np.float64).reshape(2).copy()
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
+    key_contrast: dict[int, float] = {}   # per keyframe, for the appearance step
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
     back_params_first = replace(params, near_px=0, distance_penalty=0.0)
     # the previous frame, for the backwards check of long steps: the start frame too (a
@@ -664,9 +665,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                     xy, score = np.array([np.nan, np.nan]), 0.0
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
+                if pp.frame not in key_contrast:
+                    key_contrast[pp.frame] = target_appearance.keyframe_contrast(
+                        get_image(pp.frame), keys[pp.frame], params)
                 xy, score = target_appearance.appearance_step(
                     img, prev_img, pos, pos + velocity, tpl, params,
-                    (get_image(pp.frame), keys[pp.frame]), (xy, score))
+                    key_contrast[pp.frame], (xy, score))
             prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)
