@@ -1,25 +1,20 @@
-"""The Tracker pane is readable at its default width: no setting's name is elided."""
+"""The Tracker and Properties panes are readable at their default width: no
+setting's name is elided."""
 
 from __future__ import annotations
 
 from PySide6.QtWidgets import QCheckBox
 
 from carapost.algorithms.params import TARGET_TRACKER
-from carapost.model.properties import specs_in_section
+from carapost.model.properties import SPECS, specs_in_section
 from carapost.synth.demo_project import demo_project
 
 
-def test_every_setting_name_shows_whole_at_the_default_width(make_window, qtbot):
-    w = make_window(demo_project(12, 8, 4, size=(320, 240), brim=4))
-    w.resize(1920, 1050)
-    w.show()
-    w.docks["Tracker"].show()
-    w.docks["Tracker"].raise_()
-    qtbot.wait(50)
-    pane = w.pane("Tracker").settings
-    tree = pane.tree
-    labels = {s.label for s in specs_in_section(TARGET_TRACKER)}
-    labels |= {"Update Timeline Every Frame", "Update 2D View Every Frame"}
+def _names_shown_whole(tree, check_boxes_only: bool = False) -> set[str]:
+    """Every row's name in ``tree``, asserting none is elided and nothing scrolls.
+
+    With ``check_boxes_only`` a name in the Property column may be elided (a narrow pane
+    gives the names what the values leave) but then its tooltip holds it whole."""
     seen = set()
     for i in range(tree.topLevelItemCount()):
         top = tree.topLevelItem(i)
@@ -33,17 +28,49 @@ def test_every_setting_name_shows_whole_at_the_default_width(make_window, qtbot)
                 seen.add(box.text())
                 assert box.width() >= box.sizeHint().width(), box.text()
                 assert box.geometry().right() <= tree.viewport().width()
+                continue
+            seen.add(item.text(0))
+            editor = tree.itemWidget(item, 1)
+            assert editor.width() >= editor.sizeHint().width() - 2, item.text(0)
+            rect = tree.visualItemRect(item)
+            need = tree.fontMetrics().horizontalAdvance(item.text(0))
+            fits = need < tree.columnWidth(0) - (rect.left() + tree.indentation())
+            if check_boxes_only:
+                assert fits or item.toolTip(0).startswith(f"{item.text(0)}: "), item.text(0)
             else:
-                seen.add(item.text(0))
-                rect = tree.visualItemRect(item)
-                need = tree.fontMetrics().horizontalAdvance(item.text(0))
-                assert need < tree.columnWidth(0) - (rect.left() + tree.indentation()), \
-                    item.text(0)
-                editor = tree.itemWidget(item, 1)
-                assert editor.width() >= editor.sizeHint().width() - 2, item.text(0)
-    assert labels <= seen
+                assert fits, item.text(0)
     # no horizontal scrolling: the three columns fit the pane
     assert sum(tree.columnWidth(c) for c in range(3)) <= tree.viewport().width() + 1
+    return seen
+
+
+def _shown(w, qtbot, pane: str) -> None:
+    w.resize(1920, 1050)
+    w.show()
+    w.docks[pane].show()
+    w.docks[pane].raise_()
+    qtbot.wait(50)
+
+
+def test_every_setting_name_shows_whole_at_the_default_width(make_window, qtbot):
+    w = make_window(demo_project(12, 8, 4, size=(320, 240), brim=4))
+    _shown(w, qtbot, "Tracker")
+    labels = {s.label for s in specs_in_section(TARGET_TRACKER)}
+    labels |= {"Update Timeline Every Frame", "Update 2D View Every Frame"}
+    assert labels <= _names_shown_whole(w.pane("Tracker").settings.tree)
+
+
+def test_every_property_name_shows_whole_in_the_main_properties_pane(make_window, qtbot):
+    """The main pane at its default width, every group open: a check box carries its
+    whole name across the row ("Show Version Check Dialog On Startup" was elided)."""
+    w = make_window(demo_project(12, 8, 4, size=(320, 240), brim=4))
+    _shown(w, qtbot, "Properties")
+    tree = w.pane("Properties").tree
+    for i in range(tree.topLevelItemCount()):
+        tree.topLevelItem(i).setExpanded(True)
+    qtbot.wait(20)
+    labels = {s.label for s in SPECS if s.section != TARGET_TRACKER}
+    assert labels <= _names_shown_whole(tree, check_boxes_only=True)
 
 
 def test_a_check_box_row_edits_the_property_as_one_history_entry(make_window, qtbot):

@@ -185,8 +185,10 @@ class PropertiesPane(QWidget):
             self.tree.addTopLevelItem(top)
             for spec in specs_in_section(section):
                 item = QTreeWidgetItem([spec.label, "", spec.unit])
-                tip = spec.help + (f" Allowed: {spec.range_text()}." if spec.range_text()
-                                   else "") + f" Default: {spec.default}."
+                # the name first: a narrow pane elides it in the Property column
+                tip = f"{spec.label}: {spec.help}" + (
+                    f" Allowed: {spec.range_text()}." if spec.range_text() else ""
+                ) + f" Default: {spec.default}."
                 for col in range(3):
                     item.setToolTip(col, tip)
                 top.addChild(item)
@@ -251,8 +253,8 @@ class PropertiesPane(QWidget):
             item = QTreeWidgetItem([pref.label, "", pref.unit])
             allowed = (f" Allowed: from {pref.minimum} to {pref.maximum}."
                        if pref.kind == "int" else "")
-            tip = (f"{pref.help}{allowed} Default: {pref.default}. Kept for you on this "
-                   "computer.")
+            tip = (f"{pref.label}: {pref.help}{allowed} Default: {pref.default}. Kept for "
+                   "you on this computer.")
             item.setToolTip(0, tip)
             top.addChild(item)
             editor: QWidget
@@ -317,8 +319,10 @@ class PropertiesPane(QWidget):
         elif kind == "float":
             w = QDoubleSpinBox()
             w.setDecimals(3)
-            w.setRange(spec.minimum if spec.minimum is not None else -1e9,
-                       spec.maximum if spec.maximum is not None else 1e9)
+            # an open end is a million units (mm, px, s): beyond any value in use, and an
+            # editor no wider than the others (1e9 with 3 decimals crowds out the names)
+            w.setRange(spec.minimum if spec.minimum is not None else -1e6,
+                       spec.maximum if spec.maximum is not None else 1e6)
             w.setSingleStep(0.05 if (spec.maximum or 10) <= 1 else 1.0)
             w.setKeyboardTracking(False)
             w.valueChanged.connect(lambda v: self._set(key, float(v)))
