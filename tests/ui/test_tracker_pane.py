@@ -3,6 +3,7 @@ setting's name is elided."""
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6.QtWidgets import QCheckBox
 
 from carapost.algorithms.params import TARGET_TRACKER
@@ -127,3 +128,51 @@ def test_a_progress_bar_below_the_play_controls_during_a_run(make_window, qtbot)
     assert bar.parent() is w.timebar.parent()
     lay = bar.parent().layout()
     assert lay.indexOf(bar) == lay.indexOf(w.timebar) + 1
+
+
+def test_the_selected_point_pane_reads_the_frame_a_run_is_tracking(make_window, qtbot):
+    """During a run the model is written only by the result: the pane says the frame
+    the run has just tracked is being target-tracked, in how many cameras (it read
+    "none, 0 cameras"), and reads the model again once the run has ended."""
+    import copy
+    import functools
+    import time
+
+    from carapost.synth.demo_project import scene_project
+    from carapost.ui.frames import ArrayFrameSource
+
+    project, scene, get = scene_project(frames=12, size=(320, 240), preset="speech", seed=3)
+    p = copy.deepcopy(project)
+    get = functools.lru_cache(maxsize=None)(get)
+
+    def slow(f, c):
+        time.sleep(0.01)
+        return get(f, c)
+
+    w = make_window(p, ArrayFrameSource(slow))
+    w.show()
+    m = list(scene.labels).index("Cheek_L")
+    p.set_selection(points=[int(p.points.ids[m])])
+    w.context.session.set_property("Target Tracker", "tracker_overwrite_existing_tracks",
+                                   True)
+    from carapost.ui.handlers.process import FOLLOW_TRACKING
+    from carapost.ui.settings import set_preference
+
+    set_preference(w.context.settings, FOLLOW_TRACKING, True)   # the views follow the run
+    pane = w.pane("Selected Point")
+    seen = []
+    w.context.view.live_changed.connect(lambda: seen.append(
+        (p.current_frame, pane.sample.text())))
+    w.pane("Tracker").buttons["forward_to_end"].click()
+    qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
+    w.flush()
+    live = [(f, t) for f, t in seen if "being target-tracked" in t]
+    assert live, seen
+    n_cams = int(np.isfinite(p.points.obs[0, m, :, 0]).sum())
+    for f, text in live:
+        assert text.startswith(f"Cheek_L at frame {f}: ")
+        assert text.endswith(f"{n_cams} cameras")
+    assert max(f for f, _ in live) > 0          # it followed the run past its start
+    assert w.context.view.live_xy is None
+    assert "being target-tracked" not in pane.sample.text()
+    assert pane.sample.text().startswith(f"Cheek_L at frame {p.current_frame}: ")

@@ -469,9 +469,16 @@ class TrackerPane(QWidget):
             wire_tracker_pane(self, ctx)
 
 
-def sample_text(project: Any) -> str:
+def sample_text(project: Any,
+                live: dict[tuple[int, int], tuple[int, float, float]] | None = None,
+                direction: int = 1) -> str:
     """One line on the selected point's sample at the current frame ("" unless exactly
-    one point is selected)."""
+    one point is selected).
+
+    ``live`` is a Target Tracker run's latest (frame, x, y) of each (point id, camera),
+    not yet in the model, and ``direction`` the run's (+1 / -1): a frame the run has
+    tracked reads "being target-tracked" with the cameras that have tracked it (each
+    camera's track goes on at its own pace), not the model's empty sample."""
     from carapost.algorithms.codes import (
         RECON_FILTERED,
         RECON_INTERPOLATED,
@@ -486,6 +493,12 @@ def sample_text(project: Any) -> str:
     f = project.current_frame
     if not 0 <= f < project.n_frames:
         return ""
+    if live:
+        n = sum(1 for (pid, _), (frame, _, _) in live.items()
+                if pid == ids[0] and (frame - f) * direction >= 0)
+        if n:
+            return (f"{project.point_label(col)} at frame {f}: being target-tracked, "
+                    f"{n} camera{'s' if n != 1 else ''}")
     recon = int(project.points.recon[f, col])
     text = f"{project.point_label(col)} at frame {f}: {RECON_NAMES.get(recon, '?')}"
     sig = float(project.points.sigma[f, col])
@@ -520,6 +533,7 @@ class SelectedPointPane(QWidget):
         layout.addWidget(self.sample)
         self.ctx = ctx
         ctx.view.changed.connect(self.refresh)
+        ctx.view.live_changed.connect(self._show_sample)
         self.sample.setText(sample_text(ctx.project))
         # the sample text follows the frame: a few times a second while playing
         self._throttle = FrameThrottle(ctx.view, lambda: self.refresh(None))
@@ -532,5 +546,11 @@ class SelectedPointPane(QWidget):
             self.chart.refresh(None)
         else:
             self.chart.refresh(change)
-        self.sample.setText(sample_text(self.ctx.project))
-        self.chart.setToolTip(self.sample.text())
+        self._show_sample()
+
+    def _show_sample(self) -> None:
+        view = self.ctx.view
+        text = sample_text(self.ctx.project, view.live_xy, view.live_direction)
+        if text != self.sample.text():   # an unchanged label costs no re-layout
+            self.sample.setText(text)
+            self.chart.setToolTip(text)
