@@ -12,6 +12,9 @@ Metrics (one JSON object per line; times from the request to the images of all f
 cameras drawn in their views):
 
 * ``first_jump_s``: the first jump after the take was opened.
+* ``open_stall_ms``: the longest gap between the ticks of a 10 ms timer while the take
+  is opened again (``--opens`` times, a fresh session each time): from the call to the
+  images of every camera on screen and 0.3 s after (median of the openings; max too).
 * ``jump_ms_p95``: jumps to random frames anywhere in the take (95th percentile).
 * ``step_ms_p95``: Next/Prev Frame, one step every 100 ms after a pause in which the
   read-ahead runs (95th percentile, forwards and backwards).
@@ -77,6 +80,8 @@ class Stalls:
         self.max_busy = 0.0  # GUI thread CPU time between two ticks (load-independent)
         self.phase = "open"
         self.by_phase: dict[str, float] = {}
+        # longest gap and GUI CPU since `window_reset` (one window: one take opening)
+        self.window_gap = self.window_busy = 0.0
         self.busy_by_phase: dict[str, float] = {}
         self.profiler = profiler
         self._sched = f"/proc/self/task/{threading.get_native_id()}/schedstat"
@@ -84,6 +89,9 @@ class Stalls:
         # the longest gap split into the GUI thread's CPU time, its wait for a core
         # (run queue) and the rest (blocked: waiting for the GIL or a lock)
         self.worst: dict[str, dict[str, float]] = {}
+
+    def window_reset(self) -> None:
+        self.window_gap = self.window_busy = 0.0
 
     def _runq(self) -> float:
         try:
@@ -109,6 +117,8 @@ class Stalls:
                                       "blocked_ms": round((gap - busy - wait) * 1e3, 1)}
         self.last_runq = runq
         self.max_gap = max(self.max_gap, gap)
+        self.window_gap = max(self.window_gap, gap)
+        self.window_busy = max(self.window_busy, busy)
         self.max_busy = max(self.max_busy, busy)
         self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
         self.busy_by_phase[self.phase] = max(self.busy_by_phase.get(self.phase, 0.0), busy)
@@ -183,6 +193,40 @@ class Bench:
         emit("open_s", time.perf_counter() - t0, "s")
         n = self.p.n_frames
         emit("first_jump_s", self.go(int(n * 0.8)), "s", frame=int(n * 0.8))
+
+    def opens(self, take: Path, count: int = 5) -> None:
+        """Open the take ``count`` times more (a fresh session each time, as File >
+        Open does) and measure each opening: the longest gap between ticks from the
+        call to the images of every camera on screen and 0.3 s after (the panes are
+        drawn by then), and the time to the first complete images."""
+        from carapost.session import Session
+
+        self.stalls.phase = "opens"
+        gaps, busy, first = [], [], []
+        for _ in range(count):
+            session = Session.import_take(take)  # read before: not part of the opening
+            self.pump(0.5)
+            self.stalls.window_reset()
+            t0 = time.perf_counter()
+            self.w.context.set_session(session)
+            self.w.flush()
+            frame = session.project.current_frame
+            while not self.shown(frame):
+                self.app.processEvents()
+                if time.perf_counter() - t0 > 60:
+                    raise RuntimeError("the take's first images never showed")
+                time.sleep(0.0005)
+            first.append((time.perf_counter() - t0) * 1e3)
+            self.pump(0.3)
+            gaps.append(self.stalls.window_gap * 1e3)
+            busy.append(self.stalls.window_busy * 1e3)
+            self.session, self.p = session, session.project
+        emit("open_stall_ms", statistics.median(gaps), "ms", max=round(max(gaps), 1),
+             opens=count, gaps=[round(g, 1) for g in gaps],
+             gui_cpu_ms_median=round(statistics.median(busy), 1),
+             note="longest gap between 10 ms ticks while a take opens, median of opens")
+        emit("open_first_images_ms", statistics.median(first), "ms",
+             max=round(max(first), 1), note="set_session to the images of every camera")
 
     def jumps(self, count: int = 25) -> None:
         self.stalls.phase = "jumps"
@@ -421,8 +465,9 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true",
                     help="time the GUI thread's drawing and delivery; charge stalls to it")
     ap.add_argument("--only", default="",
-                    help="comma-separated phases: jumps,steps,display,playback,detect,scrub,"
-                         "proxies")
+                    help="comma-separated phases: opens,jumps,steps,display,playback,detect,"
+                         "scrub,proxies")
+    ap.add_argument("--opens", type=int, default=5, help="openings measured (opens phase)")
     args = ap.parse_args()
     from carapost.ui.app import application
 
@@ -446,6 +491,8 @@ def main() -> None:
     b = Bench(app, take, profiler)
     cpu0 = time.process_time()
     b.open_and_first_jump()
+    if run("opens"):
+        b.opens(take, args.opens)
     if run("jumps"):
         b.jumps()
     if run("steps"):

@@ -203,9 +203,13 @@ class Workspace(QWidget):
         self.active_changed.emit(box.view)
 
     def refresh(self, change: Change | None) -> None:
-        """Redraw every view."""
+        """Redraw every view (while a take opens, each in a slice of its own)."""
+        opening = self.ctx.opening
         for c in self.containers:
-            c.view.refresh(change)
+            view = c.view
+            if change is None or change.parts is None or "file" not in change.parts or \
+                    not opening.defer(view, lambda v=view: v.refresh(change)):
+                view.refresh(change)
 
 
 class FloatingWorkspace(QMainWindow):
