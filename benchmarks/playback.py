@@ -203,8 +203,11 @@ class Bench:
 
         self.stalls.phase = "opens"
         gaps, busy, first = [], [], []
-        for _ in range(count):
+        for k in range(count):
             session = Session.import_take(take)  # read before: not part of the opening
+            # a frame of its own per opening: a view still showing the previous take's
+            # frame must not count as drawn
+            session.project.set_current_frame((37 * (k + 1)) % max(session.project.n_frames, 1))
             self.pump(0.5)
             self.stalls.window_reset()
             t0 = time.perf_counter()
