@@ -12,7 +12,8 @@ import pytest
 
 from carapost.io import video
 from carapost.io.encode import FFV1Writer
-from carapost.io.frameservice import LOCKSTEP_SLACK, FrameService
+from carapost.io.frameservice import FrameService
+from carapost.io.lockstep import LOCKSTEP_SLACK
 from carapost.model.project import CameraChannel, Take
 
 W, H, N, CAMERAS = 64, 48, 240, 4
@@ -92,7 +93,7 @@ def test_with_keyframe_intervals_the_frames_decoded_on_the_way_are_complete_too(
     with FrameService(_take(paths)) as fs:
         _play(fs, 1.5)
         per_camera = [_decoded(fs, c) for c in range(CAMERAS)]
-        assert len(fs._schedule) <= 2 * FPS  # frames complete and passed are forgotten
+        assert len(fs._play.frames) <= 2 * FPS  # frames complete and passed are forgotten
     complete = set.intersection(*per_camera)
     partial = set.union(*per_camera) - complete
     assert len(complete) >= 10

@@ -20,13 +20,10 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
   frames on both sides come first and a third of the run the other way last (a step
   back after a jump or a change of direction is a cache hit; `_ahead_order`).
 - **Playback in lockstep**: while playing, every camera's thread decodes the frames of
-  one shared schedule (`_play_target`): the frame at the playback clock when all
-  cameras have the frames scheduled before it, then the next ones. A camera at most
-  `LOCKSTEP_SLACK` scheduled frames ahead of the slowest one waits, giving the cores to
-  the others, and a scheduled frame the clock has passed is dropped by every camera.
-  So when the decoders cannot keep up, playback drops whole frames and every frame
-  decoded is shown with the images of all cameras (each camera chasing the clock on
-  its own decoded different frames, few of them complete).
+  one shared schedule from the playback clock (`set_clock`; `carapost.io.lockstep`):
+  when the decoders cannot keep up, whole frames are dropped and every frame decoded
+  is complete (each camera chasing the clock on its own decoded different frames, few
+  of them with the images of all cameras).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
@@ -51,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.io.errors import CaraFileError
+from carapost.io.lockstep import PlaySchedule
 from carapost.io.video import ReadyCallback, TakeFrames, VideoSource
 
 log = logging.getLogger("carapost.io")
@@ -71,12 +69,6 @@ DECODER_NICE = 4
 #: Screen pixels per image pixel above which a view counts as zoomed in (playback then
 #: shows that camera's original instead of its proxy).
 ZOOMED_IN = 1.02
-
-#: While playing, how many scheduled frames a camera's decoder may have done beyond
-#: the slowest camera's (`FrameService._play_target`). 1 would keep the decoders on
-#: the same frame; 2 lets a camera whose decode ended start the next scheduled frame
-#: while the slowest finishes, so no core idles.
-LOCKSTEP_SLACK = 2
 
 _Job = tuple[int, "Future[NDArray[np.uint8]] | None"]
 _UNOPENED: Any = object()
@@ -133,10 +125,8 @@ class FrameService(TakeFrames):
         self._view_scales: dict[int, dict[Any, float]] = {}
         # cameras whose last frame was never checked to decode (see `_verify`)
         self._unverified: set[int] = set()
-        # while playing: the playback clock's frame (newest request) and the frames
-        # every camera decodes, in order (`_play_target`)
-        self._clock: int | None = None
-        self._schedule: deque[int] = deque()
+        # while playing: the playback clock and the frames every camera decodes
+        self._play = PlaySchedule(take.n_cameras)
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -308,8 +298,7 @@ class FrameService(TakeFrames):
         with self._cond:
             self._read_ahead = max(int(frames), 0)
             self._playing = bool(playing)
-            self._clock = None
-            self._schedule.clear()
+            self._play.reset()
             self._cond.notify_all()
 
     def request(self, frame: int, cameras: Any = None, *, direction: int = 0) -> None:
@@ -353,9 +342,7 @@ class FrameService(TakeFrames):
             return
         with self._cond:
             frame = int(frame)
-            if self._clock is not None and frame < self._clock:
-                self._schedule.clear()  # the clock went back (playing from the start)
-            self._clock = frame
+            self._play.set_clock(frame)
             self._direction = 1
             for c in range(self.take.n_cameras):
                 self._cams[c].origin = frame
@@ -451,53 +438,17 @@ class FrameService(TakeFrames):
                 return True
         return False
 
-    def _undone(self, camera: int, at_least: int) -> bool:
-        """Whether ``camera`` has ``at_least`` scheduled frames still to decode."""
-        count = 0
-        for f in self._schedule:
-            if not self._done(f, camera):
-                count += 1
-                if count >= at_least:
-                    return True
-        return False
-
     def _play_target(self, camera: int) -> int | None:
         """While playing: the next frame of the shared schedule ``camera`` decodes,
-        None to wait (condition held).
-
-        Scheduled frames the clock has passed are dropped by every camera, unless a
-        camera has started or decoded one already: that frame is finished by all (so
-        every frame decoded is complete, and shown if nothing newer is). The camera
-        takes the first scheduled frame it has not done; when it has done them all, it
-        schedules the next frame at or after the clock for every camera, unless a
-        camera still has `LOCKSTEP_SLACK` scheduled frames to do (the slowest one gets
-        the cores meanwhile) or the schedule reaches the read-ahead limit.
-        """
-        due = self._clock
+        None to wait (condition held; `carapost.io.lockstep.PlaySchedule`)."""
+        due = self._play.clock
         if due is None:
             return None
-        if self._schedule and self._schedule[0] < due:
-            self._schedule = deque(f for f in self._schedule if f >= due or (
-                self._started(f) and not all(self._done(f, c) for c in
-                                             range(self.take.n_cameras))))
-        schedule = self._schedule
-        for f in schedule:
-            if not self._done(f, camera):
-                return f
-        if any(self._undone(c, LOCKSTEP_SLACK) for c in range(self.take.n_cameras)
-               if c != camera):
-            return None  # the slowest camera gets the cores
         frame_bytes = max(sum(int(w) * int(h) for w, h in
                               (c.image_size for c in self.take.cameras)), 1)
         limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
         end = min(due + max(limit, 1), self.take.n_frames)
-        f = max(schedule[-1] + 1 if schedule else due, due)
-        while f < end:
-            schedule.append(f)
-            if not self._done(f, camera):
-                return f
-            f += 1
-        return None
+        return self._play.next(camera, self._done, self._started, end)
 
     def _played(self, camera: int) -> None:
         """A scheduled frame was decoded: cameras waiting for the slowest may go on."""
@@ -514,7 +465,7 @@ class FrameService(TakeFrames):
                     if self._closed:
                         self._fail_jobs(state)
                         return
-                    if self._playing and self._clock is not None:
+                    if self._playing and self._play.clock is not None:
                         # the shared schedule, not this camera's own chase of the clock
                         state.wanted = None
                         if state.jobs:
