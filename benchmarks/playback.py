@@ -19,7 +19,9 @@ cameras drawn in their views):
 * ``step_ms_p95``: Next/Prev Frame, one step every 100 ms after a pause in which the
   read-ahead runs (95th percentile, forwards and backwards).
 * ``playback_fps``: frames shown per second with all their images while playing from
-  the originals (View > Play; the take's rate is the target).
+  the originals (View > Play; the take's rate is the target), with the video frames
+  decoded meanwhile and ``complete_fraction``, the share of the frames decoded that
+  every camera decoded (only those can be shown; the rest was work thrown away).
 * ``gui_stall_ms_max``: longest gap between the ticks of a 10 ms timer on the GUI
   thread over everything above.
 * ``detect_current_frame_s``: Go To Frame on a frame not cached, then Detect Blobs
@@ -49,6 +51,9 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("CARAPOST_SETTINGS_DIR", tempfile.mkdtemp(prefix="carapost-bench-"))
+# a user cache of its own (keyframe indexes, proxies): proxies written by an earlier run
+# would be played in the originals' phase
+os.environ.setdefault("CARAPOST_CACHE_DIR", tempfile.mkdtemp(prefix="carapost-bench-cache-"))
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
@@ -129,6 +134,58 @@ class Stalls:
         self.last, self.last_cpu = now, cpu
 
 
+class DecodeLog:
+    """Which video frames were decoded, per file, while on (originals through
+    ``VideoSource.read``, proxies through ``ProxyReader.read`` where they exist)."""
+
+    def __init__(self) -> None:
+        self.on = False
+        self.frames: dict[str, set[int]] = {}
+        self.calls = 0
+        targets = []
+        try:
+            from carapost.io.video import VideoSource
+
+            targets.append(VideoSource)
+        except ImportError:
+            pass
+        try:
+            from carapost.io.proxy import ProxyReader
+
+            targets.append(ProxyReader)
+        except ImportError:
+            pass
+        for cls in targets:
+            self._wrap(cls)
+
+    def _wrap(self, cls) -> None:
+        original = cls.read
+        log = self
+
+        def read(reader, index):
+            if log.on:
+                log.calls += 1
+                log.frames.setdefault(str(reader.path), set()).add(int(index))
+            return original(reader, index)
+
+        cls.read = read
+
+    def reset(self) -> None:
+        self.frames, self.calls = {}, 0
+
+    def summary(self, n_cameras: int) -> dict[str, float]:
+        """Frames decoded and the fraction of them decoded for every camera (a frame
+        only some cameras have cannot be shown)."""
+        # the files played (a few original frames may be read beside the proxies)
+        sets = sorted(self.frames.values(), key=len, reverse=True)[:n_cameras]
+        if len(sets) < n_cameras:
+            return {"decoded": self.calls, "complete_fraction": 0.0}
+        union = set.union(*sets)
+        complete = set.intersection(*sets)
+        return {"decoded": self.calls,
+                "complete_fraction": round(len(complete) / max(len(union), 1), 3)}
+
+
 class Bench:
     def __init__(self, app, take: Path, profiler=None) -> None:
         from carapost.session import Session
@@ -142,6 +199,7 @@ class Bench:
         self.session = Session.import_take(take)
         self.p = self.session.project
         self.views = []
+        self.decodes = DecodeLog()
         self.stalls = Stalls(profiler)
         self.stalls.start()
 
@@ -295,6 +353,8 @@ class Bench:
         drawn: set[int] = set()
         t0 = time.perf_counter()
         gui0, cpu0 = time.thread_time(), time.process_time()
+        self.decodes.reset()
+        self.decodes.on = True
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -303,12 +363,14 @@ class Bench:
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
         gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
+        self.decodes.on = False
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source=source,
              take_fps=p.take.fps, seconds=round(elapsed, 2),
              reported_dropped=ctx.playback.dropped,
              gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
-             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2),
+             **self.decodes.summary(p.n_cameras))
 
     def playback_from_proxies(self, seconds: float = 6.0) -> None:
         """Write the proxies (View > Build Playback Proxies), then play from them."""
