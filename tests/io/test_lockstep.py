@@ -31,17 +31,25 @@ class Cameras:
 
 def test_every_camera_is_given_the_same_frames_and_the_fastest_waits():
     cams = Cameras(3)
-    s = PlaySchedule(3, slack=2)
+    s = PlaySchedule(3, slack=2, ahead_slack=4)
     s.set_clock(10)
     assert [cams.take(s, c) for c in range(3)] == [10, 10, 10]
+    # ahead of the clock, camera 0 reads on while the others have fewer than 4 to do
+    for f in (11, 12, 13):
+        cams.finish(0)
+        assert cams.take(s, 0) == f
     cams.finish(0)
-    assert cams.take(s, 0) == 11  # the others have one frame to do: go on
-    cams.finish(0)
-    assert cams.take(s, 0) is None  # cameras 1 and 2 have two to do: camera 0 waits
+    assert cams.take(s, 0) is None  # cameras 1 and 2 have four to do: camera 0 waits
     cams.finish(1)
     cams.finish(2)
     assert cams.take(s, 1) == 11 and cams.take(s, 2) == 11
-    assert cams.take(s, 0) == 12
+    # behind the clock, the others may have two frames to do at most
+    s.set_clock(12)
+    assert cams.take(s, 0) is None  # 11 (in flight, passed), 12 and 13: three
+    cams.finish(1)
+    cams.finish(2)
+    assert cams.take(s, 1) == 12 and cams.take(s, 2) == 12
+    assert cams.take(s, 0) == 14  # caught up with the clock: reading ahead again
 
 
 def test_frames_the_clock_passed_are_dropped_whole_and_started_ones_finished():

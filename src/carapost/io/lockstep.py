@@ -8,7 +8,8 @@ shown). `PlaySchedule` is one list of frames for every camera instead:
 - a camera takes the first scheduled frame it has not done (`next`);
 - a camera that has done them all schedules the next frame at or after the clock, for
   every camera, unless another camera still has `LOCKSTEP_SLACK` scheduled frames to
-  do: then it waits, and the slowest camera gets the cores;
+  do while it is behind the clock (`AHEAD_SLACK` while it is not): then it waits, and
+  the slowest camera gets the cores;
 - scheduled frames the clock has passed are dropped by every camera, unless a camera
   started or decoded one already: that frame is finished by all, and shown if nothing
   newer is complete by then.
@@ -24,12 +25,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-__all__ = ["LOCKSTEP_SLACK", "PlaySchedule"]
+__all__ = ["AHEAD_SLACK", "LOCKSTEP_SLACK", "PlaySchedule"]
 
 #: How many scheduled frames a camera may still have to decode before the others wait
 #: for it. 1 would hold the decoders on the same frame; 2 lets a camera whose decode
 #: ended start the next scheduled frame while the slowest finishes, so no core idles.
 LOCKSTEP_SLACK = 2
+#: The same while every camera is at or ahead of the clock (reading ahead): a camera
+#: that a loaded machine leaves without a core for a moment does not hold the others
+#: back, and it catches up later (so cheap proxy frames play as fast as each camera
+#: can decode them). Also bounds how far a camera can be behind when the decoders
+#: fall behind the clock.
+AHEAD_SLACK = 8
 
 #: ``done(frame, camera)``: the camera has nothing to decode there (cached, blank or
 #: failed). ``started(frame)``: some camera decodes or has decoded the frame.
@@ -43,8 +50,8 @@ class PlaySchedule:
     Parameters
     ----------
     n_cameras : int
-    slack : int
-        `LOCKSTEP_SLACK` unless a test says otherwise.
+    slack, ahead_slack : int
+        `LOCKSTEP_SLACK` and `AHEAD_SLACK` unless a test says otherwise.
 
     Attributes
     ----------
@@ -54,9 +61,11 @@ class PlaySchedule:
         The scheduled frames not yet forgotten, increasing.
     """
 
-    def __init__(self, n_cameras: int, slack: int = LOCKSTEP_SLACK) -> None:
+    def __init__(self, n_cameras: int, slack: int = LOCKSTEP_SLACK,
+                 ahead_slack: int = AHEAD_SLACK) -> None:
         self.n_cameras = int(n_cameras)
         self.slack = max(int(slack), 1)
+        self.ahead_slack = max(int(ahead_slack), self.slack)
         self.clock: int | None = None
         self.frames: list[int] = []
         self._base = 0  # schedule index of frames[0] (frames forgotten before it)
@@ -85,8 +94,12 @@ class PlaySchedule:
         frame = self._first_undone(camera, done)
         if frame is not None:
             return frame
-        if any(self._undone(c, done) >= self.slack for c in range(self.n_cameras)
-               if c != camera):
+        others = [c for c in range(self.n_cameras) if c != camera]
+        # behind the clock, a camera's next scheduled frame is one the clock passed
+        behind = any((f := self._first_undone(c, done)) is not None and f < due
+                     for c in others)
+        slack = self.slack if behind else self.ahead_slack
+        if any(self._undone(c, done, slack) >= slack for c in others):
             return None  # the slowest camera gets the cores
         f = max(self.frames[-1] + 1 if self.frames else due, due)
         while f < end:
@@ -137,11 +150,11 @@ class PlaySchedule:
         self._cursor[camera] = end
         return None
 
-    def _undone(self, camera: int, done: Done) -> int:
-        """Scheduled frames ``camera`` still has to do (counted up to the slack)."""
+    def _undone(self, camera: int, done: Done, at_most: int) -> int:
+        """Scheduled frames ``camera`` still has to do (counted up to ``at_most``)."""
         i = max(self._cursor[camera], self._base) - self._base
         count = 0
-        while i < len(self.frames) and count < self.slack:
+        while i < len(self.frames) and count < at_most:
             if not done(self.frames[i], camera):
                 count += 1
             i += 1
