@@ -454,7 +454,15 @@ class ActionContext(QObject):
         """
         self.playback.stop()
         shell = self.shell
-        self.view.opening.begin(visible=shell is not None and shell.isVisible())
+        opening = self.view.opening
+        opening.begin(visible=shell is not None and shell.isVisible())
+        try:
+            self._switch_session(session, frames)
+        finally:  # the deferred redraws run even when the switch failed half-way
+            sensors = [v for v in shell.all_views() if v.kind == "sensor"] if shell else []
+            opening.start(images=sensors if self.view.frames.asynchronous else ())
+
+    def _switch_session(self, session: Session, frames: FrameSource | None) -> None:
         self.bridge.detach()
         self.session.close()
         self.session = session
@@ -478,8 +486,6 @@ class ActionContext(QObject):
         self.project_replaced.emit()
         self.view.changed.emit(Change(frozenset({"file"})))
         self.history_changed.emit()
-        sensors = [v for v in shell.all_views() if v.kind == "sensor"] if shell else []
-        self.view.opening.start(images=sensors if self.view.frames.asynchronous else ())
 
     def _bind_images(self) -> None:
         # the session reads what the views show (GUI thread); jobs get a worker copy
