@@ -12,8 +12,12 @@ last slice changed and delivers the decoders' images.
 
 The window never shows a mix that could be acted on: every user input (mouse, key,
 wheel) and every later model change runs the pending slices first, in order, so a
-click or a step after opening acts on a window drawn entirely from the new take.
-A hidden window (tests, scripts) paints nothing, so it redraws at once as before.
+click or a step after opening acts on a window drawn entirely from the new take. A
+change of the current frame alone (a jump made by a script, playback) is the one
+exception: a view or pane whose redraw is still pending skips it (`covers`), because
+that redraw reads the model when it runs and shows the new frame anyway; the others
+follow it at once. A hidden window (tests, scripts) paints nothing, so it redraws at
+once as before.
 """
 
 from __future__ import annotations
@@ -26,6 +30,9 @@ from PySide6.QtWidgets import QApplication
 from carapost.model.events import Change
 
 __all__ = ["OpenSlices", "defer_while_opening"]
+
+#: A change of these parts alone is shown by a pending redraw (`OpenSlices.covers`).
+_FRAME_ONLY = frozenset({"current_frame"})
 
 #: Input events that run every pending slice before they are delivered.
 _INPUT_EVENTS = frozenset({
@@ -161,11 +168,21 @@ class OpenSlices(QObject):
             self._run_parts(self._steps.pop(key))
         self._stop_if_done()
 
+    def covers(self, key: Hashable, change: Change | None) -> bool:
+        """Whether the pending redraw of ``key`` will show ``change`` (a change of the
+        current frame alone): the listener skips it."""
+        return (key in self._steps and change is not None and change.parts is not None
+                and change.parts <= _FRAME_ONLY)
+
     def change_arrived(self, change: Change) -> None:
         """Slot for the views' ``changed`` (connected before every listener): a change
-        after the opening's own is shown on a window drawn from the new take."""
-        if not self._collecting:
-            self.flush()
+        after the opening's own is shown on a window drawn from the new take (a frame
+        change alone is left to the pending redraws, see `covers`)."""
+        if self._collecting:
+            return
+        if change is not None and change.parts is not None and change.parts <= _FRAME_ONLY:
+            return
+        self.flush()
 
     # -- running ---------------------------------------------------------------------------
     def _next(self) -> None:
@@ -217,10 +234,12 @@ def defer_while_opening(slot: Callable[..., None]) -> Callable[..., None]:
     def wrapper(self, change: Change | None, *args, **kwargs) -> None:
         ctx = getattr(self.ctx, "view", self.ctx)
         slices: OpenSlices | None = getattr(ctx, "opening", None)
-        if (slices is not None and change is not None and change.parts is not None
-                and "file" in change.parts
-                and slices.defer(self, lambda: slot(self, change, *args, **kwargs))):
-            return
+        if slices is not None:
+            if (change is not None and change.parts is not None and "file" in change.parts
+                    and slices.defer(self, lambda: slot(self, change, *args, **kwargs))):
+                return
+            if slices.covers(self, change):
+                return  # the pending redraw shows the new frame
         slot(self, change, *args, **kwargs)
 
     wrapper.__name__ = slot.__name__

@@ -207,8 +207,10 @@ class Workspace(QWidget):
         opening = self.ctx.opening
         for c in self.containers:
             view = c.view
-            if change is None or change.parts is None or "file" not in change.parts or \
-                    not opening.defer(view, lambda v=view: v.refresh(change)):
+            if change is not None and change.parts is not None and "file" in change.parts \
+                    and opening.defer(view, lambda v=view: v.refresh(change)):
+                continue
+            if not opening.covers(view, change):  # (the pending redraw shows the frame)
                 view.refresh(change)
 
 
