@@ -165,3 +165,20 @@ def test_first_images_jump_the_queue_and_parts_of_a_slice_run_together(qtbot):
     assert calls[4:] == ["image v0", "fit pane", "draw pane"]
     assert slices.pending == 0
     assert not slices.defer("v0", lambda: None)  # not collecting: the caller draws now
+
+
+def test_a_take_opened_before_the_last_one_is_drawn_is_drawn_once(shown, tmp_path, qtbot):
+    w = shown
+    opening = w.context.view.opening
+    p1, _ = _take(tmp_path, "second", 200)
+    p2, refs = _take(tmp_path, "third", 120)
+    p2.set_current_frame(4)
+    w.context.set_session(Session(p1))
+    w.context.set_session(Session(p2))  # before any slice of the first one ran
+    assert opening.ran == []  # nothing of the first one was redrawn meanwhile
+    qtbot.waitUntil(lambda: opening.pending == 0, timeout=10000)
+    views = _sensors(w)
+    qtbot.waitUntil(lambda: all(v.image_frame == 4 for v in views), timeout=10000)
+    for v in views:
+        np.testing.assert_array_equal(v._current_image, refs[v.camera][4])
+    assert w.pane("Labelling").ctx.project is p2

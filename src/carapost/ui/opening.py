@@ -87,8 +87,10 @@ class OpenSlices(QObject):
 
     def begin(self, *, visible: bool) -> None:
         """A take opens: from now on `defer` collects redraws (only when ``visible``:
-        a hidden window redraws at once). Slices of an earlier opening run first."""
-        self.flush()
+        a hidden window redraws at once). Slices still pending from an earlier opening
+        are dropped: every view and pane redraws for this take anyway."""
+        self._steps.clear()
+        self._stop_if_done()
         self.ran = []
         self._collecting = bool(visible)
         self._expected = set()
