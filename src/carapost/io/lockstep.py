@@ -36,7 +36,7 @@ LOCKSTEP_SLACK = 2
 #: back, and it catches up later (so cheap proxy frames play as fast as each camera
 #: can decode them). Also bounds how far a camera can be behind when the decoders
 #: fall behind the clock.
-AHEAD_SLACK = 8
+AHEAD_SLACK = 4
 
 #: ``done(frame, camera)``: the camera has nothing to decode there (cached, blank or
 #: failed). ``started(frame)``: some camera decodes or has decoded the frame.
