@@ -12,11 +12,16 @@ Metrics (one JSON object per line; times from the request to the images of all f
 cameras drawn in their views):
 
 * ``first_jump_s``: the first jump after the take was opened.
+* ``open_stall_ms``: the longest gap between the ticks of a 10 ms timer while the take
+  is opened again (``--opens`` times, a fresh session each time): from the call to the
+  images of every camera on screen and 0.3 s after (median of the openings; max too).
 * ``jump_ms_p95``: jumps to random frames anywhere in the take (95th percentile).
 * ``step_ms_p95``: Next/Prev Frame, one step every 100 ms after a pause in which the
   read-ahead runs (95th percentile, forwards and backwards).
 * ``playback_fps``: frames shown per second with all their images while playing from
-  the originals (View > Play; the take's rate is the target).
+  the originals (View > Play; the take's rate is the target), with the video frames
+  decoded meanwhile and ``complete_fraction``, the share of the frames decoded that
+  every camera decoded (only those can be shown; the rest was work thrown away).
 * ``gui_stall_ms_max``: longest gap between the ticks of a 10 ms timer on the GUI
   thread over everything above.
 * ``detect_current_frame_s``: Go To Frame on a frame not cached, then Detect Blobs
@@ -46,6 +51,9 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("CARAPOST_SETTINGS_DIR", tempfile.mkdtemp(prefix="carapost-bench-"))
+# a user cache of its own (keyframe indexes, proxies): proxies written by an earlier run
+# would be played in the originals' phase
+os.environ.setdefault("CARAPOST_CACHE_DIR", tempfile.mkdtemp(prefix="carapost-bench-cache-"))
 
 
 def emit(metric: str, value: float, unit: str, **extra: object) -> None:
@@ -77,6 +85,8 @@ class Stalls:
         self.max_busy = 0.0  # GUI thread CPU time between two ticks (load-independent)
         self.phase = "open"
         self.by_phase: dict[str, float] = {}
+        # longest gap and GUI CPU since `window_reset` (one window: one take opening)
+        self.window_gap = self.window_busy = 0.0
         self.busy_by_phase: dict[str, float] = {}
         self.profiler = profiler
         self._sched = f"/proc/self/task/{threading.get_native_id()}/schedstat"
@@ -84,6 +94,9 @@ class Stalls:
         # the longest gap split into the GUI thread's CPU time, its wait for a core
         # (run queue) and the rest (blocked: waiting for the GIL or a lock)
         self.worst: dict[str, dict[str, float]] = {}
+
+    def window_reset(self) -> None:
+        self.window_gap = self.window_busy = 0.0
 
     def _runq(self) -> float:
         try:
@@ -109,6 +122,8 @@ class Stalls:
                                       "blocked_ms": round((gap - busy - wait) * 1e3, 1)}
         self.last_runq = runq
         self.max_gap = max(self.max_gap, gap)
+        self.window_gap = max(self.window_gap, gap)
+        self.window_busy = max(self.window_busy, busy)
         self.max_busy = max(self.max_busy, busy)
         self.by_phase[self.phase] = max(self.by_phase.get(self.phase, 0.0), gap)
         self.busy_by_phase[self.phase] = max(self.busy_by_phase.get(self.phase, 0.0), busy)
@@ -117,6 +132,58 @@ class Stalls:
                 self.profiler.attribute(self.last, now, busy, self.phase)
             self.profiler.prune(now - 1.0)
         self.last, self.last_cpu = now, cpu
+
+
+class DecodeLog:
+    """Which video frames were decoded, per file, while on (originals through
+    ``VideoSource.read``, proxies through ``ProxyReader.read`` where they exist)."""
+
+    def __init__(self) -> None:
+        self.on = False
+        self.frames: dict[str, set[int]] = {}
+        self.calls = 0
+        targets = []
+        try:
+            from carapost.io.video import VideoSource
+
+            targets.append(VideoSource)
+        except ImportError:
+            pass
+        try:
+            from carapost.io.proxy import ProxyReader
+
+            targets.append(ProxyReader)
+        except ImportError:
+            pass
+        for cls in targets:
+            self._wrap(cls)
+
+    def _wrap(self, cls) -> None:
+        original = cls.read
+        log = self
+
+        def read(reader, index):
+            if log.on:
+                log.calls += 1
+                log.frames.setdefault(str(reader.path), set()).add(int(index))
+            return original(reader, index)
+
+        cls.read = read
+
+    def reset(self) -> None:
+        self.frames, self.calls = {}, 0
+
+    def summary(self, n_cameras: int) -> dict[str, float]:
+        """Frames decoded and the fraction of them decoded for every camera (a frame
+        only some cameras have cannot be shown)."""
+        # the files played (a few original frames may be read beside the proxies)
+        sets = sorted(self.frames.values(), key=len, reverse=True)[:n_cameras]
+        if len(sets) < n_cameras:
+            return {"decoded": self.calls, "complete_fraction": 0.0}
+        union = set.union(*sets)
+        complete = set.intersection(*sets)
+        return {"decoded": self.calls,
+                "complete_fraction": round(len(complete) / max(len(union), 1), 3)}
 
 
 class Bench:
@@ -132,6 +199,7 @@ class Bench:
         self.session = Session.import_take(take)
         self.p = self.session.project
         self.views = []
+        self.decodes = DecodeLog()
         self.stalls = Stalls(profiler)
         self.stalls.start()
 
@@ -183,6 +251,43 @@ class Bench:
         emit("open_s", time.perf_counter() - t0, "s")
         n = self.p.n_frames
         emit("first_jump_s", self.go(int(n * 0.8)), "s", frame=int(n * 0.8))
+
+    def opens(self, take: Path, count: int = 5) -> None:
+        """Open the take ``count`` times more (a fresh session each time, as File >
+        Open does) and measure each opening: the longest gap between ticks from the
+        call to the images of every camera on screen and 0.3 s after (the panes are
+        drawn by then), and the time to the first complete images."""
+        from carapost.session import Session
+
+        self.stalls.phase = "opens"
+        gaps, busy, first = [], [], []
+        for k in range(count):
+            session = Session.import_take(take)  # read before: not part of the opening
+            # a frame of its own per opening: a view still showing the previous take's
+            # frame must not count as drawn
+            session.project.set_current_frame((37 * (k + 1)) % max(session.project.n_frames, 1))
+            self.pump(0.5)
+            self.stalls.window_reset()
+            t0 = time.perf_counter()
+            self.w.context.set_session(session)
+            self.w.flush()
+            frame = session.project.current_frame
+            while not self.shown(frame):
+                self.app.processEvents()
+                if time.perf_counter() - t0 > 60:
+                    raise RuntimeError("the take's first images never showed")
+                time.sleep(0.0005)
+            first.append((time.perf_counter() - t0) * 1e3)
+            self.pump(0.3)
+            gaps.append(self.stalls.window_gap * 1e3)
+            busy.append(self.stalls.window_busy * 1e3)
+            self.session, self.p = session, session.project
+        emit("open_stall_ms", statistics.median(gaps), "ms", max=round(max(gaps), 1),
+             opens=count, gaps=[round(g, 1) for g in gaps],
+             gui_cpu_ms_median=round(statistics.median(busy), 1),
+             note="longest gap between 10 ms ticks while a take opens, median of opens")
+        emit("open_first_images_ms", statistics.median(first), "ms",
+             max=round(max(first), 1), note="set_session to the images of every camera")
 
     def jumps(self, count: int = 25) -> None:
         self.stalls.phase = "jumps"
@@ -248,6 +353,8 @@ class Bench:
         drawn: set[int] = set()
         t0 = time.perf_counter()
         gui0, cpu0 = time.thread_time(), time.process_time()
+        self.decodes.reset()
+        self.decodes.on = True
         ctx.playback.toggle(True)
         while ctx.playback.playing and time.perf_counter() - t0 < seconds:
             self.app.processEvents()
@@ -256,12 +363,14 @@ class Bench:
             time.sleep(0.0005)
         elapsed = time.perf_counter() - t0
         gui, cpu = time.thread_time() - gui0, time.process_time() - cpu0
+        self.decodes.on = False
         ctx.playback.stop()
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source=source,
              take_fps=p.take.fps, seconds=round(elapsed, 2),
              reported_dropped=ctx.playback.dropped,
              gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
-             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
+             cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2),
+             **self.decodes.summary(p.n_cameras))
 
     def playback_from_proxies(self, seconds: float = 6.0) -> None:
         """Write the proxies (View > Build Playback Proxies), then play from them."""
@@ -421,8 +530,9 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true",
                     help="time the GUI thread's drawing and delivery; charge stalls to it")
     ap.add_argument("--only", default="",
-                    help="comma-separated phases: jumps,steps,display,playback,detect,scrub,"
-                         "proxies")
+                    help="comma-separated phases: opens,jumps,steps,display,playback,detect,"
+                         "scrub,proxies")
+    ap.add_argument("--opens", type=int, default=5, help="openings measured (opens phase)")
     args = ap.parse_args()
     from carapost.ui.app import application
 
@@ -446,6 +556,8 @@ def main() -> None:
     b = Bench(app, take, profiler)
     cpu0 = time.process_time()
     b.open_and_first_jump()
+    if run("opens"):
+        b.opens(take, args.opens)
     if run("jumps"):
         b.jumps()
     if run("steps"):

@@ -118,6 +118,9 @@ def test_playback_sends_the_decoders_once_per_frame_due(make_window, demo, qtbot
             if not self.moving:  # playback's own requests, not those of moving to a frame
                 self.requests.append(frame)
 
+        def set_clock(self, frame):  # where the playback clock is (lockstep decoding)
+            self.requests.append(frame)
+
     project, frames = demo
     source = Counting(frames._render)
     w = make_window(project, source)

@@ -19,6 +19,11 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
   current one and never more than half the cache; unless playing, the two nearest
   frames on both sides come first and a third of the run the other way last (a step
   back after a jump or a change of direction is a cache hit; `_ahead_order`).
+- **Playback in lockstep**: while playing, every camera's thread decodes the frames of
+  one shared schedule from the playback clock (`set_clock`; `carapost.io.lockstep`):
+  when the decoders cannot keep up, whole frames are dropped and every frame decoded
+  is complete (each camera chasing the clock on its own decoded different frames, few
+  of them with the images of all cameras).
 - **Jobs share the decoders**: `get` from any other thread (Detect Blobs, the Target
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
@@ -43,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.io.errors import CaraFileError
+from carapost.io.lockstep import PlaySchedule
 from carapost.io.video import ReadyCallback, TakeFrames, VideoSource
 
 log = logging.getLogger("carapost.io")
@@ -119,6 +125,8 @@ class FrameService(TakeFrames):
         self._view_scales: dict[int, dict[Any, float]] = {}
         # cameras whose last frame was never checked to decode (see `_verify`)
         self._unverified: set[int] = set()
+        # while playing: the playback clock and the frames every camera decodes
+        self._play = PlaySchedule(take.n_cameras)
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -290,6 +298,7 @@ class FrameService(TakeFrames):
         with self._cond:
             self._read_ahead = max(int(frames), 0)
             self._playing = bool(playing)
+            self._play.reset()
             self._cond.notify_all()
 
     def request(self, frame: int, cameras: Any = None, *, direction: int = 0) -> None:
@@ -322,6 +331,21 @@ class FrameService(TakeFrames):
                     if state.wanted is not None and state.wanted != frame:
                         self.dropped += 1
                     state.wanted = frame
+                self._start(c)
+            self._cond.notify_all()
+
+    def set_clock(self, frame: int) -> None:
+        """While playing: the frame the playback clock is at (the GUI's call, once per
+        frame due). Every camera's decoder works through one schedule of frames from
+        there (see the module docstring), so the frames decoded are complete."""
+        if self._closed or not self._playing:
+            return
+        with self._cond:
+            frame = int(frame)
+            self._play.set_clock(frame)
+            self._direction = 1
+            for c in range(self.take.n_cameras):
+                self._cams[c].origin = frame
                 self._start(c)
             self._cond.notify_all()
 
@@ -391,6 +415,46 @@ class FrameService(TakeFrames):
                 return f
         return None
 
+    def _done(self, frame: int, camera: int) -> bool:
+        """Whether ``camera`` has nothing to decode at ``frame`` while playing: its
+        image (or the proxy's) is cached, it cannot be decoded, or there is no video
+        there (a missing video, a frame outside a short one: shown blank)."""
+        src = self._sources.get(camera, _UNOPENED)
+        if src is None:
+            return True
+        if src is not _UNOPENED and not 0 <= frame + int(
+                self.take.cameras[camera].frame_offset) < src.n_frames:
+            return True
+        return (self._cache_get((frame, camera)) is not None
+                or (self._use_proxy(camera)
+                    and self._cache_get((frame, camera + _PROXY_KEY)) is not None)
+                or (frame, camera) in self._frame_errors)
+
+    def _started(self, frame: int) -> bool:
+        """Whether any camera decodes or has decoded ``frame`` (condition held)."""
+        for c, state in enumerate(self._cams):
+            if (state.target == frame or self._cache_get((frame, c)) is not None
+                    or self._cache_get((frame, c + _PROXY_KEY)) is not None):
+                return True
+        return False
+
+    def _play_target(self, camera: int) -> int | None:
+        """While playing: the next frame of the shared schedule ``camera`` decodes,
+        None to wait (condition held; `carapost.io.lockstep.PlaySchedule`)."""
+        due = self._play.clock
+        if due is None:
+            return None
+        frame_bytes = max(sum(int(w) * int(h) for w, h in
+                              (c.image_size for c in self.take.cameras)), 1)
+        limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
+        end = min(due + max(limit, 1), self.take.n_frames)
+        return self._play.next(camera, self._done, self._started, end)
+
+    def _played(self, camera: int) -> None:
+        """A scheduled frame was decoded: cameras waiting for the slowest may go on."""
+        with self._cond:
+            self._cond.notify_all()
+
     def _run(self, camera: int) -> None:
         self._service_threads.add(threading.get_ident())
         _lower_priority(DECODER_NICE)
@@ -401,6 +465,20 @@ class FrameService(TakeFrames):
                     if self._closed:
                         self._fail_jobs(state)
                         return
+                    if self._playing and self._play.clock is not None:
+                        # the shared schedule, not this camera's own chase of the clock
+                        state.wanted = None
+                        if state.jobs:
+                            frame, fut = state.jobs.popleft()
+                            kind = "job"
+                            break
+                        play = self._play_target(camera)
+                        if play is not None:
+                            frame, kind, fut = play, "play", None
+                            state.target = frame  # started: the others will finish it
+                            break
+                        self._cond.wait()
+                        continue
                     if state.wanted is not None:
                         frame, kind, fut = state.wanted, "view", None
                         state.wanted = None
@@ -422,8 +500,12 @@ class FrameService(TakeFrames):
                 self._verify(camera)
                 continue
             if kind != "job" and self._use_proxy(camera):
-                state.target = None
-                self._decode_proxy(frame, camera, kind)
+                try:
+                    self._decode_proxy(frame, camera, kind)
+                finally:
+                    state.target = None
+                if kind == "play":
+                    self._played(camera)
                 continue
             try:
                 img = self._decode_to(frame, camera, kind)
@@ -433,6 +515,8 @@ class FrameService(TakeFrames):
                 continue
             finally:
                 state.target = None
+                if kind == "play":
+                    self._played(camera)
             if fut is not None:
                 if img is None:
                     fut.set_exception(CaraFileError(str(self.take.cameras[camera].name),
@@ -460,6 +544,8 @@ class FrameService(TakeFrames):
                 return "go"
             if kind == "ahead":
                 return "stop" if state.wanted is not None or state.jobs else "go"
+            if kind == "play":
+                return "stop" if state.jobs else "go"
             wanted = state.wanted
             if wanted is None:
                 return "go"

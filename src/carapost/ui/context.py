@@ -18,6 +18,7 @@ import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -33,6 +34,7 @@ from carapost.model.project import Project, Selection, new_project
 from carapost.session import Session
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
+from carapost.ui.opening import OpenSlices
 from carapost.ui.playback import Playback
 from carapost.ui.proxies import ProxyBuilder
 from carapost.ui.settings import (
@@ -168,6 +170,10 @@ class ViewContext(QObject):
         #: it has one; a store of its own otherwise)
         self.settings: QSettings | None = None
         self._label_mode: tuple[QSettings, tuple[bool, bool, bool, int]] | None = None
+        #: redraws deferred while a take opens, run one per event-loop turn; connected
+        #: first, so a later change runs them before any listener sees it
+        self.opening = OpenSlices(self)
+        self.changed.connect(self.opening.change_arrived)
         self.changed.connect(self._invalidate)
         # a Display preference changed here or in another window: redraw the labels
         preference_signals().changed.connect(self._preference_changed)
@@ -448,8 +454,22 @@ class ActionContext(QObject):
         """Show the project of ``session`` (Open, Import): the window acts through it.
 
         ``frames`` (default: the project's videos) becomes the session's image source.
+
+        In a window on screen the views and panes are then redrawn in slices, one per
+        event-loop turn (`carapost.ui.opening`), while the decoders already work on
+        the first images.
         """
         self.playback.stop()
+        shell = self.shell
+        opening = self.view.opening
+        opening.begin(visible=shell is not None and shell.isVisible())
+        try:
+            self._switch_session(session, frames)
+        finally:  # the deferred redraws run even when the switch failed half-way
+            sensors = [v for v in shell.all_views() if v.kind == "sensor"] if shell else []
+            opening.start(images=sensors if self.view.frames.asynchronous else ())
+
+    def _switch_session(self, session: Session, frames: FrameSource | None) -> None:
         self.bridge.detach()
         self.session.close()
         self.session = session
@@ -459,6 +479,10 @@ class ActionContext(QObject):
             frames = self.video_frames(project)
         self.proxies.stop()
         self.view.set_project(project, frames)
+        if project.n_frames and frames.asynchronous:
+            # the first images are the longest wait: the decoders start before anything
+            # is redrawn
+            frames.request(project.current_frame, None)
         self._bind_images()
         self._start_proxies()
         if self.view.frames.has_images and start_detector(self.settings):
@@ -600,7 +624,14 @@ class ActionContext(QObject):
         for view in self.shell.all_views():
             if view.kind == "sensor" and view.camera == camera:
                 landed = getattr(view, "image_landed", None)
-                landed(frame) if landed is not None else view.refresh(None)
+                show = (partial(landed, frame) if landed is not None
+                        else partial(view.refresh, None))
+                opening = self.view.opening
+                # while a take opens, each first image is shown in a turn of its own
+                # (the four decoders deliver them together); a view whose slice is
+                # still pending is drawn whole, with its image
+                if not (opening.deliver(view, show) or opening.run(view)):
+                    show()
 
     def flush(self) -> None:
         """Deliver pending model changes now (tests and benchmarks)."""

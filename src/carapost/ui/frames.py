@@ -76,6 +76,10 @@ class FrameSource:
     def set_playing(self, fps: float | None) -> None:
         """Playback started at ``fps`` (more read-ahead) or stopped (None)."""
 
+    def set_clock(self, frame: int) -> None:
+        """While playing: the frame the playback clock is at (the decoders of every
+        camera work through the same frames from there)."""
+
     def stats(self) -> dict[str, float]:
         """Counters for the status bar and benchmarks (cache use, dropped requests)."""
         return {}
@@ -198,6 +202,9 @@ class VideoFrameSource(FrameSource):
     def set_playing(self, fps: float | None) -> None:
         # two seconds of the take ahead while playing; a short run while stepping
         self._frames.set_read_ahead(int(2 * fps) if fps else 24, playing=bool(fps))
+
+    def set_clock(self, frame: int) -> None:
+        self._frames.set_clock(frame)
 
     def prefetch(self, frames: range, cameras: list[int]) -> None:
         frames = list(frames)

@@ -30,6 +30,7 @@ from carapost.session import Session
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import GREY, RED, YELLOW
+from carapost.ui.opening import defer_while_opening
 from carapost.ui.throttle import FrameThrottle
 
 __all__ = ["LabellingPane"]
@@ -223,6 +224,7 @@ class LabellingPane(QWidget):
             self.move_to(self.next_unassigned(None) if self.visible_rows() else None)
         self._update_status()
 
+    @defer_while_opening
     def _changed(self, change: Change) -> None:
         if self._throttle.defer(change):
             return

@@ -233,8 +233,11 @@ class MainWindow(QMainWindow):
     def _project_replaced(self) -> None:
         self.timebar.set_project(self.project)
         self._update_actions()
+        opening = self.context.view.opening
         for view in self.all_views():
-            view.fit()
+            # fitted in the view's slice of the opening, just before it is redrawn
+            if not opening.defer(view, view.fit, "fit"):
+                view.fit()
 
     def _set_active_range(self, a: int, b: int) -> None:
         navigation.set_active_range(self.context, a, b)

@@ -44,6 +44,7 @@ from carapost.ui.bridge import LogEntry
 from carapost.ui.context import ActionContext
 from carapost.ui.handlers import edit as edit_menu
 from carapost.ui.models import HistoryModel, LogModel
+from carapost.ui.opening import defer_while_opening
 from carapost.ui.settings import (
     DISPLAY_PREFERENCES,
     FRAME_PREFERENCES,
@@ -349,6 +350,7 @@ class PropertiesPane(QWidget):
             return
         self.ctx.set_properties({key: value})
 
+    @defer_while_opening
     def refresh(self, change: Change | None) -> None:
         """Show the project's current values."""
         if change is not None and not _touches(change, {"properties"}):
@@ -391,6 +393,7 @@ class SelectionPane(QWidget):
         self.list.itemChanged.connect(self._checked)
         ctx.view.changed.connect(self._changed)
 
+    @defer_while_opening
     def _changed(self, change: Change) -> None:
         if _touches(change, self.PARTS):
             self.refresh()
@@ -538,6 +541,7 @@ class SelectedPointPane(QWidget):
         # the sample text follows the frame: a few times a second while playing
         self._throttle = FrameThrottle(ctx.view, lambda: self.refresh(None))
 
+    @defer_while_opening
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
         if self._throttle.defer(change):

@@ -128,11 +128,12 @@ class Playback(QObject):
             self.dropped += skipped
             self._window[1] += skipped
             self.ctx.set_frame(show)
-        # the decoders head for the clock, not for the frame on screen; once per frame
-        # due (the timer ticks twice as often, and every request wakes every decoder)
+        # the decoders head for the clock, not for the frame on screen, all cameras
+        # through the same frames (lockstep: FrameService.set_clock); once per frame
+        # due (the timer ticks twice as often, and every call wakes every decoder)
         if due != self._requested:
             self._requested = due
-            self.ctx.frames.request(due, None, direction=1)
+            self.ctx.frames.set_clock(due)
         if now - self._last_report >= REPORT_EVERY_S:
             self._report()
             self._last_report = now

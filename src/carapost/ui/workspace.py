@@ -203,9 +203,15 @@ class Workspace(QWidget):
         self.active_changed.emit(box.view)
 
     def refresh(self, change: Change | None) -> None:
-        """Redraw every view."""
+        """Redraw every view (while a take opens, each in a slice of its own)."""
+        opening = self.ctx.opening
         for c in self.containers:
-            c.view.refresh(change)
+            view = c.view
+            if change is not None and change.parts is not None and "file" in change.parts \
+                    and opening.defer(view, lambda v=view: v.refresh(change)):
+                continue
+            if not opening.covers(view, change):  # (the pending redraw shows the frame)
+                view.refresh(change)
 
 
 class FloatingWorkspace(QMainWindow):
