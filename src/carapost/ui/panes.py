@@ -518,12 +518,22 @@ class SelectedPointPane(QWidget):
         ctx.view.changed.connect(self.refresh)
         self.sample.setText(sample_text(ctx.project))
         # the sample text follows the frame: a few times a second while playing
-        self._throttle = FrameThrottle(ctx.view, lambda: self.refresh(None))
+        self._throttle = FrameThrottle(ctx.view, self._follow_frame)
+
+    def _follow_frame(self) -> None:
+        """The refresh the throttle deferred: frame changes only (any other change was
+        shown at once), so the chart moves its cursor and keeps its rows; refreshing
+        everything recomputed the codes of every point in every frame, 4 times a second
+        while playing."""
+        self._refresh(Change(frozenset({"current_frame"})))
 
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
         if self._throttle.defer(change):
             return
+        self._refresh(change)
+
+    def _refresh(self, change: Change | None) -> None:
         if change is not None and change.parts & {"selection"}:
             self.chart.refresh(None)
         else:
