@@ -245,7 +245,8 @@ class Timebar(QWidget):
         text = f"{tc}  frame {n} / {n}  active {n}-{n}"
         margins = self.label.contentsMargins()
         width = fm.horizontalAdvance(text) + margins.left() + margins.right() + 6
-        self.label.setFixedSize(max(210, width), self.label.sizeHint().height())
+        height = max(self.label.sizeHint().height(), fm.height() + margins.top() + margins.bottom())
+        self.label.setFixedSize(max(210, width), height)
 
     def set_playing(self, playing: bool) -> None:
         """Reflect the play state on the button."""
