@@ -290,6 +290,7 @@ class Bench:
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source=source,
              take_fps=p.take.fps, seconds=round(elapsed, 2),
              reported_dropped=ctx.playback.dropped,
+             shown_late=getattr(ctx.playback, "late", None),
              gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
              cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2))
 
