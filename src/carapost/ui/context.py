@@ -128,6 +128,8 @@ class ViewContext(QObject):
     target_resized(int, int, str, float)
         A handle of a selected keyframe (camera, point id) was dragged: its pattern box
         or search cross ("pattern" / "search") is now this size (image px).
+    live_changed()
+        A Target Tracker run in progress has tracked another frame (:attr:`live_xy`).
     """
 
     changed = Signal(object)
@@ -139,6 +141,7 @@ class ViewContext(QObject):
     point_clicked = Signal(int, float, float)
     keyframe_moved = Signal(int, int, float, float)
     target_resized = Signal(int, int, str, float)
+    live_changed = Signal()
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -155,6 +158,10 @@ class ViewContext(QObject):
         self.show_stabilized = False
         #: playback runs (panes that follow the frame refresh less often meanwhile)
         self.playing = False
+        #: during a Target Tracker run: the latest (frame, x, y) tracked of each (point id,
+        #: camera), not yet in the model (the run's result writes it); None otherwise
+        self.live_xy: dict[tuple[int, int], tuple[int, float, float]] | None = None
+        self.live_direction = 1   # the run's: +1 forwards, -1 backwards
         self._proj_cache: dict[int, NDArray[np.float64] | None] = {}
         self._preview_cache: dict[tuple[int, int], Any] = {}
         #: the user settings the Display preferences are read from (the owner's, when

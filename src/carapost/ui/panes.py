@@ -185,8 +185,10 @@ class PropertiesPane(QWidget):
             self.tree.addTopLevelItem(top)
             for spec in specs_in_section(section):
                 item = QTreeWidgetItem([spec.label, "", spec.unit])
-                tip = spec.help + (f" Allowed: {spec.range_text()}." if spec.range_text()
-                                   else "") + f" Default: {spec.default}."
+                # the name first: a narrow pane elides it in the Property column
+                tip = f"{spec.label}: {spec.help}" + (
+                    f" Allowed: {spec.range_text()}." if spec.range_text() else ""
+                ) + f" Default: {spec.default}."
                 for col in range(3):
                     item.setToolTip(col, tip)
                 top.addChild(item)
@@ -251,8 +253,8 @@ class PropertiesPane(QWidget):
             item = QTreeWidgetItem([pref.label, "", pref.unit])
             allowed = (f" Allowed: from {pref.minimum} to {pref.maximum}."
                        if pref.kind == "int" else "")
-            tip = (f"{pref.help}{allowed} Default: {pref.default}. Kept for you on this "
-                   "computer.")
+            tip = (f"{pref.label}: {pref.help}{allowed} Default: {pref.default}. Kept for "
+                   "you on this computer.")
             item.setToolTip(0, tip)
             top.addChild(item)
             editor: QWidget
@@ -317,8 +319,10 @@ class PropertiesPane(QWidget):
         elif kind == "float":
             w = QDoubleSpinBox()
             w.setDecimals(3)
-            w.setRange(spec.minimum if spec.minimum is not None else -1e9,
-                       spec.maximum if spec.maximum is not None else 1e9)
+            # an open end is a million units (mm, px, s): beyond any value in use, and an
+            # editor no wider than the others (1e9 with 3 decimals crowds out the names)
+            w.setRange(spec.minimum if spec.minimum is not None else -1e6,
+                       spec.maximum if spec.maximum is not None else 1e6)
             w.setSingleStep(0.05 if (spec.maximum or 10) <= 1 else 1.0)
             w.setKeyboardTracking(False)
             w.valueChanged.connect(lambda v: self._set(key, float(v)))
@@ -465,9 +469,16 @@ class TrackerPane(QWidget):
             wire_tracker_pane(self, ctx)
 
 
-def sample_text(project: Any) -> str:
+def sample_text(project: Any,
+                live: dict[tuple[int, int], tuple[int, float, float]] | None = None,
+                direction: int = 1) -> str:
     """One line on the selected point's sample at the current frame ("" unless exactly
-    one point is selected)."""
+    one point is selected).
+
+    ``live`` is a Target Tracker run's latest (frame, x, y) of each (point id, camera),
+    not yet in the model, and ``direction`` the run's (+1 / -1): a frame the run has
+    tracked reads "being target-tracked" with the cameras that have tracked it (each
+    camera's track goes on at its own pace), not the model's empty sample."""
     from carapost.algorithms.codes import (
         RECON_FILTERED,
         RECON_INTERPOLATED,
@@ -482,6 +493,12 @@ def sample_text(project: Any) -> str:
     f = project.current_frame
     if not 0 <= f < project.n_frames:
         return ""
+    if live:
+        n = sum(1 for (pid, _), (frame, _, _) in live.items()
+                if pid == ids[0] and (frame - f) * direction >= 0)
+        if n:
+            return (f"{project.point_label(col)} at frame {f}: being target-tracked, "
+                    f"{n} camera{'s' if n != 1 else ''}")
     recon = int(project.points.recon[f, col])
     text = f"{project.point_label(col)} at frame {f}: {RECON_NAMES.get(recon, '?')}"
     sig = float(project.points.sigma[f, col])
@@ -516,6 +533,7 @@ class SelectedPointPane(QWidget):
         layout.addWidget(self.sample)
         self.ctx = ctx
         ctx.view.changed.connect(self.refresh)
+        ctx.view.live_changed.connect(self._show_sample)
         self.sample.setText(sample_text(ctx.project))
         # the sample text follows the frame: a few times a second while playing
         self._throttle = FrameThrottle(ctx.view, self._follow_frame)
@@ -538,5 +556,11 @@ class SelectedPointPane(QWidget):
             self.chart.refresh(None)
         else:
             self.chart.refresh(change)
-        self.sample.setText(sample_text(self.ctx.project))
-        self.chart.setToolTip(self.sample.text())
+        self._show_sample()
+
+    def _show_sample(self) -> None:
+        view = self.ctx.view
+        text = sample_text(self.ctx.project, view.live_xy, view.live_direction)
+        if text != self.sample.text():   # an unchanged label costs no re-layout
+            self.sample.setText(text)
+            self.chart.setToolTip(text)

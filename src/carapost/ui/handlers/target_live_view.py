@@ -31,11 +31,28 @@ def _camera_views(ctx: ActionContext) -> list[Any]:
 
 def live_views(ctx: ActionContext, job: Any) -> Callable[[], None]:
     """Draw ``job``'s tracked positions in the camera views while it runs, when Update
-    2D View Every Frame is on; returns the function that stops it (call it when the run
+    2D View Every Frame is on, and give them to the Selected Point pane
+    (``ViewContext.live_xy``); returns the function that stops it (call it when the run
     has ended)."""
-    if getattr(job, "live_xy", None) is None or not preference(ctx.settings,
-                                                               FOLLOW_TRACKING):
+    if getattr(job, "live_xy", None) is None:
         return lambda: None
+    view_ctx = ctx.view
+    start, stop = getattr(job, "start", 0), getattr(job, "stop", 0)
+    view_ctx.live_direction = -1 if (stop or 0) < (start or 0) else 1
+
+    def sample(_done: int = 0, _total: int = 0) -> None:
+        # the Selected Point pane reads the frame the run has just tracked from here
+        view_ctx.live_xy = dict(job.live_xy)   # a copy: the worker goes on writing
+        view_ctx.live_changed.emit()
+
+    def unsample() -> None:
+        ctx.runner.progressed.disconnect(sample)
+        view_ctx.live_xy = None
+        view_ctx.live_changed.emit()
+
+    ctx.runner.progressed.connect(sample)
+    if not preference(ctx.settings, FOLLOW_TRACKING):
+        return unsample
     from carapost.ui.views.target_overlay import track_sizes
 
     def tick(_done: int = 0, _total: int = 0) -> None:
@@ -59,5 +76,6 @@ def live_views(ctx: ActionContext, job: Any) -> Callable[[], None]:
         ctx.runner.progressed.disconnect(tick)
         for view in _camera_views(ctx):
             view.targets.clear_live()
+        unsample()
 
     return stop
