@@ -1,12 +1,13 @@
-"""Stepping through a take does not lay the main window out again: the timebar's frame
-label has the fixed size of its widest text, so its new text each frame changes no
-size hint."""
+"""Stepping through a take or playing it does not lay the main window out again: the
+timebar's frame label and Play button and the status bar's image label have the fixed
+size of their widest text, so a new text changes no size hint."""
 
 from __future__ import annotations
 
 from PySide6.QtCore import QEvent, QObject
 
 from carapost.model.project import new_project
+from tests.ui.test_frames_gui import take  # noqa: F401  (a fixture: 3 cameras' videos)
 
 
 class _Layouts(QObject):
@@ -22,15 +23,27 @@ class _Layouts(QObject):
         return False
 
 
+def _settled(qtbot, widgets) -> _Layouts:
+    """A layout counter on ``widgets``, installed once the window's own first layouts
+    are over (no request for 300 ms; a loaded machine takes longer to get there)."""
+    layouts = _Layouts()
+    for widget in widgets:
+        widget.installEventFilter(layouts)
+    for _ in range(20):
+        layouts.count = 0
+        qtbot.wait(300)
+        if layouts.count == 0:
+            break
+    assert layouts.count == 0, "the window never settled"
+    return layouts
+
+
 def test_stepping_frames_lays_nothing_out_again(make_window, qtbot):
     p = new_project(12_000, 2, image_size=(64, 48))
     w = make_window(p)
     w.show()
-    qtbot.wait(400)  # the window's own first layouts settle
     bar = w.timebar
-    layouts = _Layouts()
-    for widget in (w, w.centralWidget(), bar):
-        widget.installEventFilter(layouts)
+    layouts = _settled(qtbot, (w, w.centralWidget(), bar))
     # 9 -> 10 -> ... -> 10010: the digits of the frame number change
     for f in (9, 10, 99, 100, 999, 1000, 9999, 10_000, 11_999):
         w.set_frame(f)
@@ -51,3 +64,25 @@ def test_the_frame_label_grows_with_a_longer_take(make_window):
     w.flush()
     label = w.timebar.label
     assert label.fontMetrics().horizontalAdvance(label.text()) <= label.width()
+
+
+def test_playing_lays_nothing_out(make_window, take, qtbot):  # noqa: F811
+    """Play <-> Stop and the rate shown once a second in the status bar keep their
+    sizes: a 2 s playback posts no layout request to the window, the status bar or
+    the timebar."""
+    p, _ = take
+    p.take.cameras[2].video_path = p.take.cameras[1].video_path
+    p.take.fps = 30.0  # 60 frames: 2 s, so the rate is reported once while playing
+    w = make_window(p)
+    w.show()
+    layouts = _settled(qtbot, (w, w.centralWidget(), w.timebar, w.statusBar()))
+    rates = []
+    label = w.job_status.frames_label
+    w.context.playback.rate_changed.connect(lambda shown, fps: rates.append(label.text()))
+    p.set_view_range((0, p.n_frames - 1))
+    w.action("view.play").trigger()
+    assert w.timebar.play_button.text() == "Stop"
+    qtbot.waitUntil(lambda: not w.context.playback.playing, timeout=15000)
+    assert rates and "fps" in rates[0]  # the rate was shown while playing
+    assert w.timebar.play_button.text() == "Play"
+    assert layouts.count == 0

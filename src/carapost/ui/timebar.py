@@ -174,6 +174,13 @@ class Timebar(QWidget):
         self.prev_button = button("<", "Prev Frame (Left arrow)")
         self.play_button = button("Play", "Play / Stop (Space)")
         self.play_button.setCheckable(True)
+        # as large as its longer text, so Play <-> Stop lays nothing out as playback starts
+        hints = []
+        for text in ("Stop", "Play"):
+            self.play_button.setText(text)
+            hints.append(self.play_button.sizeHint())
+        self.play_button.setFixedSize(max(h.width() for h in hints),
+                                      max(h.height() for h in hints))
         self.next_button = button(">", "Next Frame (Right arrow)")
         self.end_button = button(">|", "Go to End Frame (End)")
         self.ruler = TimeRuler()
