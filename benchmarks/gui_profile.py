@@ -98,8 +98,10 @@ class GuiProfiler:
                 self._wrap(cls, name)
 
     # -- attribution ----------------------------------------------------------------------
-    def attribute(self, t0: float, t1: float, cpu: float, phase: str) -> None:
-        """Charge the gap [t0, t1] (GUI thread CPU ``cpu`` s) to the calls in it."""
+    def attribute(self, t0: float, t1: float, cpu: float, phase: str,
+                  gc_ms: float = 0.0) -> None:
+        """Charge the gap [t0, t1] (GUI thread CPU ``cpu`` s, ``gc_ms`` of garbage
+        collection in any thread) to the calls in it."""
         parts: dict[str, float] = defaultdict(float)
         for a, b, _c, label, depth in self.intervals:
             if b < t0 or a > t1:
@@ -108,7 +110,7 @@ class GuiProfiler:
                 parts[label] += min(b, t1) - max(a, t0)
         top = sorted(parts.items(), key=lambda kv: -kv[1])[:5]
         self.stalls.append({"phase": phase, "gap_ms": round((t1 - t0) * 1e3, 1),
-                            "gui_cpu_ms": round(cpu * 1e3, 1),
+                            "gui_cpu_ms": round(cpu * 1e3, 1), "gc_ms": round(gc_ms, 1),
                             "in": {k: round(v * 1e3, 1) for k, v in top}})
 
     def prune(self, before: float) -> None:

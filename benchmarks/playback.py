@@ -36,6 +36,7 @@ views, the actions), so the same file measures the code before the frame service
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import random
@@ -94,6 +95,33 @@ class Stalls:
         # the longest gap split into the GUI thread's CPU time, its wait for a core
         # (run queue) and the rest (blocked: waiting for the GIL or a lock)
         self.worst: dict[str, dict[str, float]] = {}
+        # garbage collections (any thread: one holds the GIL) as (start, end, generation)
+        self.gc_runs: list[tuple[float, float, int]] = []
+        self.gc_by_phase: dict[str, dict[str, float]] = {}
+        self._gc_start = 0.0
+        gc.callbacks.append(self._gc)
+
+    def _gc(self, phase: str, info: dict) -> None:
+        now = time.perf_counter()
+        if phase == "start":
+            self._gc_start = now
+            return
+        gen = int(info["generation"])
+        self.gc_runs.append((self._gc_start, now, gen))
+        row = self.gc_by_phase.setdefault(self.phase, {"gen2": 0, "gen2_ms_max": 0.0,
+                                                       "gc_ms_max": 0.0})
+        ms = (now - self._gc_start) * 1e3
+        row["gc_ms_max"] = round(max(row["gc_ms_max"], ms), 1)
+        if gen == 2:
+            row["gen2"] += 1
+            row["gen2_ms_max"] = round(max(row["gen2_ms_max"], ms), 1)
+        if len(self.gc_runs) > 5000:
+            del self.gc_runs[:2500]
+
+    def gc_in(self, t0: float, t1: float) -> float:
+        """Milliseconds of garbage collection (any thread) inside [t0, t1]."""
+        return sum(max(0.0, min(b, t1) - max(a, t0)) for a, b, _ in self.gc_runs
+                   if b >= t0) * 1e3
 
     def window_reset(self) -> None:
         self.window_gap = self.window_busy = 0.0
@@ -119,7 +147,8 @@ class Stalls:
             self.worst[self.phase] = {"gap_ms": round(gap * 1e3, 1),
                                       "cpu_ms": round(busy * 1e3, 1),
                                       "runqueue_ms": round(wait * 1e3, 1),
-                                      "blocked_ms": round((gap - busy - wait) * 1e3, 1)}
+                                      "blocked_ms": round((gap - busy - wait) * 1e3, 1),
+                                      "gc_ms": round(self.gc_in(self.last, now), 1)}
         self.last_runq = runq
         self.max_gap = max(self.max_gap, gap)
         self.window_gap = max(self.window_gap, gap)
@@ -129,7 +158,8 @@ class Stalls:
         self.busy_by_phase[self.phase] = max(self.busy_by_phase.get(self.phase, 0.0), busy)
         if self.profiler is not None:
             if gap > 0.04 or busy > 0.02:
-                self.profiler.attribute(self.last, now, busy, self.phase)
+                self.profiler.attribute(self.last, now, busy, self.phase,
+                                        gc_ms=self.gc_in(self.last, now))
             self.profiler.prune(now - 1.0)
         self.last, self.last_cpu = now, cpu
 
@@ -368,6 +398,7 @@ class Bench:
         emit("playback_fps", len(drawn) / elapsed, "frames/s", source=source,
              take_fps=p.take.fps, seconds=round(elapsed, 2),
              reported_dropped=ctx.playback.dropped,
+             shown_late=getattr(ctx.playback, "late", None),
              gui_cpu_ms_per_frame=round(gui / max(len(drawn), 1) * 1e3, 2),
              cpu_ms_per_frame=round(cpu / max(len(drawn), 1) * 1e3, 2),
              **self.decodes.summary(p.n_cameras))
@@ -581,6 +612,7 @@ def main() -> None:
          by_phase={k: round(v * 1e3) for k, v in b.stalls.busy_by_phase.items()},
          note="GUI thread CPU time between two 10 ms ticks (the load does not stretch it)")
     print(json.dumps({"longest_gap_split": b.stalls.worst}), flush=True)
+    print(json.dumps({"garbage_collections": b.stalls.gc_by_phase}), flush=True)
     if profiler is not None:
         print(json.dumps({"profile": profiler.report()}, indent=1), flush=True)
     emit("cpu_s", time.process_time() - cpu0, "s")

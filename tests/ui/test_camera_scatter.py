@@ -84,3 +84,39 @@ def test_moving_markers_in_place_draws_what_set_data_draws(qtbot):
     assert len(item.getData()[0]) == 5
     item.set_positions(np.zeros((0, 2)))
     assert len(item.getData()[0]) == 0
+
+
+@pytest.mark.parametrize("symbol, rotated", [("o", False), ("+", True)])
+def test_the_lean_paint_draws_what_pyqtgraph_draws(qtbot, symbol, rotated):
+    """Same pixels as pyqtgraph's own paint, markers partly out of view included, in a
+    rotated and zoomed view."""
+    from PySide6.QtGui import QTransform
+
+    rng = np.random.default_rng(7)
+    pos = rng.uniform(-60, 460, (40, 2))  # some beyond the view's edges
+    grabs, drawn = [], []
+    for cls in (pg.ScatterPlotItem, _Scatter):
+        gv = pg.GraphicsView()
+        qtbot.addWidget(gv)
+        vb = pg.ViewBox(lockAspect=True, invertY=True)
+        gv.setCentralItem(vb)
+        group = pg.ItemGroup()
+        vb.addItem(group)
+        if rotated:  # a sensor's display rotation, as the camera view sets it
+            group.setTransform(QTransform().translate(400, 0).rotate(90))
+        item = cls(pxMode=True, symbol=symbol, size=12, pen=pg.mkPen("c", width=2),
+                   brush=None)
+        item.setParentItem(group)
+        item.setData(pos=pos)
+        gv.resize(320, 260)
+        vb.setRange(QRectF(50, 40, 300, 240), padding=0)
+        gv.show()
+        qtbot.waitExposed(gv)
+        image = gv.grab().toImage()
+        grabs.append(image)
+        drawn.append(sum(image.pixelColor(x, y).green() > 150 and
+                         image.pixelColor(x, y).red() < 100
+                         for x in range(0, image.width(), 2)
+                         for y in range(0, image.height(), 2)))
+    assert drawn[0] > 50  # markers were drawn at all
+    assert grabs[0] == grabs[1]

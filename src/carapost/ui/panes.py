@@ -539,13 +539,23 @@ class SelectedPointPane(QWidget):
         ctx.view.live_changed.connect(self._show_sample)
         self.sample.setText(sample_text(ctx.project))
         # the sample text follows the frame: a few times a second while playing
-        self._throttle = FrameThrottle(ctx.view, lambda: self.refresh(None))
+        self._throttle = FrameThrottle(ctx.view, self._follow_frame)
+
+    def _follow_frame(self) -> None:
+        """The refresh the throttle deferred: frame changes only (any other change was
+        shown at once), so the chart moves its cursor and keeps its rows; refreshing
+        everything recomputed the codes of every point in every frame, 4 times a second
+        while playing."""
+        self._refresh(Change(frozenset({"current_frame"})))
 
     @defer_while_opening
     def refresh(self, change: Change | None) -> None:
         """Follow the selection and data."""
         if self._throttle.defer(change):
             return
+        self._refresh(change)
+
+    def _refresh(self, change: Change | None) -> None:
         if change is not None and change.parts & {"selection"}:
             self.chart.refresh(None)
         else:

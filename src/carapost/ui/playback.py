@@ -5,10 +5,19 @@ of a frame are not decoded by the time the next one is due, that frame is droppe
 views show the newest frame whose images have all arrived) and the status bar says how
 many frames per second are really shown, so a take that plays slowly is never mistaken
 for slow motion.
+
+Frames are dropped by the schedule, not by the timer's jitter: the timer is set for
+the moment the next frame is due (not a fixed period, which shows each frame up to
+one period late), and a frame that comes less than `LATE_FRAMES` frame times late (a
+tick delayed by a paint, a pane's refresh or the machine's load) is still shown, with
+the next one following as soon as it is painted; only a frame later than that is
+skipped, so playback catches the clock up within a few frames and never drifts into
+slow motion.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import TYPE_CHECKING
 
@@ -19,6 +28,11 @@ if TYPE_CHECKING:
 
 #: Seconds between two reports of the playback rate in the status bar.
 REPORT_EVERY_S = 1.0
+#: A frame later than this (in frame times) is skipped; an earlier one is shown late.
+LATE_FRAMES = 2.0
+#: Milliseconds before looking again when playback is behind the clock or waiting for
+#: the images of the next frame (the frame just set is painted in between).
+RETRY_MS = 2
 
 
 class Playback(QObject):
@@ -34,8 +48,10 @@ class Playback(QObject):
     Attributes
     ----------
     shown, dropped : int
-        Frames shown with all their images, and frames skipped or shown late, since
-        playback started.
+        Frames shown with all their images, and frames skipped (more than
+        `LATE_FRAMES` late), since playback started.
+    late : int
+        Frames shown late (behind the clock, by less than `LATE_FRAMES`).
     """
 
     playing_changed = Signal(bool)
@@ -44,14 +60,19 @@ class Playback(QObject):
     def __init__(self, ctx: ActionContext) -> None:
         super().__init__(ctx)
         self.ctx = ctx
+        # single shot, set for the next frame's due time after every tick
         self.timer = QTimer(self)
+        self.timer.setSingleShot(True)
         self.timer.setTimerType(Qt.TimerType.PreciseTimer)
         self.timer.timeout.connect(self._tick)
+        self._playing = False
+        self.clock = time.perf_counter  # seconds; replaced by tests
         self._t0 = 0.0
         self._f0 = 0
         self._fps = 0.0
         self.shown = 0
         self.dropped = 0
+        self.late = 0
         self._window: list[int] = [0, 0]  # shown, dropped since the last report
         self._last_report = 0.0
         self._requested = -1  # frame the decoders were last sent to
@@ -59,7 +80,7 @@ class Playback(QObject):
     @property
     def playing(self) -> bool:
         """Whether playback runs."""
-        return self.timer.isActive()
+        return self._playing
 
     @property
     def fps(self) -> float:
@@ -74,17 +95,18 @@ class Playback(QObject):
             if p.current_frame >= p.view_range[1]:
                 self.ctx.set_frame(p.view_range[0])
             self._fps = self.fps
-            self._t0 = time.perf_counter()
+            self._t0 = self.clock()
             self._f0 = p.current_frame
-            self.shown = self.dropped = 0
+            self.shown = self.dropped = self.late = 0
             self._window = [0, 0]
             self._last_report = self._t0
             self._requested = -1
             self.ctx.frames.set_playing(self._fps)
             self.ctx.view.playing = True
-            # Ticks at twice the frame rate so a frame is at most half a frame late.
-            self.timer.start(max(int(500 / self._fps), 1))
+            self._playing = True
+            self._schedule()
         else:
+            self._playing = False
             self.timer.stop()
             self.ctx.view.playing = False
             self.ctx.frames.set_playing(None)
@@ -109,28 +131,60 @@ class Playback(QObject):
         return all(frames.cached(frame, c) is not None
                    for c in range(self.ctx.project.n_cameras))
 
-    def _tick(self) -> None:
+    def _due_time(self, frame: int) -> float:
+        """Clock time (s) at which ``frame`` is due."""
+        return self._t0 + (frame - self._f0) / self._fps
+
+    def _schedule(self) -> None:
+        """Set the timer for the next frame's due time (at once when behind)."""
+        if not self._playing:
+            return
+        wait_s = self._due_time(self.ctx.project.current_frame + 1) - self.clock()
+        # rounded up: a tick a little early would only find nothing due yet
+        self.timer.start(max(math.ceil(wait_s * 1e3), 0) if wait_s > 0 else RETRY_MS)
+
+    def target(self, now: float) -> tuple[int, int]:
+        """(frame due by the clock at ``now``, newest frame to show now).
+
+        The frame after the one on screen is shown while it is less than
+        `LATE_FRAMES` frame times late, even when the clock has moved past it; later
+        than that, playback jumps to the clock (the frames in between are dropped).
+        """
         p = self.ctx.project
-        now = time.perf_counter()
         end = p.view_range[1]
         due = min(self._f0 + int((now - self._t0) * self._fps), end)
+        following = p.current_frame + 1
+        if due > following and (now - self._due_time(following)) * self._fps < LATE_FRAMES:
+            return due, following
+        return due, due
+
+    def _tick(self) -> None:
+        if not self._playing:
+            return
+        p = self.ctx.project
+        now = self.clock()
+        end = p.view_range[1]
+        due, target = self.target(now)
         if due <= p.current_frame:
             if p.current_frame >= end:
                 self._finish()
+            else:
+                self._schedule()
             return
-        # Show the newest frame up to the due one whose images of every camera have
+        # Show the newest frame up to the target whose images of every camera have
         # arrived (the cameras stay in step); the frames passed over are dropped.
-        show = next((f for f in range(due, p.current_frame, -1) if self._ready(f)), None)
+        show = next((f for f in range(target, p.current_frame, -1) if self._ready(f)), None)
         if show is not None:
             skipped = show - p.current_frame - 1
             self.shown += 1
             self._window[0] += 1
             self.dropped += skipped
             self._window[1] += skipped
+            self.late += show < due
             self.ctx.set_frame(show)
         # the decoders head for the clock, not for the frame on screen, all cameras
         # through the same frames (lockstep: FrameService.set_clock); once per frame
-        # due (the timer ticks twice as often, and every call wakes every decoder)
+        # due (every call wakes every decoder)
         if due != self._requested:
             self._requested = due
             self.ctx.frames.set_clock(due)
@@ -139,6 +193,8 @@ class Playback(QObject):
             self._last_report = now
         if p.current_frame >= end:
             self._finish()
+        else:
+            self._schedule()
 
     def _finish(self) -> None:
         self.stop()
@@ -148,7 +204,7 @@ class Playback(QObject):
         total = shown + dropped
         if total == 0:
             return
-        elapsed = max(time.perf_counter() - self._t0, 1e-6) if final else REPORT_EVERY_S
+        elapsed = max(self.clock() - self._t0, 1e-6) if final else REPORT_EVERY_S
         rate = shown / elapsed
         self.rate_changed.emit(rate, self._fps)
         if dropped:

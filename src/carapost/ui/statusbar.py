@@ -19,6 +19,19 @@ class JobStatus:
         self.frames_label = QLabel()
         self.frames_label.setToolTip("Images shown: Original (the camera videos) or Proxy "
                                      "(fast copies, while playing)")
+        # Its text changes once a second while playing (the rate shown) and with the
+        # proxies' progress; a label whose size follows its text made Qt lay out the
+        # status bar and the whole main window each time, in the middle of playback.
+        # Fixed at the size of its longest text, it lays nothing out.
+        fm = self.frames_label.fontMetrics()
+        widest = max("0123456789", key=fm.horizontalAdvance)
+        longest = (f"Images: Original  |  {widest * 3}/{widest * 3} fps  |  Proxies "
+                   f"{widest * 2}/{widest * 2} ({widest * 3}%)")
+        margins = self.frames_label.contentsMargins()
+        self.frames_label.setFixedSize(
+            fm.horizontalAdvance(longest) + margins.left() + margins.right() + 6,
+            max(self.frames_label.sizeHint().height(),
+                fm.height() + margins.top() + margins.bottom()))
         self.progress = QProgressBar()
         self.progress.setMaximumWidth(260)
         self.progress.hide()

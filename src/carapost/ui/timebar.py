@@ -174,6 +174,13 @@ class Timebar(QWidget):
         self.prev_button = button("<", "Prev Frame (Left arrow)")
         self.play_button = button("Play", "Play / Stop (Space)")
         self.play_button.setCheckable(True)
+        # as large as its longer text, so Play <-> Stop lays nothing out as playback starts
+        hints = []
+        for text in ("Stop", "Play"):
+            self.play_button.setText(text)
+            hints.append(self.play_button.sizeHint())
+        self.play_button.setFixedSize(max(h.width() for h in hints),
+                                      max(h.height() for h in hints))
         self.next_button = button(">", "Next Frame (Right arrow)")
         self.end_button = button(">|", "Go to End Frame (End)")
         self.ruler = TimeRuler()
@@ -185,6 +192,7 @@ class Timebar(QWidget):
         self.label = QLabel()
         self.label.setMinimumWidth(210)
         layout.addWidget(self.label)
+        self._label_text = ""
         self.start_button.clicked.connect(self._go_start)
         self.end_button.clicked.connect(self._go_end)
         self.prev_button.clicked.connect(self._step(-1))
@@ -213,7 +221,39 @@ class Timebar(QWidget):
         self.spin.blockSignals(True)
         self.spin.setRange(0, max(project.n_frames - 1, 0))
         self.spin.blockSignals(False)
+        self._fix_label_size()
         self.refresh()
+
+    def _label(self, frame: int) -> str:
+        p = self.project
+        assert p is not None
+        tc = timecode_text(p, frame) if p.n_frames else ""
+        a, b = p.active_range
+        return f"{tc}  frame {frame} / {max(p.n_frames - 1, 0)}  active {a}-{b}"
+
+    def _fix_label_size(self) -> None:
+        """Give the frame label the size of its widest text for this take.
+
+        The label's text changes on every frame; a label whose size follows its text
+        makes Qt lay the whole main window out again after each frame (the timebar's
+        size hint changes with the digits), while a label of fixed width and height
+        does not even tell its layout.
+        """
+        p = self.project
+        if p is None:
+            return
+        fm = self.label.fontMetrics()
+        widest = max("0123456789", key=fm.horizontalAdvance)
+        digits = len(str(max(p.n_frames - 1, 0)))
+        n = widest * digits
+        last = max(p.n_frames - 1, 0)
+        longest = max((timecode_text(p, f) for f in {0, min(1, last), last}), key=len)
+        tc = "".join(widest if ch.isdigit() else ch for ch in longest)
+        text = f"{tc}  frame {n} / {n}  active {n}-{n}"
+        margins = self.label.contentsMargins()
+        width = fm.horizontalAdvance(text) + margins.left() + margins.right() + 6
+        height = max(self.label.sizeHint().height(), fm.height() + margins.top() + margins.bottom())
+        self.label.setFixedSize(max(210, width), height)
 
     def set_playing(self, playing: bool) -> None:
         """Reflect the play state on the button."""
@@ -228,10 +268,12 @@ class Timebar(QWidget):
         if p is None:
             return
         f = p.current_frame
-        self.spin.blockSignals(True)
-        self.spin.setValue(f)
-        self.spin.blockSignals(False)
-        tc = timecode_text(p, f) if p.n_frames else ""
-        a, b = p.active_range
-        self.label.setText(f"{tc}  frame {f} / {max(p.n_frames - 1, 0)}  active {a}-{b}")
+        if self.spin.value() != f:
+            self.spin.blockSignals(True)
+            self.spin.setValue(f)
+            self.spin.blockSignals(False)
+        text = self._label(f)
+        if text != self._label_text:
+            self._label_text = text
+            self.label.setText(text)
         self.ruler.update()

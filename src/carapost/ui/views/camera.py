@@ -31,6 +31,7 @@ from carapost.ui.views.geometry import (
     rotation_transform,
 )
 from carapost.ui.views.overlays import declutter, rom_overlay
+from carapost.ui.views.scatter import Scatter as _Scatter
 from carapost.ui.views.target_overlay import TargetOverlay
 
 pg.setConfigOptions(imageAxisOrder="row-major", antialias=False)
@@ -48,51 +49,6 @@ def _curve(colour: tuple[int, int, int], width: float = 1.0, z: float = 0) -> pg
     item = pg.PlotCurveItem(pen=pg.mkPen(colour, width=width), antialias=False)
     item.setZValue(z)
     return item
-
-
-class _Scatter(pg.ScatterPlotItem):
-    """A scatter that never takes clicks (picking is done by the view, vectorised) and
-    computes its bounding rectangle once per change.
-
-    Qt asks for an item's bounding rectangle four or more times per paint; pyqtgraph
-    recomputes it each time (data bounds, then the pixel size through the device
-    transform, in Python), which cost more than drawing the markers. Every change of
-    data, style or view transform replaces ``self.bounds`` with a new list, so the
-    rectangle computed for the current list is still right.
-    """
-
-    _rect_for: tuple[object, QRectF] | None = None
-
-    def boundingRect(self) -> QRectF:
-        cached = self._rect_for
-        if cached is not None and cached[0] is self.bounds:
-            return QRectF(cached[1])
-        rect = super().boundingRect()
-        self._rect_for = (self.bounds, QRectF(rect))
-        return rect
-
-    def set_positions(self, pos: NDArray) -> None:
-        """``setData(pos=pos)`` for markers that all look alike, cheaply when their
-        number is unchanged (the common case from one frame to the next).
-
-        ``setData`` rebuilds the point table and looks every marker up in the symbol
-        atlas in Python; with the same count and style only the coordinates change, so
-        they are written into the table in place.
-        """
-        pos = np.asarray(pos, np.float64).reshape(-1, 2)
-        data = self.data
-        if len(pos) == 0 or data is None or len(data) != len(pos):
-            self.setData(pos=pos)
-            return
-        data["x"] = pos[:, 0]
-        data["y"] = pos[:, 1]
-        self.prepareGeometryChange()
-        self.informViewBoundsChanged()
-        self.bounds = [None, None]
-        self.invalidate()
-
-    def mouseClickEvent(self, ev) -> None:
-        ev.ignore()
 
 
 class _ViewBox(pg.ViewBox):

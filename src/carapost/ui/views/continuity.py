@@ -263,7 +263,8 @@ class ContinuityView(BaseView):
         if parts is None or parts & {"ranges", "frames_range", "file"}:
             a, b = p.active_range
             self.active.setRegion((a, b + 1))
-        self.cursor.setValue(p.current_frame + 0.5)
+        if self._rows or not self.single:  # else the hint covers the chart
+            self.cursor.setValue(p.current_frame + 0.5)
         if parts is None or not parts <= {"current_frame"}:
             self.render()
 
