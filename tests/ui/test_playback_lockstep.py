@@ -11,6 +11,7 @@ import numpy as np
 
 from carapost.io import video
 from carapost.io.encode import FFV1Writer
+from carapost.io.lockstep import AHEAD_SLACK, LOCKSTEP_SLACK
 from carapost.model.project import new_project
 
 W, H, N, CAMERAS = 96, 64, 120, 4
@@ -60,8 +61,10 @@ def test_slow_decoders_play_whole_frames(make_window, qtbot, monkeypatch, tmp_pa
     for frame, drawn in seen:
         assert drawn == [frame] * CAMERAS
     # the decoders worked on the frames shown: of the frames any camera decoded while
-    # playing, nearly all are complete
+    # playing, nearly all are complete; the partial ones are at most a schedule's slack
+    # (read ahead as playback starts, in flight as it stops: under load both happen;
+    # chasing the clock alone left 70-101 of them)
     complete = set.intersection(*decoded)
     partial = set.union(*decoded) - complete
-    assert len(partial) <= 4
+    assert len(partial) <= AHEAD_SLACK + LOCKSTEP_SLACK, sorted(partial)
     assert set(shown) <= complete
