@@ -55,6 +55,7 @@ from carapost.batch_cluster import (
     _local_cluster,
     local_cluster,
     start_fork_server,
+    stop_fork_server,
     wait_for_first_worker,
 )
 from carapost.io.atomic import atomic_output
@@ -545,13 +546,17 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
                              fbx=bool(fbx), patch_tracking=bool(patch_tracking),
                              stabilize=stabilize)
     started = time.perf_counter()
-    tasks = plan(inputs, out, settings)
-    if client is None and not scheduler:
-        # the input is good (bad input is refused above, before any work): the fork
-        # server imports the take's modules (~1.6 s CPU) on the other core while this
-        # process reads the manifest and starts the scheduler; the first worker is forked
-        # from it, so this was the start-up's longest wait
-        start_fork_server()
+    # The fork server of a local cluster imports the take's modules (~1.2 s CPU, the
+    # start-up's longest wait: the first worker is forked from it) on the other core
+    # while this process plans (whose imports of the pipeline and scipy are ~0.4 s of
+    # CPU), reads the manifest and starts the scheduler. Bad input stops it again.
+    forked = client is None and not scheduler and start_fork_server()
+    try:
+        tasks = plan(inputs, out, settings)
+    except BaseException:
+        if forked:
+            stop_fork_server()
+        raise
     outdir = Path(out).absolute()
     own: tuple[Any, ...] | None = None
     if client is None and scheduler:
@@ -563,6 +568,8 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         lock = _lock_outdir(outdir)
     except BatchError:
         _close(own)
+        if forked:
+            stop_fork_server()
         raise
     try:
         manifest = read_manifest(outdir)
@@ -597,6 +604,8 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         if progress is not None:
             progress(dict(state))
         if not todo:
+            if forked:  # every take is up to date: no worker is needed
+                stop_fork_server()
             return report()
         try:
             if client is None:
