@@ -12,7 +12,9 @@ Metrics (one JSON object per line):
   alone, with no start-up and no idle core: 2 x the wall over the CPU seconds of a take
   on the 1-worker batch (medians). A take alone keeps more than one core busy (its
   videos are decoded on the calling thread while the blobs of the previous images are
-  detected), so this is below 2; ``with_fixed`` adds both batches' fixed parts;
+  detected), so this is below 2; ``with_fixed`` adds both batches' fixed parts. Only
+  a measure on an idle machine: under load a take's wall time stretches past its CPU
+  time and the figure passes 2;
 - ``batch_overhead_s``: (1-worker batch wall time - the sum of ``carapost process``
   wall times on the same takes, each a fresh process) / takes (target <= 1 s);
 - ``batch_overhead_cpu_s``: the same difference in CPU seconds (driver, scheduler and
