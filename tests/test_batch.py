@@ -63,7 +63,9 @@ def _worker_state() -> dict:
     import dask
     import numba
 
-    return {"pipeline": "carapost.pipeline" in sys.modules and "scipy.signal" in sys.modules,
+    from carapost.batch_cluster import WORKER_PRELOAD
+
+    return {"pipeline": all(m in sys.modules for m in WORKER_PRELOAD),
             "threads": (os.environ.get("OMP_NUM_THREADS"),
                         os.environ.get("OPENBLAS_NUM_THREADS"),
                         numba.config.NUMBA_NUM_THREADS),
@@ -384,3 +386,79 @@ def test_a_running_scheduler_by_address(shoot, client, tmp_path):
     rep = run([shoot / "day1/Take02"], tmp_path / "out", scheduler=address)
     assert rep["summary"]["done"] == 1 and rep["workers"] == 2
     assert client.submit(sum, [1, 2]).result() == 3  # still running
+
+
+def _in_fresh_python(code: str, *args: str) -> dict:
+    """Run ``code`` in a new interpreter (this tree's package); its last stdout line,
+    parsed as JSON."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).resolve().parents[1] / "src"), os.environ.get("PYTHONPATH", "")])}
+    res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True,
+                         text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_a_take_imports_no_library_its_workers_fork_server_has_not(source_take, tmp_path):
+    """Every scipy module a default take uses is imported once by the fork server the
+    workers are forked from (`WORKER_PRELOAD`), and none it does not use: scipy.signal
+    and scipy.stats (with the scipy.integrate and scipy.interpolate they import) cost
+    0.3-0.5 s of CPU on the start-up's critical path and no stage needs them."""
+    code = (
+        "import importlib, json, sys\n"
+        "from carapost.batch_cluster import WORKER_PRELOAD\n"
+        "for m in WORKER_PRELOAD: importlib.import_module(m)\n"
+        "from carapost.batch import BatchSettings, process_one\n"
+        "before = set(sys.modules)\n"
+        "row = process_one(sys.argv[1], {'project': sys.argv[2]}, BatchSettings())\n"
+        # (numba fills its typing registries on a process's first kernel call, PyAV
+        # its subtitle types on the first open: parts of libraries already imported)
+        "libs = {'scipy', 'numpy', 'cv2', 'lxml', 'dask', 'distributed', 'threadpoolctl'}\n"
+        "new = sorted(m for m in set(sys.modules) - before if m.split('.')[0] in libs)\n"
+        "print(json.dumps({'status': row['status'], 'error': row['error'], 'new': new,\n"
+        "                  'signal': 'scipy.signal' in sys.modules,\n"
+        "                  'stats': 'scipy.stats' in sys.modules}))\n")
+    got = _in_fresh_python(code, str(source_take), str(tmp_path / "t.cara"))
+    assert got["status"] == "done", got["error"]
+    assert got["new"] == []
+    assert not got["signal"] and not got["stats"]
+
+
+def test_bad_input_or_nothing_to_do_leaves_no_fork_server(source_take, tmp_path):
+    """`run` starts the workers' fork server before it plans (its imports overlap the
+    planning), and stops it at once when the plan refuses the input or every take is
+    up to date: no process goes on importing after the error or the report."""
+    code = (
+        "import json, sys, time\n"
+        "from multiprocessing import forkserver\n"
+        "from carapost.batch import BatchError, run\n"
+        "t = time.perf_counter()\n"
+        "try:\n"
+        "    run([sys.argv[1] + '/nothing*.mkv'], sys.argv[1] + '/out')\n"
+        "except BatchError as exc:\n"
+        "    error = str(exc)\n"
+        "after_error = forkserver._forkserver._forkserver_pid\n"
+        "print(json.dumps({'error': error, 'pid': after_error,\n"
+        "                  'out': __import__('os').path.exists(sys.argv[1] + '/out')}))\n")
+    got = _in_fresh_python(code, str(tmp_path))
+    assert "matches no file" in got["error"]
+    assert got["pid"] is None and not got["out"]
+    # a rerun with every take up to date (in a new program): the report, no cluster, no
+    # fork server left
+    out = tmp_path / "done"
+    code = (
+        "import json, sys\n"
+        "from multiprocessing import forkserver\n"
+        "import carapost.batch as batch\n"
+        "if len(sys.argv) > 3:\n"
+        "    batch._local_cluster = None  # would raise if a cluster were started\n"
+        "rep = batch.run([sys.argv[1]], sys.argv[2], workers=1)\n"
+        "print(json.dumps({'summary': rep['summary'],\n"
+        "                  'pid': forkserver._forkserver._forkserver_pid}))\n")
+    got = _in_fresh_python(code, str(source_take), str(out))
+    assert got["summary"]["done"] == 1 and got["pid"] is not None  # the batch's own
+    got = _in_fresh_python(code, str(source_take), str(out), "rerun")
+    assert (got["summary"]["skipped"], got["pid"]) == (1, None)

@@ -40,7 +40,6 @@ import io
 import json
 import logging
 import os
-import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -55,10 +54,12 @@ from carapost.batch_cluster import (
     _local_cluster,
     local_cluster,
     start_fork_server,
+    stop_fork_server,
     wait_for_first_worker,
 )
 from carapost.io.atomic import atomic_output
 from carapost.io.errors import CaraFileError
+from carapost.progress import format_progress, terminal_progress
 
 log = logging.getLogger("carapost.batch")
 
@@ -71,11 +72,13 @@ __all__ = [
     "BatchSettings",
     "TakeTask",
     "discover_takes",
+    "format_progress",
     "local_cluster",
     "plan",
     "process_one",
     "run",
     "start_fork_server",
+    "terminal_progress",
 ]
 
 #: The manifest of finished takes, in OUTDIR.
@@ -545,13 +548,17 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
                              fbx=bool(fbx), patch_tracking=bool(patch_tracking),
                              stabilize=stabilize)
     started = time.perf_counter()
-    tasks = plan(inputs, out, settings)
-    if client is None and not scheduler:
-        # the input is good (bad input is refused above, before any work): the fork
-        # server imports the take's modules (~1.6 s CPU) on the other core while this
-        # process reads the manifest and starts the scheduler; the first worker is forked
-        # from it, so this was the start-up's longest wait
-        start_fork_server()
+    # The fork server of a local cluster imports the take's modules (~1.2 s CPU, the
+    # start-up's longest wait: the first worker is forked from it) on the other core
+    # while this process plans (whose imports of the pipeline and scipy are ~0.4 s of
+    # CPU), reads the manifest and starts the scheduler. Bad input stops it again.
+    forked = client is None and not scheduler and start_fork_server()
+    try:
+        tasks = plan(inputs, out, settings)
+    except BaseException:
+        if forked:
+            stop_fork_server()
+        raise
     outdir = Path(out).absolute()
     own: tuple[Any, ...] | None = None
     if client is None and scheduler:
@@ -563,6 +570,8 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         lock = _lock_outdir(outdir)
     except BatchError:
         _close(own)
+        if forked:
+            stop_fork_server()
         raise
     try:
         manifest = read_manifest(outdir)
@@ -597,6 +606,8 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
         if progress is not None:
             progress(dict(state))
         if not todo:
+            if forked:  # every take is up to date: no worker is needed
+                stop_fork_server()
             return report()
         try:
             if client is None:
@@ -761,38 +772,3 @@ def _write_report(outdir: Path, rep: dict[str, Any]) -> None:
         w.writerow({k: "" if row.get(k) is None else row[k] for k in REPORT_FIELDS})
     with atomic_output(outdir / "batch_report.csv") as f:
         f.write(buf.getvalue().encode())
-
-
-def format_progress(state: dict[str, Any], width: int = 30) -> str:
-    """One terminal line: a bar of finished takes, the counts and the ETA.
-
-    Examples
-    --------
-    >>> format_progress({"total": 8, "done": 3, "failed": 1, "skipped": 0, "running": 2,
-    ...                  "elapsed_s": 12.0, "eta_s": 12.0}, width=8)
-    '[####----] 4/8 takes  3 done  1 failed  0 skipped  ETA 0:12'
-    """
-    total = max(int(state["total"]), 1)
-    ended = state["done"] + state["failed"] + state["skipped"]
-    fill = int(round(width * ended / total))
-    eta = state.get("eta_s")
-    eta_text = "--:--" if eta is None else f"{int(eta) // 60}:{int(eta) % 60:02d}"
-    return (f"[{'#' * fill}{'-' * (width - fill)}] {ended}/{state['total']} takes  "
-            f"{state['done']} done  {state['failed']} failed  {state['skipped']} skipped  "
-            f"ETA {eta_text}")
-
-
-def terminal_progress(stream: Any = None) -> BatchProgress:
-    """A `BatchProgress` that draws `format_progress` on a terminal (one line redrawn)
-    or, when ``stream`` is not a terminal, writes a line per finished take."""
-    stream = stream or sys.stderr
-    tty = hasattr(stream, "isatty") and stream.isatty()
-
-    def show(state: dict[str, Any]) -> None:
-        line = format_progress(state)
-        stream.write(("\r" + line) if tty else line + "\n")
-        if tty and state["done"] + state["failed"] + state["skipped"] >= state["total"]:
-            stream.write("\n")
-        stream.flush()
-
-    return show

@@ -15,17 +15,20 @@ from typing import Any
 log = logging.getLogger("carapost.batch")
 
 __all__ = ["LOCAL_CLUSTER_CONFIG", "WORKER_PRELOAD", "WORKER_START_TIMEOUT",
-           "WORKER_THREADS_ENV", "local_cluster", "start_fork_server"]
+           "WORKER_THREADS_ENV", "local_cluster", "start_fork_server", "stop_fork_server"]
 
 
 #: Modules a take imports (the pipeline imports its machinery lazily, so that
 #: ``carapost --help`` stays instant), imported once by the fork server the workers are
 #: forked from instead of by each worker's first take: about 1.5 s of CPU per worker.
 #: A name that no longer exists is skipped by the fork server.
+#: (`scipy.signal` and `scipy.stats`, with the `scipy.integrate` and `scipy.interpolate`
+#: they import, are not among them: no stage of a take uses them, and they were 0.3-0.5 s
+#: of the fork server's CPU, on the start-up's critical path.)
 WORKER_PRELOAD = (
     "carapost.parallel", "distributed", "numpy", "cv2", "av", "lxml.etree", "numba",
-    "scipy.fft", "scipy.integrate", "scipy.interpolate", "scipy.linalg", "scipy.ndimage",
-    "scipy.optimize", "scipy.signal", "scipy.sparse", "scipy.special", "scipy.stats",
+    "scipy.fft", "scipy.linalg", "scipy.ndimage", "scipy.optimize", "scipy.sparse",
+    "scipy.special", "scipy.spatial",
     "carapost.batch", "carapost.pipeline", "carapost.session", "carapost.io.cara",
     "carapost.io.c3d", "carapost.io.fbx", "carapost.io.take_import", "carapost.io.decode",
     "carapost.io.video", "carapost.commands.process", "carapost.commands.tracking",
@@ -108,6 +111,32 @@ def start_fork_server() -> bool:
             else:
                 os.environ[k] = v
     return True
+
+
+def stop_fork_server() -> None:
+    """Stop the fork server `start_fork_server` started, before any worker was forked
+    from it (a batch with bad input or nothing to do); at once, even mid-preload.
+
+    Its preload is no use then, and would otherwise run to its end (~1 s of CPU) after
+    the batch has returned or the program has printed its error. Uses the private
+    stop of `multiprocessing.forkserver` (as its own tests do) after a SIGKILL, so the
+    wait for the process does not wait for its imports.
+    """
+    import signal
+    from multiprocessing import forkserver
+
+    server = forkserver._forkserver
+    pid = getattr(server, "_forkserver_pid", None)
+    if pid is None:
+        return
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except OSError:  # already gone
+        pass
+    try:
+        server._stop()
+    except OSError as exc:  # its socket file already removed
+        log.debug("stopping the fork server: %s", exc)
 
 
 def _local_cluster(workers: int, wait: bool = True) -> tuple[Any, Any, Any]:

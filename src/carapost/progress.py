@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from typing import IO, Any
 
-__all__ = ["ConsoleProgress", "ProgressCallback"]
+__all__ = ["ConsoleProgress", "ProgressCallback", "format_progress", "terminal_progress"]
 
 #: ``progress(done, total) -> bool``: False cancels.
 ProgressCallback = Callable[[int, int], bool]
@@ -130,3 +130,40 @@ class ConsoleProgress:
             print(f"{self._name}: done in {seconds:.1f} s", file=self.stream, flush=True)
         self._name = ""
         self._task = None
+
+
+def format_progress(state: dict[str, Any], width: int = 30) -> str:
+    """One terminal line of ``carapost batch``: a bar of finished takes, the counts and
+    the ETA.
+
+    Examples
+    --------
+    >>> format_progress({"total": 8, "done": 3, "failed": 1, "skipped": 0, "running": 2,
+    ...                  "elapsed_s": 12.0, "eta_s": 12.0}, width=8)
+    '[####----] 4/8 takes  3 done  1 failed  0 skipped  ETA 0:12'
+    """
+    total = max(int(state["total"]), 1)
+    ended = state["done"] + state["failed"] + state["skipped"]
+    fill = int(round(width * ended / total))
+    eta = state.get("eta_s")
+    eta_text = "--:--" if eta is None else f"{int(eta) // 60}:{int(eta) % 60:02d}"
+    return (f"[{'#' * fill}{'-' * (width - fill)}] {ended}/{state['total']} takes  "
+            f"{state['done']} done  {state['failed']} failed  {state['skipped']} skipped  "
+            f"ETA {eta_text}")
+
+
+def terminal_progress(stream: Any = None) -> Callable[[dict[str, Any]], None]:
+    """A `carapost.batch.BatchProgress` that draws `format_progress` on a terminal (one
+    line redrawn) or, when ``stream`` is not a terminal, writes a line per finished
+    take."""
+    stream = stream or sys.stderr
+    tty = hasattr(stream, "isatty") and stream.isatty()
+
+    def show(state: dict[str, Any]) -> None:
+        line = format_progress(state)
+        stream.write(("\r" + line) if tty else line + "\n")
+        if tty and state["done"] + state["failed"] + state["skipped"] >= state["total"]:
+            stream.write("\n")
+        stream.flush()
+
+    return show

@@ -13,6 +13,7 @@ from carapost.algorithms.uncertainty import (
     pair_holdout_scale,
     point_noise_factor,
     sample_sigma,
+    savgol_quadratic,
     smooth_camera_poses,
 )
 
@@ -37,6 +38,23 @@ def caddy_rig(C: int = 4):
 
 def face_points(rng, n):
     return np.c_[rng.uniform(-40, 40, n), rng.uniform(-60, 30, n), rng.uniform(80, 100, n)]
+
+
+@pytest.mark.parametrize(("frames", "window"), [(5, 5), (11, 11), (40, 11), (300, 31)])
+def test_savgol_quadratic_is_scipys_filter(frames, window):
+    """The pose filter gives scipy.signal.savgol_filter's values (order 2, ends fitted),
+    without importing scipy.signal in every process that smooths poses."""
+    from scipy.signal import savgol_filter
+
+    x = np.random.default_rng(frames).normal(0.0, 50.0, (frames, 4, 3))
+    want = savgol_filter(x, window, 2, axis=0, mode="interp")
+    np.testing.assert_allclose(savgol_quadratic(x, window), want, rtol=0, atol=1e-10)
+    # a quadratic is kept as it is, ends included; a kink is smoothed
+    f = np.arange(frames, dtype=np.float64)
+    np.testing.assert_allclose(savgol_quadratic(0.5 * f ** 2 - 3 * f, window),
+                               0.5 * f ** 2 - 3 * f, atol=1e-8)
+    with pytest.raises(ValueError, match="odd"):
+        savgol_quadratic(x, window + 1)
 
 
 def test_smoothing_removes_scatter_and_follows_smooth_flex():

@@ -47,6 +47,7 @@ __all__ = [
     "point_noise_factor",
     "retriangulate",
     "sample_sigma",
+    "savgol_quadratic",
     "smooth_camera_poses",
 ]
 
@@ -72,14 +73,58 @@ def _matrix(rv: NDArray[np.float64]) -> NDArray[np.float64]:
     return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
 
 
+def savgol_quadratic(x: ArrayLike, window: int) -> NDArray[np.float64]:
+    """Savitzky-Golay filter of order 2 along the first axis, a quadratic fitted to the
+    first and last ``window`` samples at the ends.
+
+    The values of :func:`scipy.signal.savgol_filter` ``(x, window, 2, axis=0,
+    mode="interp")`` (to ~1e-14 relative: the same least-squares fit, computed once):
+    importing `scipy.signal` (which imports `scipy.stats`, `scipy.fft` and
+    `scipy.integrate`) cost every process that smooths poses ~0.3-0.5 s of CPU, a
+    batch's start-up included (docs/benchmarks.md).
+
+    Parameters
+    ----------
+    x : array_like, shape (F, ...)
+        Samples along the first axis.
+    window : int
+        Odd number of samples of each fit, ``3 <= window <= F``.
+
+    Returns
+    -------
+    ndarray, shape (F, ...)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> f = np.arange(7.0)
+    >>> bool(np.allclose(savgol_quadratic(3 * f ** 2 - f + 2, 5), 3 * f ** 2 - f + 2))
+    True
+    """
+    from scipy.ndimage import correlate1d
+
+    xs = np.asarray(x, dtype=np.float64)
+    F, w = xs.shape[0], int(window)
+    if w < 3 or w % 2 == 0 or w > F:
+        raise ValueError(f"window must be odd, at least 3 and at most {F}, got {window}")
+    half = w // 2
+    V = np.vander(np.arange(-half, half + 1, dtype=np.float64), 3, increasing=True)
+    fit = np.linalg.pinv(V)  # (3, w): the quadratic's coefficients from w samples
+    out = correlate1d(xs, fit[0], axis=0, mode="constant")  # its value at the centre
+    # the ends: the quadratic of the first / last w samples at their positions
+    out[:half] = np.tensordot(V[:half] @ fit, xs[:w], axes=1)
+    out[F - half:] = np.tensordot(V[half + 1:] @ fit, xs[F - w:], axes=1)
+    return out
+
+
 def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING_FRAMES,
                         keep: ArrayLike | None = None
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Fit every camera's per-frame pose by a local quadratic over ``window`` frames.
 
-    A Savitzky-Golay filter (:func:`scipy.signal.savgol_filter`, order 2, polynomial fit
-    at the ends) on each camera's rotation (as a rotation vector relative to its middle
-    frame's) and centre. A quadratic follows smooth flex without lag; what it removes
+    A Savitzky-Golay filter (`savgol_quadratic`: order 2, polynomial fit at the ends)
+    on each camera's rotation (as a rotation vector relative to its middle frame's) and
+    centre. A quadratic follows smooth flex without lag; what it removes
     is the frame-to-frame scatter of independent resections.
 
     Parameters
@@ -107,8 +152,6 @@ def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING
     >>> bool(np.std(ts[..., 2]) < np.std(t[..., 2]))
     True
     """
-    from scipy.signal import savgol_filter
-
     Rm = np.asarray(R, dtype=np.float64)
     tm = np.asarray(t, dtype=np.float64)
     F = Rm.shape[0]
@@ -119,8 +162,8 @@ def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING
     ref = Rm[F // 2]  # (C, 3, 3)
     rv = _rotvec(np.einsum("fcij,ckj->fcik", Rm, ref))  # R_f = exp(rv) ref
     centre = -np.einsum("fcji,fcj->fci", Rm, tm)
-    rv_s = savgol_filter(rv, w, 2, axis=0, mode="interp")
-    cen_s = savgol_filter(centre, w, 2, axis=0, mode="interp")
+    rv_s = savgol_quadratic(rv, w)
+    cen_s = savgol_quadratic(centre, w)
     Rs = np.einsum("fcij,cjk->fcik", _matrix(rv_s), ref)
     ts = -np.einsum("fcij,fcj->fci", Rs, cen_s)
     if keep is not None:
@@ -605,7 +648,9 @@ def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np
     -------
     ndarray, shape (P,)
     """
-    from scipy.stats import chi2
+    # the median of chi2(k) as scipy.stats.chi2.median computes it (bit for bit), without
+    # importing scipy.stats (~0.3 s of CPU per process)
+    from scipy.special import gammaincinv
 
     has = np.isfinite(obs).all(-1)
     n = has.sum(-1)
@@ -617,7 +662,7 @@ def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np
     uv = _project_per_frame(X[fi, pi], R[fi], t[fi], intr)
     r2 = (np.where(has[fi, pi], np.sum((uv - obs[fi, pi]) ** 2, -1), 0.0)
           / noise_px[None, :] ** 2)
-    q = r2.sum(-1) / chi2.median(2 * n[fi, pi] - 3)
+    q = r2.sum(-1) / (2 * gammaincinv((2 * n[fi, pi] - 3) / 2, 0.5))
     order = np.argsort(pi, kind="stable")
     pi_s, q_s = pi[order], q[order]
     starts = np.flatnonzero(np.r_[True, pi_s[1:] != pi_s[:-1]])
