@@ -14,6 +14,7 @@ kept.
 import numpy as np
 import pytest
 
+from carapost.algorithms.camera import project
 from carapost.algorithms.codes import (
     POINT_FILLS,
     RECON_NONE,
@@ -23,7 +24,6 @@ from carapost.algorithms.codes import (
 )
 from carapost.algorithms.single_sensor import neighbour_prediction
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
-from carapost.algorithms.camera import project
 from carapost.algorithms.tracking.time_checks import (
     place_single_sensor,
     reject_by_motion,
