@@ -249,7 +249,7 @@ def test_consistent_wrong_match_in_both_cameras_of_a_caddy_is_removed(scene):
         o["positions"][f[k], p[k]] = off[k]
     o["residual"][f, p] = 0.0
     tri_before = (o["recon"] == RECON_TRIANGULATED).sum()
-    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool))
+    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool)).sum()
     gone = o["recon"] == RECON_NONE
     # nearly every wrong sample found (one whose two sides disagree by as much, a lip
     # moving fast against its neighbours, is not judged)
@@ -266,7 +266,7 @@ def test_clean_take_loses_no_sample(scene):
     _one_caddy(o, scene, (2, 3))
     F, M, C = scene.visible.shape
     tri = (o["recon"] == RECON_TRIANGULATED).sum()
-    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool))
+    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool)).sum()
     assert n <= 0.0005 * tri
 
 

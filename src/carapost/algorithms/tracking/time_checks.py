@@ -9,17 +9,18 @@ the cameras are fitted over time and the face samples re-solved with them:
    observations agree, is removed (:mod:`carapost.algorithms.temporal_check`); the
    sample is solved again from the rest, or becomes a single-sensor sample when one
    camera is left.
-2. :func:`reject_wrong_samples`: a triangulated sample whose observations are all on
-   a wrong blob (consistent across its cameras, so its residual is small), which its
-   neighbours in time on both sides contradict as a whole, is removed
-   (:func:`carapost.algorithms.temporal_check.inconsistent_samples`).
-3. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
+2. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
    (with the fitted cameras) nearest the prediction from the point's triangulated
    samples on both sides (:mod:`carapost.algorithms.single_sensor`), with a sigma
    measured on the take for its distance in time to them; as in the per-frame
    tracker, a sample whose ray passes further than the Single Sensor Tracking
    Threshold from the prediction is not kept, nor one whose prediction is expected
    to be wrong by more than it (its sigma).
+3. :func:`reject_wrong_samples`, after the depth priors (where a one-caddy sample's
+   depth noise no longer hides a wrong one): a triangulated sample whose observations
+   are all on a wrong blob (consistent across its cameras, so its residual is small),
+   which its neighbours in time on both sides contradict as a whole, is removed
+   (:func:`carapost.algorithms.temporal_check.inconsistent_samples`).
 
 Shapes: ``F`` frames, ``P`` points, ``C`` cameras; the arrays are a track result's
 (``positions``, ``recon``, ``residual``, ``obs``, ``source``, ``detection``,
@@ -137,7 +138,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
 
 def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
                          fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None
-                         ) -> int:
+                         ) -> NDArray[np.bool_]:
     """Remove the triangulated face samples the point's motion contradicts as a whole.
 
     Parameters
@@ -153,22 +154,22 @@ def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
 
     Returns
     -------
-    int
-        Samples removed.
+    ndarray of bool, shape (F, P)
+        The samples removed.
     """
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     if tri.sum() < 10:
-        return 0
+        return np.zeros(tri.shape, bool)
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     nb = neighbours(X, tri) if nb is None else nb
     bad = inconsistent_samples(X, tri, nb) & ~fixed[:, None]
     if not bad.any():
-        return 0
+        return bad
     detach_observations(o, np.broadcast_to(bad[..., None], o["detection"].shape))
     o["recon"][bad] = RECON_NONE
     o["positions"][bad] = np.nan
     o["residual"][bad] = np.nan
-    return int(bad.sum())
+    return bad
 
 
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
