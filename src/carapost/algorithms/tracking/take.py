@@ -38,6 +38,7 @@ from carapost.algorithms.tracking.time_checks import (
     detach_observations,
     place_single_sensor,
     reject_by_motion,
+    reject_wrong_samples,
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
@@ -258,7 +259,8 @@ def track_take(
                             merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
-                                                  params.allow_single_sensor_tracking))
+                                                  params.allow_single_sensor_tracking,
+                                                  params.single_sensor_tracking_threshold))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -296,13 +298,14 @@ def track_take(
                         merge_mm, intr, start, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
-                                                  params.allow_single_sensor_tracking))
+                                                  params.allow_single_sensor_tracking,
+                                                  params.single_sensor_tracking_threshold))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 windows: tuple[int, int, float, bool]) -> TrackResult:
+                 windows: tuple[int, int, float, bool, float]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -317,7 +320,8 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
        prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
        of the pose fit and of the depth prior, the target reprojection error (px) of
-       the outlier rejection and whether single-sensor samples are allowed. The sigma
+       the outlier rejection, whether single-sensor samples are allowed and the
+       Single Sensor Tracking Threshold (mm). The sigma
        is that of the result, plus what no fit over time removes: each point's excess
        noise (its noise factor) and the cameras' pose error from the brim
        (:func:`sample_sigma`). Between the re-solve and the sigma, the checks of
@@ -365,7 +369,7 @@ def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrins
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
                     window: int, depth_window: int = 0, target_px: float = 0.0,
-                    single_sensor: bool = True
+                    single_sensor: bool = True, single_threshold_mm: float | None = None
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -404,7 +408,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
         nb = neighbours(Xt, tri)
         reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
-        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
+        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb,
+                                           threshold_mm=single_threshold_mm)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         obs = o["obs"].astype(np.float64)
     else:
@@ -451,6 +456,11 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
         sigma[:, ps] = np.sqrt(var)
     sigma[~np.isfinite(X).all(-1)] = np.nan
+    # wrong whole samples (a wrong blob in every camera) last: before the depth priors
+    # a one-caddy sample's depth noise is as large as such an error (on tuning take 5,
+    # 50 right samples were removed there)
+    bad = reject_wrong_samples(o, face, fixed, nb)
+    sigma[bad] = np.nan
     return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
 
 
