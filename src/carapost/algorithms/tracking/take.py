@@ -31,7 +31,6 @@ from carapost.algorithms.tracking.identity import (
     split_hops,
     stitch,
 )
-from carapost.algorithms.tracking.lost_samples import recover_lost_samples
 from carapost.algorithms.tracking.params import TrackingParameters
 from carapost.algorithms.tracking.records import (
     FrameDetections,
@@ -348,7 +347,7 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     widths = attached_widths(detections, o["detection"], first)
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
-                                    widths=widths, detections=detections, first=first)
+                                    widths=widths)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -419,9 +418,8 @@ def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrins
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
                     window: int, depth_window: int = 0, target_px: float = 0.0,
-                    single_sensor: bool = True, widths: NDArray[np.float32] | None = None,
-                    detections: Callable[[int], FrameDetections] | None = None,
-                    first: int = 0) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
+                    single_sensor: bool = True, widths: NDArray[np.float32] | None = None
+                    ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
     ``depth_window`` frames and estimate each sample's sigma.
@@ -432,9 +430,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     take's measured 2D noise, between 0.5 px and ``target_px``: an observation the
     solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
     C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
-    scales its 2D noise in the sigma. With ``detections`` (take frame -> blobs, ``first``
-    the take frame of row 0) and single-sensor samples allowed, the free blobs where a
-    point has no sample are looked at again (:func:`recover_lost_samples`)."""
+    scales its 2D noise in the sigma."""
     face = kind != KIND_BRIM
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
@@ -463,14 +459,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
         nb = neighbours(Xt, tri)
         reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
-        recovered = None
-        if detections is not None and single_sensor:
-            recovered = recover_lost_samples(o, R, t, face, intr, fixed, detections, first,
-                                             nb)
         single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
-        if recovered is not None:
-            # a recovered sample predicted from one side has the error of that prediction
-            single_sigma = np.where(np.isfinite(recovered), recovered, single_sigma)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         obs = o["obs"].astype(np.float64)
     else:
