@@ -262,10 +262,11 @@ def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLik
         k2 = (np.ones(hs.shape) if scale is None
               else np.asarray(scale, dtype=np.float64)[fi, pi] ** 2)
         M = _residual_maps(Xm[fi, pi], hs, Rm[fi], tm[fi], intr)  # (N, 2C, 2C)
+        # equal to start with (the update does not depend on their common size)
         var = np.ones(C)
         for _ in range(3):
             v = np.repeat(np.where(hs, var[None, :] * k2, 0.0), 2, axis=1)  # (N, 2C)
-            new = var.copy()
+            new = np.full(C, np.nan)
             for c in range(C):
                 Mc = M[:, 2 * c:2 * c + 2]  # (N, 2, 2C): camera c's rows
                 block = (Mc * v[:, None, :]) @ np.swapaxes(Mc, 1, 2)  # (N, 2, 2)
@@ -274,7 +275,10 @@ def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLik
                 if m.sum() >= 20:
                     ratio = r2[m, c] / expect[m] / _ratio_median(block[m])
                     new[c] = var[c] * np.median(ratio)
-            var = new
+            if not np.isfinite(new).any():
+                break
+            # a camera with too few samples of its own is taken as the others' median
+            var = np.where(np.isfinite(new), new, np.nanmedian(new))
         for c in range(C):
             if hs[:, c].sum() >= 20:
                 out[c] = np.sqrt(var[c])
