@@ -4,12 +4,17 @@ On a synthetic take with truth cameras and 0.1 px detection noise: a blob 3 px o
 the one camera of the other caddy (which fixes a one-caddy point's depth) moves the
 point in depth while every residual stays small; the motion finds it. A marker that one
 camera of its caddy misses for a run of frames is put back on its ray at the depth its
-neighbours' motion gives from both sides, with a sigma measured on the take.
+neighbours' motion gives from both sides, with a sigma measured on the take. A sample
+whose observations are all on a wrong blob, consistently in both cameras of a caddy
+(small residual), is removed by its neighbours in time; a single-sensor sample whose
+ray misses its prediction by more than the Single Sensor Tracking Threshold is not
+kept.
 """
 
 import numpy as np
 import pytest
 
+from carapost.algorithms.camera import project
 from carapost.algorithms.codes import (
     POINT_FILLS,
     RECON_NONE,
@@ -19,7 +24,11 @@ from carapost.algorithms.codes import (
 )
 from carapost.algorithms.single_sensor import neighbour_prediction
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
-from carapost.algorithms.tracking.time_checks import place_single_sensor, reject_by_motion
+from carapost.algorithms.tracking.time_checks import (
+    place_single_sensor,
+    reject_by_motion,
+    reject_wrong_samples,
+)
 from carapost.algorithms.uncertainty import retriangulate
 from carapost.synth import SynthConfig, build_scene
 
@@ -197,3 +206,101 @@ def test_a_two_camera_sample_left_with_one_camera(scene, single_sensor):
     else:
         assert (o["recon"][f, p][gone] == RECON_NONE).all()
         assert np.isnan(o["positions"][f, p][gone]).all()
+
+
+def _one_caddy(o, scene, cams=(0, 1)):
+    """Keep only cameras ``cams`` of every sample they both see; re-triangulate."""
+    F, M, C = scene.visible.shape
+    both = scene.visible[..., cams[0]] & scene.visible[..., cams[1]]
+    other = [c for c in range(C) if c not in cams]
+    block = o["obs"][both]
+    block[:, other] = np.nan
+    o["obs"][both] = block
+    X, res = retriangulate(o["obs"].astype(float), scene.cam_R, scene.cam_t,
+                           scene.intrinsics, both)
+    ok = both & np.isfinite(X).all(-1)
+    o["positions"][ok] = X[ok]
+    o["residual"][ok] = res[ok]
+    return ok
+
+
+def test_consistent_wrong_match_in_both_cameras_of_a_caddy_is_removed(scene):
+    rng = np.random.default_rng(7)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    ok = _one_caddy(o, scene)
+    cand = np.argwhere(ok[2:-2]) + [2, 0]
+    # isolated samples of different points: each wrong sample has right neighbours
+    pts = rng.choice(np.unique(cand[:, 1]), 12, replace=False)
+    f = rng.integers(3, F - 3, pts.size)
+    keep = ok[f, pts]
+    f, p = f[keep], pts[keep]
+    assert p.size >= 8
+    # a blob 2 mm off on the face, seen consistently by both cameras of the caddy
+    off = scene.points3d[f, p] + rng.normal(0, 1, (p.size, 3)) * [1, 1, 0.2]
+    off = scene.points3d[f, p] + 2.0 * (off - scene.points3d[f, p]) / np.linalg.norm(
+        off - scene.points3d[f, p], axis=-1, keepdims=True)
+    for k in range(p.size):
+        uv, _ = project(off[k][None], scene.cam_R[f[k]], scene.cam_t[f[k]],
+                        scene.intrinsics)
+        row = o["obs"][f[k], p[k]]
+        row[:2] = uv[0, :2]
+        o["obs"][f[k], p[k]] = row
+        o["positions"][f[k], p[k]] = off[k]
+    o["residual"][f, p] = 0.0
+    tri_before = (o["recon"] == RECON_TRIANGULATED).sum()
+    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool)).sum()
+    gone = o["recon"] == RECON_NONE
+    # nearly every wrong sample found (one whose two sides disagree by as much, a lip
+    # moving fast against its neighbours, is not judged)
+    hit = gone[f, p]
+    assert hit.mean() >= 0.8
+    assert np.isnan(o["positions"][f, p][hit]).all()
+    assert (o["detection"][f, p][hit] == POINT_FILLS["detection"]).all()
+    assert not np.isfinite(o["obs"][f, p][hit]).any()
+    assert n - hit.sum() <= 0.0005 * tri_before  # and next to no right one
+
+
+def test_clean_take_loses_no_sample(scene):
+    o = _arrays(scene, np.random.default_rng(8))
+    _one_caddy(o, scene, (2, 3))
+    F, M, C = scene.visible.shape
+    tri = (o["recon"] == RECON_TRIANGULATED).sum()
+    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool)).sum()
+    assert n <= 0.0005 * tri
+
+
+def test_single_sensor_threshold(scene):
+    # markers of caddy (2, 3) only; camera 3 misses them on frames 12-14; on frame 13
+    # camera 2's blob is a wrong one 6 px away
+    rng = np.random.default_rng(9)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    one = scene.visible[..., 2] & scene.visible[..., 3] & ~scene.visible[..., 0] & \
+        ~scene.visible[..., 1]
+    pts = np.flatnonzero(one.all(0))[:6]
+    assert pts.size >= 3
+    run = slice(12, 15)
+    o["obs"][run, pts, 3] = np.nan
+    rec = o["recon"][run]
+    rec[:, pts] = RECON_SINGLE_SENSOR
+    o["recon"][run] = rec
+    blk = o["obs"][13]
+    blk[pts, 2] += [6.0, 0.0]
+    o["obs"][13] = blk
+    args = (scene.cam_R, scene.cam_t, np.ones(M, bool), scene.intrinsics,
+            np.zeros(F, bool))
+    free = {k: v.copy() for k, v in o.items()}
+    place_single_sensor(free, *args)
+    assert (free["recon"][13, pts] == RECON_SINGLE_SENSOR).all()
+    assert np.median(free["residual"][13, pts]) > 0.5  # the ray misses the prediction
+    sigma = place_single_sensor(o, *args, threshold_mm=0.5)
+    # the wrong ones are gaps, the right ones on frames 12 and 14 kept
+    assert (o["recon"][13, pts] == RECON_NONE).all()
+    assert np.isnan(o["positions"][13, pts]).all() and np.isnan(sigma[13, pts]).all()
+    assert not np.isfinite(o["obs"][13, pts]).any()
+    right = o["recon"][[12, 14]][:, pts] == RECON_SINGLE_SENSOR
+    assert right.mean() >= 0.8
+    assert (o["residual"][[12, 14]][:, pts][right] <= 0.5).all()
+    assert (sigma[[12, 14]][:, pts][right] <= 0.5).all()
+

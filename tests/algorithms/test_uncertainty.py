@@ -15,6 +15,7 @@ from carapost.algorithms.uncertainty import (
     sample_sigma,
     savgol_quadratic,
     smooth_camera_poses,
+    width_noise_scale,
 )
 
 
@@ -114,6 +115,59 @@ def test_sigma_is_calibrated_against_known_noise(cams):
     if cams == (0, 1):
         # a caddy's depth error z^2 / (f b) x sqrt(2) x noise: 0.2-0.4 mm at 150-190 mm
         assert 0.2 < np.median(s) < 0.4
+
+
+def test_thin_blob_noise_is_carried_by_the_width_scale():
+    """Three cameras; the lone camera of the second caddy sees half of the markers as thin
+    blobs (semi-minor axis 1.5 px) whose centres are twice as noisy, the rest as round
+    ones. That camera alone fixes the depth along the first caddy's baseline, so its
+    residuals hardly show its noise: the estimate must weigh each camera's share of the
+    residual (not lend it to the other two), and one noise per camera leaves the thin
+    blobs' sigmas too small where the width scale makes them right."""
+    rng = np.random.default_rng(5)
+    intr, R, t = caddy_rig()
+    N, noise = 6000, 0.08
+    X = face_points(rng, N)
+    uv, _ = project(X, R, t, intr)
+    thin = np.arange(N) % 2 == 0
+    widths = np.tile([4.0, 3.5, 4.0, np.nan], (N, 1))  # camera 3 does not see them
+    widths[thin, 2] = 1.5
+    scale = width_noise_scale(widths)
+    assert np.allclose(scale[0, :3], [0.75, 3.0 / 3.5, 2.0])
+    uv = uv + rng.normal(0, 1, uv.shape) * (noise * scale)[..., None]
+    uv[:, 3] = np.nan
+    params = TriangulationParameters(minimum_cameras=2, refine_iterations=3)
+    Y = triangulate(uv[:, None], R, t, intr, params).points[:, 0]
+    Rf, tf = np.broadcast_to(R, (N, 4, 3, 3)), np.broadcast_to(t, (N, 4, 3))
+    e = np.linalg.norm(Y - X, axis=-1)
+    sc = scale[:, None]
+    est = noise_from_residuals(uv[:, None], Y[:, None], Rf, tf, intr, scale=sc)
+    assert np.allclose(est[:3], noise, rtol=0.15)
+    s = sample_sigma(Y[:, None], uv[:, None], Rf, tf, intr, est, scale=sc)[:, 0]
+    for group in (thin, ~thin):
+        assert 0.58 <= np.mean(e[group] <= s[group]) <= 0.75
+        assert 0.92 <= np.mean(e[group] <= 2 * s[group]) <= 0.995
+    # one noise per camera from the same residuals: the thin blobs' sigmas too small
+    plain = noise_from_residuals(uv[:, None], Y[:, None], Rf, tf, intr)
+    s0 = sample_sigma(Y[:, None], uv[:, None], Rf, tf, intr, plain)[:, 0]
+    assert np.mean(e[thin] <= s0[thin]) < 0.5
+
+
+def test_attached_widths_reads_the_blob_of_each_observation():
+    from carapost.algorithms.tracking import RaggedDetections
+    from carapost.algorithms.tracking.take import attached_widths
+
+    # 2 frames, 2 cameras: image (f, c) holds 2 blobs whose minor axis is 10 f + c + k / 10
+    offsets = np.arange(0, 10, 2)
+    axes = np.array([[5.0, 10 * f + c + k / 10] for f in range(2) for c in range(2)
+                     for k in range(2)])
+    rag = RaggedDetections(offsets, np.zeros((8, 2)), axes, 2)
+    det = np.array([[[1, -1]], [[0, 1]]])  # (F=2, P=1, C=2)
+    w = attached_widths(rag, det)
+    assert np.allclose(w[0, 0], [0.1, np.nan], equal_nan=True)
+    assert np.allclose(w[1, 0], [10.0, 11.1])
+    # the same through a plain per-frame callable, and from a later first frame
+    assert np.allclose(attached_widths(lambda f: rag(f), det[1:], first=1), w[1:])
 
 
 def test_noise_and_holdout_scale_recover_the_true_noise():

@@ -41,7 +41,8 @@ MOTION_TAU_MM = 0.03
 
 
 def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
-                      intr: CameraIntrinsics, noise_px: ArrayLike) -> NDArray[np.float64]:
+                      intr: CameraIntrinsics, noise_px: ArrayLike,
+                      scale: ArrayLike | None = None) -> NDArray[np.float64]:
     """Covariance (mm^2) of each triangulated sample's 3D error from its geometry.
 
     ``(sum_c J_c^T J_c / s_c^2)^-1`` over the cameras that observe the sample, ``J_c``
@@ -58,6 +59,11 @@ def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     intr : CameraIntrinsics
     noise_px : array_like, shape (C,)
         Per-axis 2D noise of each camera (px).
+    scale : array_like, shape (F, P, C), optional
+        Noise factor of each observation
+        (`carapost.algorithms.uncertainty.width_noise_scale`; the covariance is then
+        that of the equally weighted triangulation, see
+        `carapost.algorithms.uncertainty.observation_information`).
 
     Returns
     -------
@@ -83,7 +89,8 @@ def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     Rm = np.asarray(R, dtype=np.float64)
     tm = np.asarray(t, dtype=np.float64)
     s = np.asarray(noise_px, dtype=np.float64)
-    info, ok, _ = observation_information(Xm, o, Rm, tm, intr, s)
+    sc = None if scale is None else np.asarray(scale, dtype=np.float64)
+    info, ok, _ = observation_information(Xm, o, Rm, tm, intr, s, sc)
     out = np.full(Xm.shape[:2] + (3, 3), np.nan)
     two = ok.sum(-1) >= 2
     if two.any():

@@ -15,7 +15,10 @@ error expected from three sources, each measured on the take itself:
 
 - the 2D noise of each camera (:func:`noise_from_residuals`: the reprojection residuals
   of points seen by three or more cameras), through the sample's observation geometry
-  (which cameras, at what angles and depths);
+  (which cameras, at what angles and depths). The noise of one observation scales with
+  the width of its blob (:func:`width_noise_scale`): a disc seen edge-on is a thin
+  ellipse whose centre is 3-5 times less precise than a round one's, and the camera
+  that sees a marker its caddy partner cannot is the one that sees it most obliquely;
 - how much worse than that a point's own observations are (:func:`point_noise_factor`:
   a marker half hidden by a fold or seen at a grazing angle keeps larger residuals over
   the whole take);
@@ -49,6 +52,7 @@ __all__ = [
     "sample_sigma",
     "savgol_quadratic",
     "smooth_camera_poses",
+    "width_noise_scale",
 ]
 
 #: Window (frames) of the pose fit. On rendered takes with rig flex up to 2.5 Hz at
@@ -59,6 +63,17 @@ POSE_SMOOTHING_FRAMES = 11
 #: Floor (px) of the per-camera 2D noise: a camera with too few redundant observations
 #: to measure its noise is not trusted more than this.
 MIN_NOISE_PX = 0.05
+
+#: Semi-minor axis (px) of the blob at which a camera's noise (`noise_from_residuals`)
+#: is stated; the noise of an observation is that times ``BLOB_WIDTH_REF_PX / b``
+#: (`width_noise_scale`). On the tuning takes of other renderers (51,000 observations,
+#: error against the truth projection) the RMS error per axis times the blob's
+#: semi-minor axis stayed between 0.17 and 0.26 px^2 over b = 1.5-8 px, while the error
+#: itself went from 0.20 px (b < 1.6) to 0.04 px (b > 3.5) (docs/benchmarks.md).
+BLOB_WIDTH_REF_PX = 3.0
+#: Semi-minor axes (px) outside this range count as its ends: narrower blobs are rare and
+#: their measured axis is itself noisy; a wide blob's centre is not better than this.
+BLOB_WIDTH_RANGE_PX = (1.0, 6.0)
 
 
 def _rotvec(Rm: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -172,6 +187,37 @@ def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING
     return Rs, ts
 
 
+def width_noise_scale(minor_px: ArrayLike) -> NDArray[np.float64]:
+    """Factor of each observation's 2D noise from the width of its blob.
+
+    The centre of a blob is found from the pixels across its edge; a thin ellipse (a
+    disc seen obliquely, semi-minor axis ``b``) has fewer of them and a blur tail that
+    its support cuts, so its centre error grows as ``1 / b``. The factor is
+    ``BLOB_WIDTH_REF_PX / b`` with ``b`` clipped to `BLOB_WIDTH_RANGE_PX`.
+
+    Parameters
+    ----------
+    minor_px : array_like
+        Semi-minor axis (px) of the blob of each observation; NaN or <= 0 where the
+        observation has no blob (patch or target tracked): factor 1.
+
+    Returns
+    -------
+    ndarray
+        Same shape, >= ``BLOB_WIDTH_REF_PX / BLOB_WIDTH_RANGE_PX[1]``.
+
+    Examples
+    --------
+    >>> width_noise_scale([1.5, 3.0, 12.0, float("nan")]).tolist()
+    [2.0, 1.0, 0.5, 1.0]
+    """
+    b = np.asarray(minor_px, dtype=np.float64)
+    lo, hi = BLOB_WIDTH_RANGE_PX
+    with np.errstate(invalid="ignore"):
+        known = np.isfinite(b) & (b > 0)
+    return np.where(known, BLOB_WIDTH_REF_PX / np.clip(np.where(known, b, 1.0), lo, hi), 1.0)
+
+
 def retriangulate(obs: ArrayLike, R: ArrayLike, t: ArrayLike, intr: CameraIntrinsics,
                   mask: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Triangulate the masked samples again from their observations (same cameras).
@@ -202,14 +248,23 @@ def retriangulate(obs: ArrayLike, R: ArrayLike, t: ArrayLike, intr: CameraIntrin
 
 
 def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
-                         intr: CameraIntrinsics) -> NDArray[np.float64]:
+                         intr: CameraIntrinsics, scale: ArrayLike | None = None,
+                         max_samples: int = 8_000) -> NDArray[np.float64]:
     """Per-camera 2D noise (px) from the reprojection residuals of over-determined points.
 
-    A point seen by ``n >= 3`` cameras and solved by least squares leaves residuals with
-    ``2n - 3`` degrees of freedom, so ``sum r^2 / (2n - 3)`` estimates the per-axis
-    variance of one observation. Each camera's share is scaled by ``2n / (2n - 3)``; the
-    median (robust to a few wrong blobs) over samples, corrected to the mean of a
-    chi-square with 2 degrees of freedom (``/ ln 2``), gives the variance.
+    A point seen by ``n >= 3`` cameras and solved by least squares (every ray alike)
+    leaves the residual ``r = (I - H) e`` of its observation errors ``e``, ``H`` the hat
+    matrix of the solve (``J (J^T J)^-1 J^T``, ``J`` the 2n x 3 pixel Jacobian), so a
+    camera's expected squared residual is its 2x2 block of ``(I - H) V (I - H)^T``
+    (``V``: each observation's noise variance). The cameras do not share the residual
+    alike: the lone camera of its caddy in a three-camera sample fixes the depth along
+    the other caddy's baseline by itself and keeps almost none of its error, so equal
+    shares (``2n / (2n - 3)`` each) would lend its noise to the other two. Each camera's
+    variance is the median (robust to a few wrong blobs) of ``|r|^2`` over its expected
+    value, divided by that ratio's median for a normal error (``ln 2`` when the residual
+    keeps both axes alike, 0.455 when it keeps one: Satterthwaite's chi-square of the
+    block's eigenvalues), starting from equal noise and repeated with the new variances
+    (three times).
 
     Parameters
     ----------
@@ -217,12 +272,19 @@ def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLik
     X : array_like, shape (F, P, 3)
     R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
     intr : CameraIntrinsics
+    scale : array_like, shape (F, P, C), optional
+        Noise factor of each observation (`width_noise_scale`): its noise is the
+        camera's times it, so the result is the noise of an observation of factor 1.
+    max_samples : int
+        Over-determined samples used at most (spread evenly over the take; a median
+        needs no more).
 
     Returns
     -------
     ndarray, shape (C,)
-        Per-axis standard deviation (px) of each camera's observations, at least
-        `MIN_NOISE_PX`; cameras without enough data get the median of the others.
+        Per-axis standard deviation (px) of each camera's observations (of factor 1 with
+        ``scale``), at least `MIN_NOISE_PX`; cameras without enough data get the median
+        of the others.
     """
     o = np.asarray(obs, dtype=np.float64)
     Xm = np.asarray(X, dtype=np.float64)
@@ -230,25 +292,80 @@ def noise_from_residuals(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLik
     tm = np.asarray(t, dtype=np.float64)
     F, P, C, _ = o.shape
     has = np.isfinite(o).all(-1)
-    n = has.sum(-1)
-    use = (n >= 3) & np.isfinite(Xm).all(-1)
+    use = (has.sum(-1) >= 3) & np.isfinite(Xm).all(-1)
     out = np.full(C, np.nan)
-    if use.any():
-        fi, pi = np.nonzero(use)
+    fi, pi = np.nonzero(use)
+    if fi.size > max_samples:
+        pick = np.unique(np.linspace(0, fi.size - 1, max_samples).astype(np.intp))
+        fi, pi = fi[pick], pi[pick]
+    if fi.size:
+        hs = has[fi, pi]  # (N, C)
         uv = _project_per_frame(Xm[fi, pi], Rm[fi], tm[fi], intr)
-        r2 = np.sum((uv - o[fi, pi]) ** 2, axis=-1)  # (N, C)
-        k = n[fi, pi].astype(np.float64)
-        r2 = r2 * (2 * k / (2 * k - 3))[:, None]
+        r2 = np.where(hs, np.sum((uv - o[fi, pi]) ** 2, axis=-1), 0.0)  # (N, C)
+        k2 = (np.ones(hs.shape) if scale is None
+              else np.asarray(scale, dtype=np.float64)[fi, pi] ** 2)
+        M = _residual_maps(Xm[fi, pi], hs, Rm[fi], tm[fi], intr)  # (N, 2C, 2C)
+        # equal to start with (the update does not depend on their common size)
+        var = np.ones(C)
+        for _ in range(3):
+            v = np.repeat(np.where(hs, var[None, :] * k2, 0.0), 2, axis=1)  # (N, 2C)
+            new = np.full(C, np.nan)
+            for c in range(C):
+                Mc = M[:, 2 * c:2 * c + 2]  # (N, 2, 2C): camera c's rows
+                block = (Mc * v[:, None, :]) @ np.swapaxes(Mc, 1, 2)  # (N, 2, 2)
+                expect = block[:, 0, 0] + block[:, 1, 1]
+                m = hs[:, c] & (expect > 1e-12 * var[c])
+                if m.sum() >= 20:
+                    ratio = r2[m, c] / expect[m] / _ratio_median(block[m])
+                    new[c] = var[c] * np.median(ratio)
+            if not np.isfinite(new).any():
+                break
+            # a camera with too few samples of its own is taken as the others' median
+            var = np.where(np.isfinite(new), new, np.nanmedian(new))
         for c in range(C):
-            v = r2[has[fi, pi, c], c]
-            if v.size >= 20:
-                # r2 / sigma^2 ~ chi2(2): median 2 ln 2, per-axis variance = median / (2 ln 2)
-                out[c] = np.sqrt(np.median(v) / (2.0 * np.log(2.0)))
+            if hs[:, c].sum() >= 20:
+                out[c] = np.sqrt(var[c])
     if np.isfinite(out).any():
         out[~np.isfinite(out)] = np.nanmedian(out)
     else:
         out[:] = 0.15
     return np.maximum(out, MIN_NOISE_PX)
+
+
+def _ratio_median(block: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Median of ``|r|^2 / E|r|^2`` for a normal 2D residual of covariance ``block``
+    (N, 2, 2): that of ``chi2(nu) / nu`` with ``nu = tr^2 / (l_1^2 + l_2^2)`` (1-2)."""
+    # chi2(nu).median() is 2 * gammaincinv(nu / 2, 0.5) (scipy.stats computes it so);
+    # scipy.special alone spares a take the import of scipy.stats (~0.3 s of CPU)
+    from scipy.special import gammaincinv
+
+    tr = block[:, 0, 0] + block[:, 1, 1]
+    sq = tr ** 2 - 2.0 * (block[:, 0, 0] * block[:, 1, 1] - block[:, 0, 1] * block[:, 1, 0])
+    nu = np.clip(tr ** 2 / np.maximum(sq, 1e-300), 1.0, 2.0)
+    return 2.0 * gammaincinv(nu / 2.0, 0.5) / nu
+
+
+def _residual_maps(X: NDArray[np.float64], has: NDArray[np.bool_], R: NDArray[np.float64],
+                   t: NDArray[np.float64], intr: CameraIntrinsics) -> NDArray[np.float64]:
+    """``I - H`` (N, 2C, 2C) of the equally weighted triangulation of N samples (each
+    with its own frame's cameras, ``has`` (N, C) the observing ones): the map from the
+    observation errors to the residuals (rows and columns of the others are zero)."""
+    N, C = has.shape
+    Xc = np.einsum("ncij,nj->nci", R, X) + t  # (N, C, 3)
+    z = np.where(has & (Xc[..., 2] > 1e-6), Xc[..., 2], 1.0)
+    f = intr.focal[None, :]
+    Jc = np.zeros((N, C, 2, 3))
+    Jc[..., 0, 0] = Jc[..., 1, 1] = f / z
+    Jc[..., 0, 2] = -f * Xc[..., 0] / z ** 2
+    Jc[..., 1, 2] = -f * Xc[..., 1] / z ** 2
+    J = np.where(has[..., None, None], np.einsum("ncak,nckj->ncaj", Jc, R), 0.0)
+    J = J.reshape(N, 2 * C, 3)
+    A = np.einsum("nai,naj->nij", J, J)
+    good = np.linalg.det(A) > 1e-12 * np.einsum("nii->n", A) ** 3
+    H = np.zeros((N, 2 * C, 2 * C))
+    H[good] = J[good] @ np.linalg.solve(A[good], np.swapaxes(J[good], 1, 2))
+    eye = np.repeat(has, 2, axis=1).astype(np.float64)
+    return np.where(good[:, None, None], eye[:, :, None] * np.eye(2 * C)[None] - H, 0.0)
 
 
 def pair_holdout_scale(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
@@ -335,7 +452,7 @@ def _project_per_frame(X: NDArray[np.float64], R: NDArray[np.float64], t: NDArra
 def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
                  intr: CameraIntrinsics, noise_px: ArrayLike,
                  pose_cov: ArrayLike | None = None, point_factor: ArrayLike | None = None,
-                 chunk: int = 256) -> NDArray[np.float32]:
+                 scale: ArrayLike | None = None, chunk: int = 256) -> NDArray[np.float32]:
     """Standard deviation (mm) of each triangulated sample's 3D error.
 
     First-order propagation: with ``J_c`` the 2x3 Jacobian of camera ``c``'s pixel
@@ -365,6 +482,9 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
         (rad) then translation (mm), camera coordinates); NaN or zero where unknown.
     point_factor : array_like, shape (P,), optional
         Variance factor of each point's 2D noise (`point_noise_factor`).
+    scale : array_like, shape (F, P, C), optional
+        Noise factor of each observation (`width_noise_scale`); see
+        `observation_information`.
     chunk : int
         Frames per block (bounds the memory of long takes).
 
@@ -395,17 +515,20 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     pc = None if pose_cov is None else np.asarray(pose_cov, dtype=np.float64)
     phi = (np.ones(Xm.shape[1]) if point_factor is None
            else np.asarray(point_factor, dtype=np.float64))
+    sc = None if scale is None else np.asarray(scale, dtype=np.float64)
     out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
     for a in range(0, Xm.shape[0], max(1, int(chunk))):
         b = slice(a, a + max(1, int(chunk)))
         out[b] = _sigma_block(Xm[b], o[b].astype(np.float64), Rm[b], tm[b], intr, s,
-                              None if pc is None else pc[b], phi)
+                              None if pc is None else pc[b], phi,
+                              None if sc is None else sc[b])
     return out
 
 
 def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
                             R: NDArray[np.float64], t: NDArray[np.float64],
-                            intr: CameraIntrinsics, noise_px: NDArray[np.float64]
+                            intr: CameraIntrinsics, noise_px: NDArray[np.float64],
+                            scale: NDArray[np.float64] | None = None
                             ) -> tuple[NDArray[np.float64], NDArray[np.bool_],
                                        NDArray[np.float64]]:
     """Information matrix of each sample's position from its observations.
@@ -416,6 +539,13 @@ def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
     effect (mm^2). Shared by `sample_sigma` and
     `carapost.algorithms.depth_prior.sample_covariance`.
 
+    With ``scale`` each observation's noise is ``s_c k_c`` (``k_c`` its factor,
+    `width_noise_scale`). The triangulation weighs every ray alike, so the covariance
+    of its result is the sandwich ``A^-1 B A^-1`` (``A = sum_c J_c^T J_c``,
+    ``B = sum_c (s_c k_c)^2 J_c^T J_c``), not the inverse of the weighted sum, which
+    would credit the solve with down-weighting a thin blob it does not down-weight; the
+    information returned is ``A B^-1 A``, whose inverse is that covariance.
+
     Parameters
     ----------
     X : ndarray, shape (F, P, 3)
@@ -425,6 +555,8 @@ def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
     R, t : ndarray, shapes (F, C, 3, 3) and (F, C, 3)
     intr : CameraIntrinsics
     noise_px : ndarray, shape (C,)
+    scale : ndarray, shape (F, P, C), optional
+        Noise factor of each observation.
 
     Returns
     -------
@@ -448,17 +580,29 @@ def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
     Jn[..., 1, 1] = 1.0 / zs
     Jn[..., 1, 2] = -y / zs
     J = np.einsum("fpcak,fckj->fpcaj", Jn, R)
-    wgt = np.where(ok, (intr.focal[None, None, :] / noise_px[None, None, :]) ** 2, 0.0)
-    info = np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J)
+    if scale is None:
+        wgt = np.where(ok, (intr.focal[None, None, :] / noise_px[None, None, :]) ** 2, 0.0)
+        return np.einsum("fpc,fpcai,fpcaj->fpij", wgt, J, J), ok, Xc
+    f2 = np.where(ok, intr.focal[None, None, :] ** 2, 0.0)
+    A = np.einsum("fpc,fpcai,fpcaj->fpij", f2, J, J)
+    var = (noise_px[None, None, :] * np.where(ok, scale, 1.0)) ** 2
+    B = np.einsum("fpc,fpcai,fpcaj->fpij", f2 * var, J, J)
+    info = np.zeros_like(A)
+    tr = np.einsum("fpii->fp", B)
+    # two cameras or more and a geometry that fixes the point (else no information)
+    solvable = (ok.sum(-1) >= 2) & (np.linalg.det(B) > 1e-12 * tr ** 3)
+    if solvable.any():
+        As = A[solvable]
+        info[solvable] = As @ np.linalg.solve(B[solvable], As)
     return info, ok, Xc
 
 
 def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np.float64],
                  tm: NDArray[np.float64], intr: CameraIntrinsics, s: NDArray[np.float64],
-                 pc: NDArray[np.float64] | None, phi: NDArray[np.float64]
-                 ) -> NDArray[np.float32]:
+                 pc: NDArray[np.float64] | None, phi: NDArray[np.float64],
+                 scale: NDArray[np.float64] | None = None) -> NDArray[np.float32]:
     """`sample_sigma` of a block of frames."""
-    info, ok, Xc = observation_information(Xm, o, Rm, tm, intr, s)
+    info, ok, Xc = observation_information(Xm, o, Rm, tm, intr, s, scale)
     out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
     two = ok.sum(-1) >= 2
     if not two.any():
@@ -585,7 +729,8 @@ def brim_pose_covariance(brim_xyz: ArrayLike, brim_obs: ArrayLike, R: ArrayLike,
 
 def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
                        intr: CameraIntrinsics, noise_px: ArrayLike,
-                       min_samples: int = 5) -> NDArray[np.float64]:
+                       min_samples: int = 5, scale: ArrayLike | None = None
+                       ) -> NDArray[np.float64]:
     """Variance factor (>= 1) of each point's 2D noise, from its own residuals.
 
     A sample seen by ``n >= 3`` cameras leaves ``chi2 = sum_c |r_c|^2 / s_c^2`` with
@@ -605,6 +750,9 @@ def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
     noise_px : array_like, shape (C,)
     min_samples : int
         A point with fewer over-determined samples keeps 1.
+    scale : array_like, shape (F, P, C), optional
+        Noise factor of each observation (`width_noise_scale`): what the blob's width
+        explains is not counted as the point's excess.
 
     Returns
     -------
@@ -617,14 +765,16 @@ def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,
     q = point_misfit(o, Xm, np.asarray(R, dtype=np.float64)[::step],
                      np.asarray(t, dtype=np.float64)[::step], intr,
                      np.asarray(noise_px, dtype=np.float64), min_cameras=3,
-                     min_samples=min_samples)
+                     min_samples=min_samples,
+                     scale=None if scale is None else np.asarray(scale)[::step])
     return np.where(np.isfinite(q), np.maximum(q, 1.0), 1.0)
 
 
 def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np.float64],
                  t: NDArray[np.float64], intr: CameraIntrinsics,
                  noise_px: NDArray[np.float64], *, min_cameras: int,
-                 min_samples: int) -> NDArray[np.float64]:
+                 min_samples: int, scale: NDArray[np.float64] | None = None
+                 ) -> NDArray[np.float64]:
     """Median over each point's samples of its reprojection chi-square against the
     cameras' noise, divided by the chi-square's median (about 1 for typical blobs).
 
@@ -643,6 +793,8 @@ def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np
     noise_px : ndarray, shape (C,)
     min_cameras, min_samples : int
         Samples with fewer cameras do not count; a point with fewer samples gets NaN.
+    scale : ndarray, shape (F, P, C), optional
+        Noise factor of each observation (the camera's noise times it is its own).
 
     Returns
     -------
@@ -662,6 +814,8 @@ def point_misfit(obs: NDArray[np.float64], X: NDArray[np.float64], R: NDArray[np
     uv = _project_per_frame(X[fi, pi], R[fi], t[fi], intr)
     r2 = (np.where(has[fi, pi], np.sum((uv - obs[fi, pi]) ** 2, -1), 0.0)
           / noise_px[None, :] ** 2)
+    if scale is not None:
+        r2 = r2 / np.asarray(scale, dtype=np.float64)[fi, pi] ** 2
     q = r2.sum(-1) / (2 * gammaincinv((2 * n[fi, pi] - 3) / 2, 0.5))
     order = np.argsort(pi, kind="stable")
     pi_s, q_s = pi[order], q[order]

@@ -32,12 +32,18 @@ from carapost.algorithms.tracking.identity import (
     stitch,
 )
 from carapost.algorithms.tracking.params import TrackingParameters
-from carapost.algorithms.tracking.records import FrameDetections, InitialState, TrackResult
+from carapost.algorithms.tracking.records import (
+    FrameDetections,
+    InitialState,
+    RaggedDetections,
+    TrackResult,
+)
 from carapost.algorithms.tracking.sequence import Spawner, track
 from carapost.algorithms.tracking.time_checks import (
     detach_observations,
     place_single_sensor,
     reject_by_motion,
+    reject_wrong_samples,
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
@@ -47,6 +53,7 @@ from carapost.algorithms.uncertainty import (
     retriangulate,
     sample_sigma,
     smooth_camera_poses,
+    width_noise_scale,
 )
 
 
@@ -255,10 +262,11 @@ def track_take(
     lo, hi = min(start, last), max(start, last)
     if cancelled or last == end2:
         return _take_result(A, Rall, tall, lo, hi, done, cancelled, kind1, P, min_frames,
-                            merge_mm, intr, start, (params.pose_smoothing_frames,
+                            merge_mm, intr, start, detections, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
-                                                  params.allow_single_sensor_tracking))
+                                                  params.allow_single_sensor_tracking,
+                                                  params.single_sensor_tracking_threshold))
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -293,16 +301,18 @@ def track_take(
         lo, hi = min(lo, bwd.first), max(hi, bwd.last)
     kind2 = np.r_[kind1, np.full(P2 - P1, KIND_FACE, np.int8)]
     return _take_result(B, Rall, tall, lo, hi, done, bwd.cancelled, kind2, P, min_frames,
-                        merge_mm, intr, start, (params.pose_smoothing_frames,
+                        merge_mm, intr, start, detections, (params.pose_smoothing_frames,
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
-                                                  params.allow_single_sensor_tracking))
+                                                  params.allow_single_sensor_tracking,
+                                                  params.single_sensor_tracking_threshold))
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
-                 windows: tuple[int, int, float, bool]) -> TrackResult:
+                 detections: Callable[[int], FrameDetections],
+                 windows: tuple[int, int, float, bool, float]) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -317,10 +327,13 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        triangulated sample's covariance (:func:`sample_covariance`) and apply the depth
        prior from time (:func:`smooth_along_uncertainty`); ``windows`` are the frames
        of the pose fit and of the depth prior, the target reprojection error (px) of
-       the outlier rejection and whether single-sensor samples are allowed. The sigma
+       the outlier rejection, whether single-sensor samples are allowed and the
+       Single Sensor Tracking Threshold (mm). The sigma
        is that of the result, plus what no fit over time removes: each point's excess
        noise (its noise factor) and the cameras' pose error from the brim
-       (:func:`sample_sigma`). Between the re-solve and the sigma, the checks of
+       (:func:`sample_sigma`); the 2D noise of each observation scales with the width
+       of its blob in ``detections`` (:func:`width_noise_scale`). Between the re-solve
+       and the sigma, the checks of
        :mod:`carapost.algorithms.tracking.time_checks` run, and the depth prior from
        the neighbours (:mod:`carapost.algorithms.neighbour_prior`) follows the one
        from time.
@@ -335,12 +348,56 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     drop_isolated(A, kind, keep, P)
     sl = slice(first, last + 1)
     o = {k: v[sl][:, keep] for k, v in A.items()}
+    widths = attached_widths(detections, o["detection"], first)
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
-                                    np.arange(first, last + 1) == start, *windows)
+                                    np.arange(first, last + 1) == start, *windows,
+                                    widths=widths)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
                        sigma=sigma)
+
+
+def attached_widths(detections: Callable[[int], FrameDetections],
+                    detection: NDArray[np.integer], first: int = 0) -> NDArray[np.float32]:
+    """Semi-minor axis (px) of the blob attached to every observation.
+
+    Parameters
+    ----------
+    detections : callable
+        Frame -> `FrameDetections` (a :class:`RaggedDetections` is read without copies).
+    detection : ndarray of int, shape (F, P, C)
+        Index of each observation's blob in its image (-1 where none), frames from
+        ``first``.
+    first : int
+        Take frame of ``detection[0]``.
+
+    Returns
+    -------
+    ndarray, shape (F, P, C), float32
+        NaN where no blob is attached or the detections have no axes.
+    """
+    det = np.asarray(detection)
+    F, P, C = det.shape
+    out = np.full(det.shape, np.nan, np.float32)
+    has = det >= 0
+    if not has.any():
+        return out
+    if isinstance(detections, RaggedDetections):
+        if detections.axes is None:
+            return out
+        f, p, c = np.nonzero(has)
+        rows = detections.offsets[(f + first) * C + c] + det[f, p, c]
+        out[f, p, c] = detections.axes[rows, 1]
+        return out
+    for f in np.flatnonzero(has.any((1, 2))):
+        frame = detections(int(f + first))
+        for c in range(C):
+            ax = frame[c][1]
+            m = has[f, :, c]
+            if ax is not None and m.any():
+                out[f, m, c] = np.asarray(ax, np.float64).reshape(-1, 2)[det[f, m, c], 1]
+    return out
 
 
 def _outlier_target_px(params: TrackingParameters) -> float:
@@ -365,7 +422,8 @@ def _resolve_rejecting(obs: NDArray, R: NDArray, t: NDArray, intr: CameraIntrins
 def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
                     window: int, depth_window: int = 0, target_px: float = 0.0,
-                    single_sensor: bool = True
+                    single_sensor: bool = True, single_threshold_mm: float | None = None,
+                    widths: NDArray[np.float32] | None = None
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -375,7 +433,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     outliers (one camera may be dropped from a sample seen by three or more, see
     :func:`carapost.algorithms.triangulation.triangulate`) with a target of 6 times the
     take's measured 2D noise, between 0.5 px and ``target_px``: an observation the
-    solution leaves out (a wrong match) is removed from the sample."""
+    solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
+    C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
+    scales its 2D noise in the sigma."""
     face = kind != KIND_BRIM
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
@@ -404,7 +464,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
         nb = neighbours(Xt, tri)
         reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
-        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb)
+        single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb,
+                                           threshold_mm=single_threshold_mm)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         obs = o["obs"].astype(np.float64)
     else:
@@ -412,13 +473,14 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         nb = None
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
-    noise = noise_from_residuals(obs_t, X, R, t, intr)
-    phi = point_noise_factor(obs_t, X, R, t, intr, noise)
+    scale = None if widths is None else width_noise_scale(widths)
+    noise = noise_from_residuals(obs_t, X, R, t, intr, scale=scale)
+    phi = point_noise_factor(obs_t, X, R, t, intr, noise, scale=scale)
     brim = ~face
     pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
     if depth_window < 5 or len(R) < 5 or not tri.any():
         sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                             point_factor=phi).astype(np.float32)
+                             point_factor=phi, scale=scale).astype(np.float32)
         return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
     # the depth prior from time: one-caddy depth follows the smooth track, well-seen
     # directions keep their measurement (docs/algorithms.md). It reduces only the error
@@ -427,7 +489,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     # excess noise (phi above 1: a blob consistently off) and the cameras' pose error
     # from the brim, both through `sample_sigma` (with the excess as its point factor)
     shared = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                          point_factor=np.maximum(phi - 1.0, 0.0)).astype(np.float64)
+                          point_factor=np.maximum(phi - 1.0, 0.0),
+                          scale=scale).astype(np.float64)
     own = np.minimum(phi, 1.0)
     F, P = X.shape[:2]
     sigma = np.full((F, P), np.nan, dtype=np.float32)
@@ -437,7 +500,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     pred = patch_prediction(X, tri, neighbours(X, tri) if nb is None else nb)
     for p0 in range(0, P, step):
         ps = slice(p0, p0 + step)
-        cov = sample_covariance(X[:, ps], obs_t[:, ps], R, t, intr, noise)
+        cov = sample_covariance(X[:, ps], obs_t[:, ps], R, t, intr, noise,
+                                None if scale is None else scale[:, ps])
         Xs, cov = smooth_along_uncertainty(X[:, ps], cov, depth_window)
         tau = deformation_sigma(Xs, pred[:, ps], cov, tri[:, ps])
         # the sigma stays that of the track alone: the prediction shares the point's
@@ -451,6 +515,11 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
         sigma[:, ps] = np.sqrt(var)
     sigma[~np.isfinite(X).all(-1)] = np.nan
+    # wrong whole samples (a wrong blob in every camera) last: before the depth priors
+    # a one-caddy sample's depth noise is as large as such an error (on tuning take 5,
+    # 50 right samples were removed there)
+    bad = reject_wrong_samples(o, face, fixed, nb)
+    sigma[bad] = np.nan
     return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
 
 

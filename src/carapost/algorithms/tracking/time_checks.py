@@ -12,7 +12,15 @@ the cameras are fitted over time and the face samples re-solved with them:
 2. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
    (with the fitted cameras) nearest the prediction from the point's triangulated
    samples on both sides (:mod:`carapost.algorithms.single_sensor`), with a sigma
-   measured on the take for its distance in time to them.
+   measured on the take for its distance in time to them; as in the per-frame
+   tracker, a sample whose ray passes further than the Single Sensor Tracking
+   Threshold from the prediction is not kept, nor one whose prediction is expected
+   to be wrong by more than it (its sigma).
+3. :func:`reject_wrong_samples`, after the depth priors (where a one-caddy sample's
+   depth noise no longer hides a wrong one): a triangulated sample whose observations
+   are all on a wrong blob (consistent across its cameras, so its residual is small),
+   which its neighbours in time on both sides contradict as a whole, is removed
+   (:func:`carapost.algorithms.temporal_check.inconsistent_samples`).
 
 Shapes: ``F`` frames, ``P`` points, ``C`` cameras; the arrays are a track result's
 (``positions``, ``recon``, ``residual``, ``obs``, ``source``, ``detection``,
@@ -39,10 +47,15 @@ from carapost.algorithms.single_sensor import (
     place_on_rays,
     prediction_sigma,
 )
-from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
+from carapost.algorithms.temporal_check import (
+    inconsistent_observations,
+    inconsistent_samples,
+    loo_prediction,
+)
 from carapost.algorithms.uncertainty import retriangulate
 
-__all__ = ["detach_observations", "place_single_sensor", "reject_by_motion"]
+__all__ = ["detach_observations", "place_single_sensor", "reject_by_motion",
+           "reject_wrong_samples"]
 
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
@@ -123,10 +136,47 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     return n
 
 
+def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
+                         fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None
+                         ) -> NDArray[np.bool_]:
+    """Remove the triangulated face samples the point's motion contradicts as a whole.
+
+    Parameters
+    ----------
+    o : dict of arrays
+        The track result's arrays (changed in place: the flagged samples lose their
+        observations and become gaps).
+    face : ndarray of bool, shape (P,)
+    fixed : ndarray of bool, shape (F,)
+        Frames left alone (the initialised frame).
+    nb : ndarray of int, shape (P, k), optional
+        Each point's neighbours, when already known.
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P)
+        The samples removed.
+    """
+    tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
+    if tri.sum() < 10:
+        return np.zeros(tri.shape, bool)
+    X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
+    nb = neighbours(X, tri) if nb is None else nb
+    bad = inconsistent_samples(X, tri, nb) & ~fixed[:, None]
+    if not bad.any():
+        return bad
+    detach_observations(o, np.broadcast_to(bad[..., None], o["detection"].shape))
+    o["recon"][bad] = RECON_NONE
+    o["positions"][bad] = np.nan
+    o["residual"][bad] = np.nan
+    return bad
+
+
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                         face: NDArray[np.bool_], intr: CameraIntrinsics,
                         fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None,
-                        max_gap: int = MAX_GAP) -> NDArray[np.float32]:
+                        max_gap: int = MAX_GAP, threshold_mm: float | None = None
+                        ) -> NDArray[np.float32]:
     """Put every single-sensor face sample on its ray nearest the prediction from both
     sides; return their sigmas.
 
@@ -134,6 +184,13 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     ----------
     o, R, t, face, intr, fixed, nb
         As for :func:`reject_by_motion`.
+    max_gap : int
+        Farthest (frames) the prediction from both sides is used.
+    threshold_mm : float, optional
+        The Single Sensor Tracking Threshold: a sample whose ray passes further than
+        this from its prediction, or whose sigma (the prediction's expected error
+        there) is above it, is removed (a gap), as the per-frame tracker does not keep
+        such samples. None keeps every sample.
 
     Returns
     -------
@@ -180,4 +237,16 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         w = np.clip((g - _GAPS[j]) / (_GAPS[j + 1] - _GAPS[j]), 0.0, 1.0)
         val = curve[ps, j] * (1 - w) + curve[ps, j + 1] * w
         sigma[fs, ps] = val.astype(np.float32)
+    if threshold_mm is not None:
+        res = o["residual"].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            # the sigma too: a prediction expected to be off by more than the tolerated
+            # error places the sample along its ray no better than that
+            drop = single & ((res > threshold_mm) | (sigma > threshold_mm))
+        if drop.any():
+            detach_observations(o, drop[..., None] & has)
+            o["recon"][drop] = RECON_NONE
+            o["positions"][drop] = np.nan
+            o["residual"][drop] = np.nan
+            sigma[drop] = np.nan
     return sigma
