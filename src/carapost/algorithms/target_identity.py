@@ -45,10 +45,50 @@ MIN_GAP_PX2 = 25.0
 #: A choice whose disc matches the pattern this much worse (NCC) than the best choice's
 #: is no rival for the ambiguity test.
 RIVAL_NCC = 0.1
+#: The common shift of the discs costs this times its squared distance from the expected
+#: motion (px^2 per px^2): under one disc's price (``unmatched``) for a move of the
+#: search region's half, so that two or three neighbours moving with the marker outweigh
+#: a short move of the marker alone, and a lone marker still prefers the expected place.
+PRIOR_WEIGHT = 0.5
+#: A candidate's price for appearing or vanishing is the full price for one that matches
+#: the pattern within ``RIVAL_NCC`` of the new frame's best, falling linearly to this
+#: fraction of it at the least similar candidate kept.
+MIN_PRICE = 0.05
+
+def _forced(d2: NDArray[np.float64], own: int, choice: int,
+            unmatched: tuple[NDArray[np.float64], NDArray[np.float64]]
+            ) -> tuple[float, list[tuple[int, int]]]:
+    """The best joint assignment with the tracked disc's match forced to ``choice``.
+
+    ``d2`` (D, C) are the squared residuals of every disc pair, ``unmatched`` the price
+    of each previous disc vanishing (D,) and of each new one appearing (C,); returns the
+    cost and the matched (previous, new) pairs (a cost of 1e12 or more: none)."""
+    D, C = d2.shape
+    gone, came = unmatched
+    big = 1e12
+    n = D + C
+    # the augmented square problem: D discs x (C matches + D "vanished"), and C
+    # "appeared" rows; the tracked disc's row is forced to its choice
+    m = np.full((n, n), big)
+    m[:D, :C] = np.minimum(d2, big)
+    m[:D, C:] = np.where(np.eye(D, dtype=bool), gone[:, None], big)
+    m[D:, :C] = np.where(np.eye(C, dtype=bool), came[None, :], big)
+    m[D:, C:] = 0.0
+    m[own, :] = big
+    if choice >= 0:
+        m[:, choice] = big
+        m[own, choice] = d2[own, choice]
+    else:
+        m[own, C + own] = gone[own]
+    r, c = linear_sum_assignment(m)
+    pairs = [(int(i), int(j)) for i, j in zip(r, c, strict=True) if i < D and j < C]
+    return float(m[r, c].sum()), pairs
+
 
 def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: int,
-                     shift: NDArray[np.float64], unmatched: float
-                     ) -> list[tuple[float, int]]:
+                     shift: NDArray[np.float64],
+                     unmatched: float | tuple[NDArray[np.float64], NDArray[np.float64]],
+                     prior_weight: float | None = None) -> list[tuple[float, int]]:
     """The cost of the best joint assignment for each choice of the tracked disc's match.
 
     Parameters
@@ -61,11 +101,21 @@ def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: i
         Index of the tracked marker in ``prev``.
     shift : ndarray, shape (2,)
         Expected motion of every disc (px; zero when unknown).
-    unmatched : float
-        Cost of a disc that appears or vanishes (px^2): a match costs its squared
-        displacement from the expected place, so no match is longer than
-        ``sqrt(2 * unmatched)``; discs rarely vanish between two frames, so this is
-        high (the caller passes an eighth of the search region's size squared).
+    unmatched : float or (ndarray (D,), ndarray (C,))
+        Cost of a disc that vanishes or appears (px^2), one for all or one per disc
+        (previous, new): a match costs its squared residual, so no match is longer than
+        the square root of the two discs' sum; discs rarely vanish between two frames,
+        so this is high (the caller passes an eighth of the search region's size
+        squared, less for a candidate that is hardly a disc like the marker).
+    prior_weight : float, optional
+        None: every disc's residual is its displacement from ``shift`` (the expected
+        place). A number: the discs share a *common shift* ``s`` (neighbouring markers on
+        a face move together over one frame), found for each choice, and a match costs
+        its squared displacement from ``s``; ``s`` itself costs ``prior_weight`` times
+        its squared distance from ``shift``. Each choice tries ``s`` = the tracked
+        disc's own move, then the least-squares shift of the matched pairs. A neighbour
+        that arrived in the tracked marker's place while every disc moved 30 px is then
+        the neighbour, whatever the length of the move.
 
     Returns
     -------
@@ -82,30 +132,47 @@ def best_assignments(prev: NDArray[np.float64], new: NDArray[np.float64], own: i
     >>> new = np.array([[0.0, 30.0], [0.0, 5.0]])
     >>> best_assignments(prev, new, 0, np.zeros(2), 40.0 ** 2)[0][1]
     0
+
+    Moving 45 px with the neighbour 30 px behind it, the nearest moves prefer the
+    neighbour's arrival (15 px) to two moves of 45 px; the common shift does not:
+
+    >>> prev = np.array([[0.0, 0.0], [0.0, -30.0]])
+    >>> new = np.array([[0.0, 45.0], [0.0, 15.0]])
+    >>> best_assignments(prev, new, 0, np.zeros(2), 40.0 ** 2)[0][1]
+    1
+    >>> best_assignments(prev, new, 0, np.zeros(2), 40.0 ** 2, prior_weight=1.0)[0][1]
+    0
     """
-    D, C = len(prev), len(new)
-    d2 = ((new[None, :, :] - prev[:, None, :] - shift) ** 2).sum(-1)     # (D, C)
-    big = 1e12
-    n = D + C
+    shift = np.asarray(shift, dtype=np.float64)
+    if not isinstance(unmatched, tuple):
+        unmatched = (np.full(len(prev), float(unmatched)), np.full(len(new), float(unmatched)))
+    disp = new[None, :, :] - prev[:, None, :]                          # (D, C, 2)
+
+    def cost_at(s: NDArray[np.float64], choice: int
+                ) -> tuple[float, list[tuple[int, int]]]:
+        cost, pairs = _forced(((disp - s) ** 2).sum(-1), own, choice, unmatched)
+        if prior_weight is not None:
+            cost += prior_weight * float(((s - shift) ** 2).sum())
+        return cost, pairs
+
     out = []
-    for choice in range(-1, C):
-        # the augmented square problem: D discs x (C matches + D "vanished"), and C
-        # "appeared" rows; the tracked disc's row is forced to its choice
-        m = np.full((n, n), big)
-        m[:D, :C] = np.minimum(d2, big)
-        m[:D, C:] = np.where(np.eye(D, dtype=bool), unmatched, big)
-        m[D:, :C] = np.where(np.eye(C, dtype=bool), unmatched, big)
-        m[D:, C:] = 0.0
-        m[own, :] = big
-        if choice >= 0:
-            m[own, choice] = d2[own, choice]
-            m[:, choice] = np.where(np.arange(n) == own, d2[own, choice], big)
+    for choice in range(-1, len(new)):
+        if prior_weight is None:
+            cost = cost_at(shift, choice)[0]
         else:
-            m[own, C + own] = unmatched
-        r, c = linear_sum_assignment(m)
-        cost = float(m[r, c].sum())
-        if cost < big:
-            out.append((cost, choice))
+            # the shift: the tracked disc's own move (or, for no match, the expected
+            # motion and every move it could have made), then refined on the pairs
+            hyps = [disp[own, choice]] if choice >= 0 else [shift, *disp[own]]
+            cost = np.inf
+            for s in hyps:
+                c0, pairs = cost_at(s, choice)
+                cost = min(cost, c0)
+                if pairs and c0 < 1e12:
+                    d = np.array([disp[i, j] for i, j in pairs])
+                    s2 = (d.sum(0) + prior_weight * shift) / (len(d) + prior_weight)
+                    cost = min(cost, cost_at(s2, choice)[0])
+        if cost < 1e12:
+            out.append((float(cost), choice))
     out.sort()
     return out
 
@@ -146,17 +213,30 @@ def assign_first_step(candidates_prev: Sequence[tuple[NDArray[np.float64], float
     """
     top = max((s for _, s in candidates_new), default=0.0)
     least = max(SIMILAR_NCC, top - NCC_BELOW_BEST)
-    prev = [np.asarray(xy, float) for xy, s in candidates_prev if s >= least]
+    kept_prev = [(np.asarray(xy, float), s) for xy, s in candidates_prev if s >= least]
     kept = [(np.asarray(xy, float), s) for xy, s in candidates_new if s >= least]
     new = [xy for xy, _ in kept]
     if not new:
         return None
-    own = next((i for i, xy in enumerate(prev) if np.hypot(*(xy - pos)) < own_px), None)
+    own = next((i for i, (xy, _) in enumerate(kept_prev) if np.hypot(*(xy - pos)) < own_px),
+               None)
     if own is None:
-        prev.insert(0, np.asarray(pos, float))
+        kept_prev.insert(0, (np.asarray(pos, float), top))
         own = 0
+    prev = [xy for xy, _ in kept_prev]
+
+    def price(ncc: float) -> float:
+        # a candidate barely like the pattern (a texture spot, on skin that stays) comes
+        # and goes cheaply: it must not hold the discs to its own motion
+        full = top - RIVAL_NCC   # a rival of the best: a disc like the marker
+        return search_half ** 2 * float(np.clip((ncc - least) / max(full - least, 1e-6),
+                                                MIN_PRICE, 1.0))
+
+    gone = np.array([price(s) for _, s in kept_prev])
+    gone[own] = search_half ** 2     # the tracked marker is a disc like itself
+    came = np.array([price(s) for _, s in kept])
     ranked = best_assignments(np.array(prev), np.array(new), own,
-                              np.asarray(shift, float), search_half ** 2)
+                              np.asarray(shift, float), (gone, came), PRIOR_WEIGHT)
     if not ranked or ranked[0][1] < 0:
         return None
     best = new[ranked[0][1]]

@@ -163,6 +163,9 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
+    assign_surprises: bool = param(True, help=(
+        "Check a step the motion did not predict (farther than Check Step from the "
+        "prediction, scoring below Confirm Score) like a first step."))
     follow_appearance: bool = param(True, help=(
         "Where the keyframe match fails after a tracked frame, match the marker's look "
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
@@ -652,7 +655,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             # until the motion is known, the whole search region (and its ambiguity check)
             xy, score = match_patch(img, tpl, pos + velocity,
                                     params if moving else back_params_first, ref)
-            if not moving and params.assign_first_step:
+            # a step the motion did not predict, matched less than perfectly, may be a
+            # neighbour arriving in the marker's place (the skin around it is the same):
+            # checked against every disc like the marker, as a first step is
+            surprise = (params.assign_surprises and moving and score < params.confirm_score and np.all(np.isfinite(xy))
+                        and np.hypot(*(xy - pos - velocity)) > params.check_step_px)
+            if (not moving or surprise) and params.assign_first_step:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 xy, score = _assigned_step(img, prev_img, tpl, ref, pos, velocity, xy, score,
                                            back_params)
