@@ -45,7 +45,12 @@ from numpy.typing import NDArray
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import first_step as _assigned_step
-from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
+from carapost.algorithms.target_refine import (
+    gaussian_window,
+    marker_weight,
+    shift_patch,
+    shrink_odd_noise,
+)
 
 __all__ = [
     "STOP_CANCELLED",
@@ -163,9 +168,12 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
-    assign_surprises: bool = param(True, help=(
+    assign_surprises: bool = param(False, help=(
         "Check a step the motion did not predict (farther than Check Step from the "
         "prediction, scoring below Confirm Score) like a first step."))
+    denoise_pattern: bool = param(True, help=(
+        "Make the keyframe pattern point-symmetric about the keyframe position inside the "
+        "marker weight (a disc is; the odd part there is the pattern's noise)."))
     follow_appearance: bool = param(True, help=(
         "Where the keyframe match fails after a tracked frame, match the marker's look "
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
@@ -292,13 +300,29 @@ def _normalise(p: NDArray[np.float32]) -> NDArray[np.float32] | None:
     return ((p - p.mean()) / s).astype(np.float32)
 
 
-def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int) -> _Pattern:
+def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
+                  weight_sigma: float = 0.0, denoise: bool = False) -> _Pattern:
     big = sample_patch(image, xy, size + 2)
-    norm = _normalise(big[1:-1, 1:-1])
+    raw = big[1:-1, 1:-1]
+    norm = _normalise(raw)
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
+    if denoise:
+        norm = _denoised(norm, weight_sigma)
     return _Pattern(frame, norm)
+
+
+def _denoised(norm: NDArray[np.float32], weight_sigma: float) -> NDArray[np.float32]:
+    """The keyframe pattern made point-symmetric about the keyframe position inside the
+    marker weight (:func:`target_refine.shrink_odd_noise` with all of the odd part
+    taken as noise): the odd part of the pattern's own noise would put every frame of
+    the track off by the same amount (a faint, obliquely seen marker under noise 5:
+    0.1-0.3 px), and a disc is symmetric about its centre. The surroundings outside the
+    weight keep their asymmetry."""
+    out = _normalise(shrink_odd_noise(norm, marker_weight(norm, weight_sigma)
+                                      ).astype(np.float32))
+    return norm if out is None else out
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
@@ -571,7 +595,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 shape.append(img.shape[:2])
                 _check_sizes(img.shape[:2], params)
             check_keyframe(keys[f], img.shape, params.pattern_size)
-            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size)
+            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size,
+                                        params.weight_fraction * params.pattern_size,
+                                        params.denoise_pattern)
         return patterns[f]
 
     def behind(f: int) -> int | None:   # the keyframe at or behind f (tracking order)
@@ -658,7 +684,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             # a step the motion did not predict, matched less than perfectly, may be a
             # neighbour arriving in the marker's place (the skin around it is the same):
             # checked against every disc like the marker, as a first step is
-            surprise = (params.assign_surprises and moving and score < params.confirm_score and np.all(np.isfinite(xy))
+            surprise = (params.assign_surprises and moving and score < params.confirm_score
+                        and np.all(np.isfinite(xy))
                         and np.hypot(*(xy - pos - velocity)) > params.check_step_px)
             if (not moving or surprise) and params.assign_first_step:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
