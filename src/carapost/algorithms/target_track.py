@@ -389,6 +389,7 @@ class _Refiner:
             w = shift_patch(crop, cx, cy, size).ravel()
             sol = self.Hinv @ (self.J @ w)       # (a dx, a dy, a, b)
             a = sol[2]
+            self.last_gain = float(a)
             if not a > 1e-6:                      # contrast inverted or gone: no marker
                 return p, 0.0, False
             d = sol[:2] / a
@@ -802,7 +803,14 @@ def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
         xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
                                     params.tolerance_px)
         if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
-            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0))
+            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0,
+                        refiner.last_gain))
+    # the NCC does not see contrast: a texture spot of the skin can match the pattern's
+    # shape as well as another marker does. A candidate with less than half the contrast
+    # of the strongest one (the markers) is scored down in proportion
+    top_gain = max((g for _, _, g in out), default=0.0)
+    out = [(xy, ncc * min(1.0, 2.0 * g / top_gain) if top_gain > 0 else ncc)
+           for xy, ncc, g in out]
     out.sort(key=lambda c: -c[1])
     # one entry per place: peaks refined onto the same spot count once
     uniq: list[tuple[NDArray[np.float64], float]] = []
