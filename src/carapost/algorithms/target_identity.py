@@ -288,9 +288,10 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
 
     from carapost.algorithms.target_track import _candidates, match_patch
 
-    def discs(image: NDArray[Any], centre: Any, size: int) -> list:
+    def discs(image: NDArray[Any], centre: Any, size: int, ref_gain: float | None = None,
+              gains: list[float] | None = None) -> list:
         return _candidates(image, tpl, centre, replace(params, search_size=size), refiner,
-                           n=10)
+                           n=10, ref_gain=ref_gain, gains=gains)
 
     if np.all(np.isfinite(xy)) and np.hypot(*(xy - pos - velocity)) <= params.check_step_px:
         # a short step needs no assignment (the tracker's own checks hold it): among
@@ -298,8 +299,18 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
         return xy, score
     S = params.search_size
     wide = int(1.5 * S) | 1
-    new = discs(img, pos + velocity, wide)
-    prev = discs(prev_img, pos, wide)
+    gains: list[float] = []
+    prev = discs(prev_img, pos, wide, gains=gains)
+    # the tracked marker's contrast (its candidate in the previous frame): a texture spot
+    # far fainter than it is no disc like it, in either frame
+    own = [g for (c, _), g in zip(prev, gains, strict=True)
+           if np.hypot(*(c - pos)) < params.max_refine_px]
+    if own:
+        prev = [(c, s * min(1.0, 2.0 * g / own[0])) for (c, s), g in zip(prev, gains,
+                                                                      strict=True)]
+        new = discs(img, pos + velocity, wide, ref_gain=own[0])
+    else:
+        new = discs(img, pos + velocity, wide)
     # a disc appearing or vanishing costs half of (half the search region)^2: a match
     # is never longer than half the search region
     hit = assign_first_step(prev, new, pos, velocity, S / 2.0 / 2 ** 0.5,

@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["TAPS", "cubic6_weights", "gaussian_window", "marker_weight", "shift_patch",
-           "shrink_odd_noise"]
+__all__ = ["TAPS", "cubic6_weights", "gaussian_window", "marker_weight", "noise_sigma",
+           "shift_patch", "shrink_odd_noise"]
 
 #: Samples per axis of the resampling kernel (6-point cubic): offsets -2 .. 3.
 TAPS = 6
@@ -202,6 +202,39 @@ def marker_weight(tpl: NDArray[np.floating], sigma: float, *, rim: int = 4,
     w = cv2.GaussianBlur(blob.astype(np.float64), (0, 0), 1.0)
     # a trace of the window everywhere keeps the system well posed
     return w * gauss + 1e-3 * gauss
+
+
+def noise_sigma(image: NDArray[np.floating]) -> float:
+    """Robust standard deviation of the pixel noise of a grey image (grey levels).
+
+    Immerkaer's estimator: the image filtered by the 3 x 3 kernel
+    ``[[1, -2, 1], [-2, 4, -2], [1, -2, 1]]`` (the difference of two Laplacians, which
+    cancels smooth shading and band-limited skin texture), whose response to white
+    noise of standard deviation ``s`` has standard deviation ``6 s``; the median
+    absolute response (x 1.4826) is used, so that the marker's edges do not count.
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        At least 3 x 3.
+
+    Returns
+    -------
+    float
+        Noise standard deviation (grey levels).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> yy, xx = np.mgrid[0:80, 0:80]
+    >>> smooth = 100 + 0.5 * xx + 20 * np.sin(yy / 9.0)
+    >>> noisy = smooth + rng.normal(0, 5, smooth.shape)
+    >>> round(noise_sigma(smooth), 3), round(noise_sigma(noisy))
+    (0.0, 5)
+    """
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
+    r = cv2.filter2D(np.asarray(image, dtype=np.float32), -1, k)[1:-1, 1:-1]
+    return float(1.4826 * np.median(np.abs(r)) / 6.0)
 
 
 def shrink_odd_noise(tpl: NDArray[np.floating], weight: NDArray[np.floating],

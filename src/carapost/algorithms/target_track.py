@@ -46,8 +46,10 @@ from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import first_step as _assigned_step
 from carapost.algorithms.target_refine import (
+    cubic6_weights,
     gaussian_window,
     marker_weight,
+    noise_sigma,
     shift_patch,
     shrink_odd_noise,
 )
@@ -171,7 +173,7 @@ class TargetTrackerParameters:
     assign_surprises: bool = param(False, help=(
         "Check a step the motion did not predict (farther than Check Step from the "
         "prediction, scoring below Confirm Score) like a first step."))
-    denoise_pattern: bool = param(True, help=(
+    denoise_pattern: bool = param(False, help=(
         "Make the keyframe pattern point-symmetric about the keyframe position inside the "
         "marker weight (a disc is; the odd part there is the pattern's noise)."))
     follow_appearance: bool = param(True, help=(
@@ -309,18 +311,33 @@ def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
     if denoise:
-        norm = _denoised(norm, weight_sigma)
+        norm = _denoised(image, xy, raw, norm, weight_sigma)
     return _Pattern(frame, norm)
 
 
-def _denoised(norm: NDArray[np.float32], weight_sigma: float) -> NDArray[np.float32]:
-    """The keyframe pattern made point-symmetric about the keyframe position inside the
-    marker weight (:func:`target_refine.shrink_odd_noise` with all of the odd part
-    taken as noise): the odd part of the pattern's own noise would put every frame of
-    the track off by the same amount (a faint, obliquely seen marker under noise 5:
-    0.1-0.3 px), and a disc is symmetric about its centre. The surroundings outside the
-    weight keep their asymmetry."""
-    out = _normalise(shrink_odd_noise(norm, marker_weight(norm, weight_sigma)
+def _denoised(image: NDArray[Any], xy: Any, raw: NDArray[np.float32],
+              norm: NDArray[np.float32], weight_sigma: float) -> NDArray[np.float32]:
+    """The keyframe pattern with the noise of its odd part about the keyframe position
+    shrunk inside the marker weight (:func:`target_refine.shrink_odd_noise`, by how far
+    it exceeds the image's noise, :func:`target_refine.noise_sigma`): the odd part of the
+    pattern's own noise would put every frame of the track off by the same amount (a
+    faint, obliquely seen marker under noise 5: 0.1-0.3 px)."""
+    import os
+    x, y = float(xy[0]), float(xy[1])
+    n = raw.shape[0]
+    ix, iy = int(round(x)), int(round(y))
+    area = np.asarray(image[max(iy - n, 0):iy + n + 1, max(ix - n, 0):ix + n + 1])
+    sigma = noise_sigma(area) if min(area.shape[:2]) >= 3 else 0.0
+    if os.environ.get("T15A_FULL"):
+        sigma = np.inf
+    if not sigma > 0:
+        return norm
+    # the resampling at the keyframe's sub-pixel phase averages the noise
+    gain = float((cubic6_weights(x - math.floor(x)) ** 2).sum()
+                 * (cubic6_weights(y - math.floor(y)) ** 2).sum())
+    var = sigma * sigma * gain / float(raw.var())
+    rim = int(os.environ.get("T15A_RIM", "4"))
+    out = _normalise(shrink_odd_noise(norm, marker_weight(norm, weight_sigma, rim=rim), var
                                       ).astype(np.float32))
     return norm if out is None else out
 
@@ -774,10 +791,13 @@ def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray
 
 
 def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
-                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6
+                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6,
+                ref_gain: float | None = None, gains: list[float] | None = None
                 ) -> list[tuple[NDArray[np.float64], float]]:
     """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
-    refined and sorted by their marker-weighted NCC (best first)."""
+    refined and sorted by their marker-weighted NCC (best first), scored down below half
+    the contrast ``ref_gain`` (the Lucas-Kanade gain) when given; ``gains`` (a list)
+    receives each candidate's gain."""
     P, S = params.pattern_size, params.search_size
     hp, hs = P // 2, S // 2
     H, W = image.shape[:2]
@@ -805,18 +825,19 @@ def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
         if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
             out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0,
                         refiner.last_gain))
-    # the NCC does not see contrast: a texture spot of the skin can match the pattern's
-    # shape as well as another marker does. A candidate with less than half the contrast
-    # of the strongest one (the markers) is scored down in proportion
-    top_gain = max((g for _, _, g in out), default=0.0)
-    out = [(xy, ncc * min(1.0, 2.0 * g / top_gain) if top_gain > 0 else ncc)
-           for xy, ncc, g in out]
+    if ref_gain is not None and ref_gain > 0:
+        # the NCC does not see contrast: a texture spot of the skin can match the
+        # pattern's shape as well as another marker does. A candidate with less than
+        # half the tracked marker's contrast is scored down in proportion
+        out = [(xy, ncc * min(1.0, 2.0 * g / ref_gain), g) for xy, ncc, g in out]
     out.sort(key=lambda c: -c[1])
     # one entry per place: peaks refined onto the same spot count once
     uniq: list[tuple[NDArray[np.float64], float]] = []
-    for c in out:
-        if all(np.hypot(*(c[0] - u[0])) > max(hp // 2, 2) for u in uniq):
-            uniq.append(c)
+    for xy, ncc, g in out:
+        if all(np.hypot(*(xy - u[0])) > max(hp // 2, 2) for u in uniq):
+            uniq.append((xy, ncc))
+            if gains is not None:
+                gains.append(g)
     return uniq
 
 
