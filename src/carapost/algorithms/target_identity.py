@@ -22,11 +22,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["assign_first_step", "best_assignments", "first_step"]
+__all__ = ["assign_first_step", "best_assignments", "candidates", "first_step"]
 
 #: Candidates whose marker-weighted NCC with the pattern is below this are not discs
 #: like the tracked marker (texture, shading, half a lid edge).
@@ -250,6 +251,57 @@ def assign_first_step(candidates_prev: Sequence[tuple[NDArray[np.float64], float
     return best
 
 
+def candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
+                params: Any, refiner: Any, n: int = 6,
+                ref_gain: float | None = None, gains: list[float] | None = None
+                ) -> list[tuple[NDArray[np.float64], float]]:
+    """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
+    refined and sorted by their marker-weighted NCC (best first), scored down below half
+    the contrast ``ref_gain`` (the Lucas-Kanade gain) when given; ``gains`` (a list)
+    receives each candidate's gain."""
+    P, S = params.pattern_size, params.search_size
+    hp, hs = P // 2, S // 2
+    H, W = image.shape[:2]
+    cx, cy = int(round(float(centre[0]))), int(round(float(centre[1])))
+    m = 3
+    x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
+    y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
+    if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
+        return []
+    crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
+    # candidates by the NCC weighted to the marker like the refinement: a neighbour on
+    # another background is a candidate too
+    mask = (refiner.wt.reshape(P, P) / refiner.wt.max()).astype(np.float32)
+    res = cv2.matchTemplate(crop[m:-m, m:-m], tpl, cv2.TM_CCOEFF_NORMED, mask=mask)
+    res = np.nan_to_num(res, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    peaks = (res >= cv2.dilate(res, np.ones((5, 5), np.uint8))) & (res > 0.3)
+    ys, xs = np.nonzero(peaks)
+    order = np.argsort(-res[ys, xs])[:n]
+    crop64 = crop.astype(np.float64)
+    out = []
+    for i in order:
+        peak = np.array([x0 + m + xs[i] + hp, y0 + m + ys[i] + hp], dtype=np.float64)
+        xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
+                                    params.tolerance_px)
+        if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
+            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0,
+                        refiner.last_gain))
+    if ref_gain is not None and ref_gain > 0:
+        # the NCC does not see contrast: a texture spot of the skin can match the
+        # pattern's shape as well as another marker does. A candidate with less than
+        # half the tracked marker's contrast is scored down in proportion
+        out = [(xy, ncc * min(1.0, 2.0 * g / ref_gain), g) for xy, ncc, g in out]
+    out.sort(key=lambda c: -c[1])
+    # one entry per place: peaks refined onto the same spot count once
+    uniq: list[tuple[NDArray[np.float64], float]] = []
+    for xy, ncc, g in out:
+        if all(np.hypot(*(xy - u[0])) > max(hp // 2, 2) for u in uniq):
+            uniq.append((xy, ncc))
+            if gains is not None:
+                gains.append(g)
+    return uniq
+
+
 def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float32],
                refiner: Any, pos: NDArray[np.float64], velocity: NDArray[np.float64],
                xy: NDArray[np.float64], score: float, params: Any
@@ -286,11 +338,11 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
     """
     from dataclasses import replace
 
-    from carapost.algorithms.target_track import _candidates, match_patch
+    from carapost.algorithms.target_track import match_patch
 
     def discs(image: NDArray[Any], centre: Any, size: int, ref_gain: float | None = None,
               gains: list[float] | None = None) -> list:
-        return _candidates(image, tpl, centre, replace(params, search_size=size), refiner,
+        return candidates(image, tpl, centre, replace(params, search_size=size), refiner,
                            n=10, ref_gain=ref_gain, gains=gains)
 
     if np.all(np.isfinite(xy)) and np.hypot(*(xy - pos - velocity)) <= params.check_step_px:

@@ -44,14 +44,13 @@ from numpy.typing import NDArray
 
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
+from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
 from carapost.algorithms.target_refine import (
-    cubic6_weights,
+    denoise_pattern,
     gaussian_window,
     marker_weight,
-    noise_sigma,
     shift_patch,
-    shrink_odd_noise,
 )
 
 __all__ = [
@@ -170,9 +169,6 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
-    assign_surprises: bool = param(False, help=(
-        "Check a step the motion did not predict (farther than Check Step from the "
-        "prediction, scoring below Confirm Score) like a first step."))
     denoise_pattern: bool = param(False, help=(
         "Make the keyframe pattern point-symmetric about the keyframe position inside the "
         "marker weight (a disc is; the odd part there is the pattern's noise)."))
@@ -310,36 +306,11 @@ def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
-    if denoise:
-        norm = _denoised(image, xy, raw, norm, weight_sigma)
+    if denoise:   # the odd part's noise shrunk inside the marker weight
+        out = _normalise(denoise_pattern(image, xy, raw, norm, weight_sigma
+                                         ).astype(np.float32))
+        norm = norm if out is None else out
     return _Pattern(frame, norm)
-
-
-def _denoised(image: NDArray[Any], xy: Any, raw: NDArray[np.float32],
-              norm: NDArray[np.float32], weight_sigma: float) -> NDArray[np.float32]:
-    """The keyframe pattern with the noise of its odd part about the keyframe position
-    shrunk inside the marker weight (:func:`target_refine.shrink_odd_noise`, by how far
-    it exceeds the image's noise, :func:`target_refine.noise_sigma`): the odd part of the
-    pattern's own noise would put every frame of the track off by the same amount (a
-    faint, obliquely seen marker under noise 5: 0.1-0.3 px)."""
-    import os
-    x, y = float(xy[0]), float(xy[1])
-    n = raw.shape[0]
-    ix, iy = int(round(x)), int(round(y))
-    area = np.asarray(image[max(iy - n, 0):iy + n + 1, max(ix - n, 0):ix + n + 1])
-    sigma = noise_sigma(area) if min(area.shape[:2]) >= 3 else 0.0
-    if os.environ.get("T15A_FULL"):
-        sigma = np.inf
-    if not sigma > 0:
-        return norm
-    # the resampling at the keyframe's sub-pixel phase averages the noise
-    gain = float((cubic6_weights(x - math.floor(x)) ** 2).sum()
-                 * (cubic6_weights(y - math.floor(y)) ** 2).sum())
-    var = sigma * sigma * gain / float(raw.var())
-    rim = int(os.environ.get("T15A_RIM", "4"))
-    out = _normalise(shrink_odd_noise(norm, marker_weight(norm, weight_sigma, rim=rim), var
-                                      ).astype(np.float32))
-    return norm if out is None else out
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
@@ -699,13 +670,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             # until the motion is known, the whole search region (and its ambiguity check)
             xy, score = match_patch(img, tpl, pos + velocity,
                                     params if moving else back_params_first, ref)
-            # a step the motion did not predict, matched less than perfectly, may be a
-            # neighbour arriving in the marker's place (the skin around it is the same):
-            # checked against every disc like the marker, as a first step is
-            surprise = (params.assign_surprises and moving and score < params.confirm_score
-                        and np.all(np.isfinite(xy))
-                        and np.hypot(*(xy - pos - velocity)) > params.check_step_px)
-            if (not moving or surprise) and params.assign_first_step:
+            if not moving and params.assign_first_step:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 xy, score = _assigned_step(img, prev_img, tpl, ref, pos, velocity, xy, score,
                                            back_params)
@@ -784,61 +749,10 @@ def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray
         return bool(np.all(np.isfinite(back))
                     and np.hypot(*(back - pos)) < params.max_refine_px)
     refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
-    cands = _candidates(prev_img, tpl, xy, params, refiner)
+    cands = candidates(prev_img, tpl, xy, params, refiner)
     if not cands:
         return False
     return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
-
-
-def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
-                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6,
-                ref_gain: float | None = None, gains: list[float] | None = None
-                ) -> list[tuple[NDArray[np.float64], float]]:
-    """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
-    refined and sorted by their marker-weighted NCC (best first), scored down below half
-    the contrast ``ref_gain`` (the Lucas-Kanade gain) when given; ``gains`` (a list)
-    receives each candidate's gain."""
-    P, S = params.pattern_size, params.search_size
-    hp, hs = P // 2, S // 2
-    H, W = image.shape[:2]
-    cx, cy = int(round(float(centre[0]))), int(round(float(centre[1])))
-    m = 3
-    x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
-    y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
-    if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
-        return []
-    crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
-    # candidates by the NCC weighted to the marker like the refinement: a neighbour on
-    # another background is a candidate too
-    mask = (refiner.wt.reshape(P, P) / refiner.wt.max()).astype(np.float32)
-    res = cv2.matchTemplate(crop[m:-m, m:-m], tpl, cv2.TM_CCOEFF_NORMED, mask=mask)
-    res = np.nan_to_num(res, nan=-1.0, posinf=-1.0, neginf=-1.0)
-    peaks = (res >= cv2.dilate(res, np.ones((5, 5), np.uint8))) & (res > 0.3)
-    ys, xs = np.nonzero(peaks)
-    order = np.argsort(-res[ys, xs])[:n]
-    crop64 = crop.astype(np.float64)
-    out = []
-    for i in order:
-        peak = np.array([x0 + m + xs[i] + hp, y0 + m + ys[i] + hp], dtype=np.float64)
-        xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
-                                    params.tolerance_px)
-        if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
-            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0,
-                        refiner.last_gain))
-    if ref_gain is not None and ref_gain > 0:
-        # the NCC does not see contrast: a texture spot of the skin can match the
-        # pattern's shape as well as another marker does. A candidate with less than
-        # half the tracked marker's contrast is scored down in proportion
-        out = [(xy, ncc * min(1.0, 2.0 * g / ref_gain), g) for xy, ncc, g in out]
-    out.sort(key=lambda c: -c[1])
-    # one entry per place: peaks refined onto the same spot count once
-    uniq: list[tuple[NDArray[np.float64], float]] = []
-    for xy, ncc, g in out:
-        if all(np.hypot(*(xy - u[0])) > max(hp // 2, 2) for u in uniq):
-            uniq.append((xy, ncc))
-            if gains is not None:
-                gains.append(g)
-    return uniq
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:
