@@ -44,8 +44,14 @@ from numpy.typing import NDArray
 
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
+from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
-from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
+from carapost.algorithms.target_refine import (
+    denoise_pattern,
+    gaussian_window,
+    marker_weight,
+    shift_patch,
+)
 
 __all__ = [
     "STOP_CANCELLED",
@@ -163,6 +169,9 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
+    denoise_pattern: bool = param(False, help=(
+        "Make the keyframe pattern point-symmetric about the keyframe position inside the "
+        "marker weight (a disc is; the odd part there is the pattern's noise)."))
     follow_appearance: bool = param(True, help=(
         "Where the keyframe match fails after a tracked frame, match the marker's look "
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
@@ -289,12 +298,18 @@ def _normalise(p: NDArray[np.float32]) -> NDArray[np.float32] | None:
     return ((p - p.mean()) / s).astype(np.float32)
 
 
-def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int) -> _Pattern:
+def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
+                  weight_sigma: float = 0.0, denoise: bool = False) -> _Pattern:
     big = sample_patch(image, xy, size + 2)
-    norm = _normalise(big[1:-1, 1:-1])
+    raw = big[1:-1, 1:-1]
+    norm = _normalise(raw)
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
+    if denoise:   # the odd part's noise shrunk inside the marker weight
+        out = _normalise(denoise_pattern(image, xy, raw, norm, weight_sigma
+                                         ).astype(np.float32))
+        norm = norm if out is None else out
     return _Pattern(frame, norm)
 
 
@@ -362,6 +377,7 @@ class _Refiner:
             w = shift_patch(crop, cx, cy, size).ravel()
             sol = self.Hinv @ (self.J @ w)       # (a dx, a dy, a, b)
             a = sol[2]
+            self.last_gain = float(a)
             if not a > 1e-6:                      # contrast inverted or gone: no marker
                 return p, 0.0, False
             d = sol[:2] / a
@@ -568,7 +584,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 shape.append(img.shape[:2])
                 _check_sizes(img.shape[:2], params)
             check_keyframe(keys[f], img.shape, params.pattern_size)
-            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size)
+            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size,
+                                        params.weight_fraction * params.pattern_size,
+                                        params.denoise_pattern)
         return patterns[f]
 
     def behind(f: int) -> int | None:   # the keyframe at or behind f (tracking order)
@@ -731,50 +749,10 @@ def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray
         return bool(np.all(np.isfinite(back))
                     and np.hypot(*(back - pos)) < params.max_refine_px)
     refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
-    cands = _candidates(prev_img, tpl, xy, params, refiner)
+    cands = candidates(prev_img, tpl, xy, params, refiner)
     if not cands:
         return False
     return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
-
-
-def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
-                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6
-                ) -> list[tuple[NDArray[np.float64], float]]:
-    """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
-    refined and sorted by their marker-weighted NCC (best first)."""
-    P, S = params.pattern_size, params.search_size
-    hp, hs = P // 2, S // 2
-    H, W = image.shape[:2]
-    cx, cy = int(round(float(centre[0]))), int(round(float(centre[1])))
-    m = 3
-    x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
-    y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
-    if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
-        return []
-    crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
-    # candidates by the NCC weighted to the marker like the refinement: a neighbour on
-    # another background is a candidate too
-    mask = (refiner.wt.reshape(P, P) / refiner.wt.max()).astype(np.float32)
-    res = cv2.matchTemplate(crop[m:-m, m:-m], tpl, cv2.TM_CCOEFF_NORMED, mask=mask)
-    res = np.nan_to_num(res, nan=-1.0, posinf=-1.0, neginf=-1.0)
-    peaks = (res >= cv2.dilate(res, np.ones((5, 5), np.uint8))) & (res > 0.3)
-    ys, xs = np.nonzero(peaks)
-    order = np.argsort(-res[ys, xs])[:n]
-    crop64 = crop.astype(np.float64)
-    out = []
-    for i in order:
-        peak = np.array([x0 + m + xs[i] + hp, y0 + m + ys[i] + hp], dtype=np.float64)
-        xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
-                                    params.tolerance_px)
-        if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
-            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0))
-    out.sort(key=lambda c: -c[1])
-    # one entry per place: peaks refined onto the same spot count once
-    uniq: list[tuple[NDArray[np.float64], float]] = []
-    for c in out:
-        if all(np.hypot(*(c[0] - u[0])) > max(hp // 2, 2) for u in uniq):
-            uniq.append(c)
-    return uniq
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:
