@@ -496,7 +496,8 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
 
 
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
-                       mode: str = "before", seed: int = 3, tag: str = "") -> None:
+                       mode: str = "before", seed: int = 3, tag: str = "",
+                       skin_motion: bool = False) -> None:
     """Markers the blob detector misses over a stretch (``SynthConfig.missed_markers``:
     their ink fades to a low contrast), recovered through the Session as a script would.
 
@@ -517,7 +518,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     from carapost.synth.occlusion import MISSED_RAMP
 
     project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=seed,
-                                        decorate=False, missed_markers=n)
+                                        decorate=False, missed_markers=n,
+                                        skin_motion=skin_motion)
     get = functools.lru_cache(maxsize=None)(get)
     pts = project.points
     s = Session(project, get_image=get)
@@ -546,6 +548,16 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             s.target_track(+1)
             s.current_frame = b + 1
             s.target_track(-1)
+        elif mode == "keyed":
+            # keyed as painted (either side, Gaps To Keys) and once as faded, tracked
+            # forwards from each keyframe to the next
+            s.gaps_to_keys(pid)
+            k = a + MISSED_RAMP
+            for c in range(scene.n_cameras):
+                s.edit_target_track(pid, c, k, scene.uv[k, m, c])
+            for start in (a - 1, k):
+                s.current_frame = start
+                s.target_track(+1)
         else:
             k = a + MISSED_RAMP
             s.current_frame = k
@@ -564,6 +576,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     cpu = time.process_time() - t
     e2_all = np.array(e2_all)
     common = {"case": f"missed_faded_{mode}{tag}", "seed": seed, "held_out": seed != 3,
+              "skin_motion": skin_motion,
               "markers": len(missed), "frames": frames,
               "stretch_frames": int(scene.missed[:, missed].sum(0).max()),
               "labels": [scene.labels[m] for m in missed], "size": f"{size[0]}x{size[1]}"}
