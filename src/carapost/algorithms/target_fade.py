@@ -31,9 +31,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms.target_refine import gaussian_window, shift_patch
+from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
 
-__all__ = ["CONTRAST_RATIO", "contrasts_differ", "disc_depth", "mixture_refine"]
+__all__ = ["CONTRAST_RATIO", "contrasts_differ", "disc_depth", "fade_step", "mixture_refine"]
 
 #: Two keyframes whose marker contrasts (window-weighted standard deviation of their
 #: patterns) differ by more than this factor are a fade: their frames are fitted as a
@@ -42,6 +42,12 @@ CONTRAST_RATIO = 1.5
 #: A mixture gain below this (relative to a pattern's own scale) is a negative amount of
 #: a look: the fit failed.
 MIN_GAIN = -0.15
+#: The fitted mixture must match the image over the disc (the fit's weights) at least
+#: this well, or the disc is not there. Lower than the Break Threshold: a disc faded to
+#: a few grey levels on dark skin is matched through the sensor noise (NCC 0.6-0.8 over
+#: the disc at 20 % contrast and noise 2), so the run's score is the match over the
+#: whole pattern window (the marker's surroundings, which move with it).
+MIN_DISC_NCC = 0.5
 
 
 def disc_depth(tpl: NDArray[Any]) -> float:
@@ -180,7 +186,77 @@ def mixture_refine(image: NDArray[Any], t1: NDArray[Any], t2: NDArray[Any], xy0:
             break
     w = shift_patch(crop, p[0] - x0, p[1] - y0, n).ravel()
     model = a1 * base[0] + a2 * base[1]
-    wc, mc = w - win @ w, model - win @ model
+    # the disc must be there (its weighted match), the score is the pattern's window
+    if _ncc(w, model, win) < MIN_DISC_NCC:
+        return nan, 0.0
+    gauss = gaussian_window(n, weight_sigma).ravel()
+    return p, min(max(_ncc(w, model, gauss / gauss.sum()), 0.0), 1.0)
+
+
+def _ncc(w: NDArray[np.float64], m: NDArray[np.float64], win: NDArray[np.float64]) -> float:
+    wc, mc = w - win @ w, m - win @ m
     den = math.sqrt(float(win @ (wc * wc)) * float(win @ (mc * mc)))
-    ncc = float(win @ (wc * mc)) / den if den > 1e-12 else 0.0
-    return p, min(max(ncc, 0.0), 1.0)
+    return float(win @ (wc * mc)) / den if den > 1e-12 else 0.0
+
+
+def fade_step(image: NDArray[Any], prev_key: tuple[int, NDArray[Any]],
+              next_key: tuple[int, NDArray[Any]], frame: int, predicted: NDArray,
+              found: tuple[NDArray[np.float64], float], params: Any,
+              fades: dict[tuple[int, int], NDArray[np.float64] | None]
+              ) -> tuple[NDArray[np.float64], float]:
+    """One tracking step between two keyframes, as a mixture where they are a fade.
+
+    The tracker's distance blend assumes the look changes evenly from one keyframe to
+    the next; a fade ramps in a few frames and then holds, so on the faded frames the
+    blend is the wrong pattern and can still score above the Break Threshold, off the
+    centre (by 1-2 px on a mouth corner, following the skin's stretch rather than the
+    disc). Between two keyframes whose discs differ in depth (:func:`contrasts_differ`)
+    the frame is fitted by :func:`mixture_refine`, weighted to the disc of the more
+    contrasted keyframe; that fit is kept wherever it scores above the Break Threshold
+    (else the better of the two). Between keyframes of one look nothing changes.
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        This frame's grey image.
+    prev_key, next_key : tuple of (int, ndarray (P, P))
+        Frame and raw pattern (grey levels) of the keyframes behind and ahead.
+    frame : int
+        This frame.
+    predicted : ndarray, shape (2,)
+        The predicted position (raw px).
+    found : tuple of (ndarray (2,), float)
+        What the distance blend's match found (position, NaN if none; score).
+    params : TargetTrackerParameters
+    fades : dict
+        The run's cache of the keyframe pairs: the fit's weights, None where the pair
+        is not a fade.
+
+    Returns
+    -------
+    xy : ndarray, shape (2,)
+    score : float
+    """
+    (f1, t1), (f2, t2) = prev_key, next_key
+    xy, score = found
+    sigma = params.weight_fraction * params.pattern_size
+    if (f1, f2) not in fades:
+        fades[f1, f2] = None
+        if contrasts_differ(t1, t2):
+            # the disc of the keyframe where it shows best weighs the fit
+            vivid = max((t1, t2), key=disc_depth)
+            v = np.asarray(vivid, dtype=np.float64)
+            fades[f1, f2] = marker_weight((v - v.mean()) / max(float(v.std()), 1e-9), sigma)
+    weights = fades[f1, f2]
+    if weights is None:
+        return xy, score
+    d1, d2 = abs(frame - f1), abs(f2 - frame)
+    near = bool(np.all(np.isfinite(xy))) and \
+        float(np.hypot(*(xy - predicted))) <= params.max_refine_px
+    xm, sm = mixture_refine(
+        image, t1, t2, xy if near else predicted, d2 / float(d1 + d2), weight_sigma=sigma,
+        weights=weights, iterations=params.max_iterations, tol=params.tolerance_px,
+        max_move=params.max_refine_px if near else max(float(params.near_px), 2.0))
+    if np.all(np.isfinite(xm)) and (sm >= params.break_threshold or sm > score):
+        return xm, sm
+    return xy, score

@@ -666,9 +666,10 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 if not _consistent_backwards(img, prev_img, xy, pos, back_params,
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
-            if pn is not None:
-                xy, score = _fade_step(img, pp, pn, f, pos + velocity, xy, score, params,
-                                       fades)
+            if pn is not None:   # a fade keyed as painted and as faded: a mixture
+                xy, score = target_fade.fade_step(img, (pp.frame, pp.raw), (pn.frame, pn.raw),
+                                                  f, pos + velocity, (xy, score), params,
+                                                  fades)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
@@ -710,42 +711,6 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     return TargetTrackResult(np.array(frames, dtype=np.int64), np.array(xys, dtype=np.float64),
                              np.array(scores, dtype=np.float64), np.array(is_key, dtype=bool),
                              reason)
-
-
-def _fade_step(img: NDArray[Any], pp: _Pattern, pn: _Pattern, f: int, predicted: NDArray,
-               xy: NDArray, score: float, params: TargetTrackerParameters,
-               fades: dict[tuple[int, int], NDArray[np.float64] | None]
-               ) -> tuple[NDArray[np.float64], float]:
-    """Between two keyframes of different contrast (a fading marker keyed as painted and
-    as faded), the frame as a free mixture of the two patterns
-    (:func:`carapost.algorithms.target_fade.mixture_refine`).
-
-    The distance blend assumes the look changes evenly from one keyframe to the next; a
-    fade ramps in a few frames and then holds, so on the faded frames the blend is the
-    wrong pattern and can still score above the Break Threshold, off the centre. The
-    mixture is kept wherever it scores above the threshold (else the better of the
-    two)."""
-    sigma = params.weight_fraction * params.pattern_size
-    pair = (pp.frame, pn.frame)
-    if pair not in fades:
-        fades[pair] = None
-        if target_fade.contrasts_differ(pp.raw, pn.raw):
-            # the disc of the keyframe where it shows best weighs the fit
-            vivid = max((pp, pn), key=lambda q: target_fade.disc_depth(q.raw))
-            fades[pair] = marker_weight(vivid.norm, sigma)
-    weights = fades[pair]
-    if weights is None:
-        return xy, score
-    dp, dn = abs(f - pp.frame), abs(pn.frame - f)
-    near = bool(np.all(np.isfinite(xy))) and np.hypot(*(xy - predicted)) <= params.max_refine_px
-    start = xy if near else predicted
-    xm, sm = target_fade.mixture_refine(
-        img, pp.raw, pn.raw, start, dn / float(dp + dn), weight_sigma=sigma,
-        weights=weights, iterations=params.max_iterations, tol=params.tolerance_px,
-        max_move=params.max_refine_px if near else max(float(params.near_px), 2.0))
-    if np.all(np.isfinite(xm)) and (sm >= params.break_threshold or sm > score):
-        return xm, sm
-    return xy, score
 
 
 def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
