@@ -251,12 +251,12 @@ def fade_step(image: NDArray[Any], prev_key: tuple[int, NDArray[Any]],
     if weights is None:
         return xy, score
     d1, d2 = abs(frame - f1), abs(f2 - frame)
-    near = bool(np.all(np.isfinite(xy))) and \
-        float(np.hypot(*(xy - predicted))) <= params.max_refine_px
+    # from the prediction, not from the blend's match: that may be off by more than a
+    # refinement's reach (1.7 px on a mouth corner)
     xm, sm = mixture_refine(
-        image, t1, t2, xy if near else predicted, d2 / float(d1 + d2), weight_sigma=sigma,
+        image, t1, t2, predicted, d2 / float(d1 + d2), weight_sigma=sigma,
         weights=weights, iterations=params.max_iterations, tol=params.tolerance_px,
-        max_move=params.max_refine_px if near else max(float(params.near_px), 2.0))
+        max_move=max(float(params.near_px), 2.0))
     if np.all(np.isfinite(xm)) and (sm >= params.break_threshold or sm > score):
         return xm, sm
     return xy, score
