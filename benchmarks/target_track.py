@@ -35,6 +35,10 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``missed_marker_p95_px`` (median over markers of the 95th percentile 2D error),
   ``missed_marker_rmse_mm`` (median over markers of the 3D RMSE over the stretch) and
   ``missed_marker_complete_fraction``.
+- ``missed_faded_*`` (``--faded``): six markers of a speech take fade to 20 % contrast
+  over 36 frames (``SynthConfig.missed_markers``), recovered through the Session in four
+  workflows (:func:`bench_missed_faded`), with ``--skin-motion`` also on takes whose
+  skin follows the markers.
 - ``target_track_patch_frames_per_s``: one marker, one camera, one frame per call,
   default pattern and search sizes, single core, over CPU time.
 - ``target_track_4cam_600_s``: one point in 4 cameras over 600 frames (300 forwards,
@@ -508,7 +512,12 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     of the stretch where it is fully faded, Track forward to the end of the stretch,
     then back to its start (the artist keys the marker as it looks while missed).
     ``mode="gaps"``: Gaps To Keys (keyframes either side of the stretch), Track forward
-    from the first (Stop On Next Keyframe), then back from the second."""
+    from the first (Stop On Next Keyframe), then back from the second.
+    ``mode="keyed"``: Gaps To Keys, Edit Target Track at the marker (its truth) on the
+    first fully faded frame in every camera, Track forward from the first keyframe to
+    the faded one, then from it to the last (the tracker fits the frames between
+    keyframes of different contrast as a mixture of both: algorithms/target_fade.py).
+    ``skin_motion``: the take's skin follows the markers (`SynthConfig.skin_motion`)."""
     import functools
 
     from carapost import Session
@@ -605,6 +614,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the partial-occlusion takes (eyelid fold, lip curl)")
     ap.add_argument("--faded", action="store_true",
                     help="also the faded markers the blob detector misses")
+    ap.add_argument("--skin-motion", action="store_true",
+                    help="--faded also on takes whose skin follows the markers")
     ap.add_argument("--only-new", action="store_true",
                     help="only --partial and --faded (skip everything else)")
     ap.add_argument("--klt", default="9x3,15x3,21x3,31x4",
@@ -642,13 +653,16 @@ def main(argv: list[str] | None = None) -> int:
                 with _KeyframeOnly():
                     bench_partial(min(a.frames, 120), size, seed=seed, tag="_keyframe_only")
     if a.faded:
-        for mode in ("before", "inside", "gaps"):
-            for seed in (3, 8):   # seed 8: held out
-                bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed)
-                if a.reference:
-                    with _KeyframeOnly():
-                        bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
-                                           tag="_keyframe_only")
+        for skin in (False, True) if a.skin_motion else (False,):
+            for mode in ("before", "inside", "gaps", "keyed"):
+                for seed in (3, 8):   # seed 8: held out
+                    bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
+                                       skin_motion=skin)
+                    if a.reference:
+                        with _KeyframeOnly():
+                            bench_missed_faded(min(a.frames, 120), size, mode=mode,
+                                               seed=seed, tag="_keyframe_only",
+                                               skin_motion=skin)
     emit("load_average", _load(), "")
     return 0
 
