@@ -212,8 +212,8 @@ def fade_step(image: NDArray[Any], prev_key: tuple[int, NDArray[Any]],
     centre (by 1-2 px on a mouth corner, following the skin's stretch rather than the
     disc). Between two keyframes whose discs differ in depth (:func:`contrasts_differ`)
     the frame is fitted by :func:`mixture_refine`, weighted to the disc of the more
-    contrasted keyframe; that fit is kept wherever it scores above the Break Threshold
-    (else the better of the two). Between keyframes of one look nothing changes.
+    contrasted keyframe, and that fit is the frame's match (no position where it
+    fails). Between keyframes of one look nothing changes.
 
     Parameters
     ----------
@@ -251,12 +251,17 @@ def fade_step(image: NDArray[Any], prev_key: tuple[int, NDArray[Any]],
     if weights is None:
         return xy, score
     d1, d2 = abs(frame - f1), abs(f2 - frame)
-    # from the prediction, not from the blend's match: that may be off by more than a
-    # refinement's reach (1.7 px on a mouth corner)
+    # from the prediction, not from the blend's match (that may be off by more than a
+    # refinement's reach: 1.7 px on a mouth corner), and no farther from it than a
+    # refinement may move: on skin that does not move with the marker the mixture is
+    # not exact, and 6 px of reach let a chain of frames walk 3 px off a mouth corner
     xm, sm = mixture_refine(
         image, t1, t2, predicted, d2 / float(d1 + d2), weight_sigma=sigma,
         weights=weights, iterations=params.max_iterations, tol=params.tolerance_px,
-        max_move=max(float(params.near_px), 2.0))
-    if np.all(np.isfinite(xm)) and (sm >= params.break_threshold or sm > score):
-        return xm, sm
-    return xy, score
+        max_move=params.max_refine_px)
+    if not np.all(np.isfinite(xm)):
+        # no mixture fits: the blend's match is no fallback (it follows the skin, not
+        # the disc: 6-10 px off within 20 frames on a mouth corner of the default
+        # renders, at scores above 0.93), so the frame has no position
+        return np.array([np.nan, np.nan]), 0.0
+    return xm, sm
