@@ -35,6 +35,10 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``missed_marker_p95_px`` (median over markers of the 95th percentile 2D error),
   ``missed_marker_rmse_mm`` (median over markers of the 3D RMSE over the stretch) and
   ``missed_marker_complete_fraction``.
+- ``missed_faded_*`` (``--faded``): six markers of a speech take fade to 20 % contrast
+  over 36 frames (``SynthConfig.missed_markers``), recovered through the Session in four
+  workflows (:func:`bench_missed_faded`), with ``--skin-motion`` also on takes whose
+  skin follows the markers.
 - ``target_track_patch_frames_per_s``: one marker, one camera, one frame per call,
   default pattern and search sizes, single core, over CPU time.
 - ``target_track_4cam_600_s``: one point in 4 cameras over 600 frames (300 forwards,
@@ -496,7 +500,8 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
 
 
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
-                       mode: str = "before", seed: int = 3, tag: str = "") -> None:
+                       mode: str = "before", seed: int = 3, tag: str = "",
+                       skin_motion: bool = False) -> None:
     """Markers the blob detector misses over a stretch (``SynthConfig.missed_markers``:
     their ink fades to a low contrast), recovered through the Session as a script would.
 
@@ -507,7 +512,12 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     of the stretch where it is fully faded, Track forward to the end of the stretch,
     then back to its start (the artist keys the marker as it looks while missed).
     ``mode="gaps"``: Gaps To Keys (keyframes either side of the stretch), Track forward
-    from the first (Stop On Next Keyframe), then back from the second."""
+    from the first (Stop On Next Keyframe), then back from the second.
+    ``mode="keyed"``: Gaps To Keys, Edit Target Track at the marker (its truth) on the
+    first fully faded frame in every camera, Track forward from the first keyframe to
+    the faded one, then from it to the last (the tracker fits the frames between
+    keyframes of different contrast as a mixture of both: algorithms/target_fade.py).
+    ``skin_motion``: the take's skin follows the markers (`SynthConfig.skin_motion`)."""
     import functools
 
     from carapost import Session
@@ -517,7 +527,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     from carapost.synth.occlusion import MISSED_RAMP
 
     project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=seed,
-                                        decorate=False, missed_markers=n)
+                                        decorate=False, missed_markers=n,
+                                        skin_motion=skin_motion)
     get = functools.lru_cache(maxsize=None)(get)
     pts = project.points
     s = Session(project, get_image=get)
@@ -546,6 +557,16 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             s.target_track(+1)
             s.current_frame = b + 1
             s.target_track(-1)
+        elif mode == "keyed":
+            # keyed as painted (either side, Gaps To Keys) and once as faded, tracked
+            # forwards from each keyframe to the next
+            s.gaps_to_keys(pid)
+            k = a + MISSED_RAMP
+            for c in range(scene.n_cameras):
+                s.edit_target_track(pid, c, k, scene.uv[k, m, c])
+            for start in (a - 1, k):
+                s.current_frame = start
+                s.target_track(+1)
         else:
             k = a + MISSED_RAMP
             s.current_frame = k
@@ -564,6 +585,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     cpu = time.process_time() - t
     e2_all = np.array(e2_all)
     common = {"case": f"missed_faded_{mode}{tag}", "seed": seed, "held_out": seed != 3,
+              "skin_motion": skin_motion,
               "markers": len(missed), "frames": frames,
               "stretch_frames": int(scene.missed[:, missed].sum(0).max()),
               "labels": [scene.labels[m] for m in missed], "size": f"{size[0]}x{size[1]}"}
@@ -592,6 +614,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the partial-occlusion takes (eyelid fold, lip curl)")
     ap.add_argument("--faded", action="store_true",
                     help="also the faded markers the blob detector misses")
+    ap.add_argument("--skin-motion", action="store_true",
+                    help="--faded also on takes whose skin follows the markers")
     ap.add_argument("--only-new", action="store_true",
                     help="only --partial and --faded (skip everything else)")
     ap.add_argument("--klt", default="9x3,15x3,21x3,31x4",
@@ -629,13 +653,16 @@ def main(argv: list[str] | None = None) -> int:
                 with _KeyframeOnly():
                     bench_partial(min(a.frames, 120), size, seed=seed, tag="_keyframe_only")
     if a.faded:
-        for mode in ("before", "inside", "gaps"):
-            for seed in (3, 8):   # seed 8: held out
-                bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed)
-                if a.reference:
-                    with _KeyframeOnly():
-                        bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
-                                           tag="_keyframe_only")
+        for skin in (False, True) if a.skin_motion else (False,):
+            for mode in ("before", "inside", "gaps", "keyed"):
+                for seed in (3, 8):   # seed 8: held out
+                    bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
+                                       skin_motion=skin)
+                    if a.reference:
+                        with _KeyframeOnly():
+                            bench_missed_faded(min(a.frames, 120), size, mode=mode,
+                                               seed=seed, tag="_keyframe_only",
+                                               skin_motion=skin)
     emit("load_average", _load(), "")
     return 0
 

@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms import target_appearance
+from carapost.algorithms import target_appearance, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
@@ -224,6 +224,7 @@ class _Pattern:
     frame: int
     norm: NDArray[np.float32]          # (P, P) zero mean, unit variance
     grads: NDArray[np.float64] = field(repr=False, default=None)  # (2, P, P)
+    raw: NDArray[np.float32] = field(repr=False, default=None)    # (P, P) grey levels
 
 
 def check_keyframe(xy: Any, shape: tuple[int, ...], pattern_size: int) -> None:
@@ -310,7 +311,7 @@ def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
         out = _normalise(denoise_pattern(image, xy, raw, norm, weight_sigma
                                          ).astype(np.float32))
         norm = norm if out is None else out
-    return _Pattern(frame, norm)
+    return _Pattern(frame, norm, raw=raw)
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
@@ -623,6 +624,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
     key_contrast: dict[int, float] = {}   # per keyframe, for the appearance step
+    # keyframe pairs of different contrast: the fit's weights (None: not a fade)
+    fades: dict[tuple[int, int], NDArray[np.float64] | None] = {}
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
     back_params_first = replace(params, near_px=0, distance_penalty=0.0)
     # the previous frame, for the backwards check of long steps: the start frame too (a
@@ -681,6 +684,10 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 if not _consistent_backwards(img, prev_img, xy, pos, back_params,
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
+            if pn is not None:   # a fade keyed as painted and as faded: a mixture
+                xy, score = target_fade.fade_step(img, (pp.frame, pp.raw), (pn.frame, pn.raw),
+                                                  f, pos + velocity, (xy, score), params,
+                                                  fades)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
