@@ -168,6 +168,8 @@ class TargetTrackerParameters:
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
     anchor_score: float = param(0.7, min=0.0, max=1.0, help=(
         "An appearance step holds while the keyframe pattern's centre matches this well."))
+    log_offset: float = param(0.0, min=0.0, unit="grey levels", help=(
+        "The keyframe match on log(grey + this) (0: on the grey levels)."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -559,7 +561,18 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     key_frames = np.array(sorted(keys), dtype=np.int64)
 
     patterns: dict[int, _Pattern] = {}
+    raw_patterns: dict[int, _Pattern] = {}
     shape: list[tuple[int, ...]] = []
+    raw_image = get_image
+    if params.log_offset > 0:
+        lut = _log_table(params.log_offset)
+        get_image = lambda f: _LogImage(raw_image(f), lut)  # noqa: E731
+
+    def raw_pattern(f: int) -> _Pattern:
+        if f not in raw_patterns:
+            raw_patterns[f] = (patterns[f] if raw_image is get_image else
+                               _make_pattern(raw_image(f), keys[f], f, params.pattern_size))
+        return raw_patterns[f]
 
     def pattern(f: int) -> _Pattern:
         if f not in patterns:
@@ -667,9 +680,11 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
                     key_contrast[pp.frame] = target_appearance.keyframe_contrast(
-                        get_image(pp.frame), keys[pp.frame], params)
+                        raw_image(pp.frame), keys[pp.frame], params)
+                raw_tpl = tpl if raw_image is get_image else _blend(
+                    raw_pattern(pp.frame), None if pn is None else raw_pattern(pn.frame), f)
                 xy, score = target_appearance.appearance_step(
-                    img, prev_img, pos, pos + velocity, tpl, params,
+                    _raw(img), _raw(prev_img), pos, pos + velocity, raw_tpl, params,
                     key_contrast[pp.frame], (xy, score))
             prev_frame, prev_img = f, img
             frames.append(f)
@@ -704,6 +719,28 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     return TargetTrackResult(np.array(frames, dtype=np.int64), np.array(xys, dtype=np.float64),
                              np.array(scores, dtype=np.float64), np.array(is_key, dtype=bool),
                              reason)
+
+
+def _log_table(offset: float) -> NDArray[np.float32]:
+    """Grey level (0-255) -> log grey level, scaled to the grey levels at mid-grey."""
+    g = np.arange(256, dtype=np.float64)
+    return ((128.0 + offset) * np.log((g + offset) / (128.0 + offset)) + 128.0
+            ).astype(np.float32)
+
+
+class _LogImage:
+    """An image seen in log grey levels, converted crop by crop."""
+
+    def __init__(self, image: NDArray[Any], lut: NDArray[np.float32]) -> None:
+        self.raw, self.lut = image, lut
+        self.shape = image.shape
+
+    def __getitem__(self, key: Any) -> NDArray[np.float32]:
+        return self.lut[self.raw[key]]
+
+
+def _raw(image: Any) -> NDArray[Any]:
+    return image.raw if isinstance(image, _LogImage) else image
 
 
 def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
