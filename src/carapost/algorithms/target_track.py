@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from carapost.algorithms import target_appearance
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import first_step as _assigned_step
+from carapost.algorithms.target_polish import LogPolish
 from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
 
 __all__ = [
@@ -169,7 +170,9 @@ class TargetTrackerParameters:
     anchor_score: float = param(0.7, min=0.0, max=1.0, help=(
         "An appearance step holds while the keyframe pattern's centre matches this well."))
     log_offset: float = param(0.0, min=0.0, unit="grey levels", help=(
-        "The keyframe match on log(grey + this) (0: on the grey levels)."))
+        "The keyframe match's position is polished on log(grey + this) (0: not), where "
+        "a marker's ink darkens whatever skin is under it by the same factor: a marker "
+        "sliding over a darker lid crease keeps its look (algorithms/target_refine)."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -216,6 +219,7 @@ class _Pattern:
 
     frame: int
     norm: NDArray[np.float32]          # (P, P) zero mean, unit variance
+    raw: NDArray[np.float32] | None = field(repr=False, default=None)  # (P, P) as sampled
     grads: NDArray[np.float64] = field(repr=False, default=None)  # (2, P, P)
 
 
@@ -297,7 +301,7 @@ def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int) -> _Patte
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
-    return _Pattern(frame, norm)
+    return _Pattern(frame, norm, raw=big[1:-1, 1:-1])
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
@@ -323,7 +327,8 @@ class _Refiner:
     """
 
     def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0,
-                 shading: bool = True, marker: bool = True) -> None:
+                 shading: bool = True, marker: bool = True,
+                 noise_weight: NDArray[np.float64] | None = None) -> None:
         gy, gx = np.gradient(tpl.astype(np.float64))
         self.size = n = tpl.shape[0]
         g = (np.arange(n) - n // 2) / max(n // 2, 1)
@@ -335,6 +340,8 @@ class _Refiner:
         self.wt = wt.ravel() / wt.sum()   # the score's window
         # the fit weighs the marker blob and its rim, not the lid or lip edges around it
         fit = marker_weight(tpl, weight_sigma).ravel() if marker else self.wt
+        if noise_weight is not None:   # per-pixel inverse noise variance (log images)
+            fit = fit * noise_weight.ravel()
         JW = J * (fit / fit.sum())
         self.J = JW
         self.Hinv = np.linalg.pinv(JW @ J.T)
@@ -561,18 +568,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     key_frames = np.array(sorted(keys), dtype=np.int64)
 
     patterns: dict[int, _Pattern] = {}
-    raw_patterns: dict[int, _Pattern] = {}
     shape: list[tuple[int, ...]] = []
-    raw_image = get_image
-    if params.log_offset > 0:
-        lut = _log_table(params.log_offset)
-        get_image = lambda f: _LogImage(raw_image(f), lut)  # noqa: E731
-
-    def raw_pattern(f: int) -> _Pattern:
-        if f not in raw_patterns:
-            raw_patterns[f] = (patterns[f] if raw_image is get_image else
-                               _make_pattern(raw_image(f), keys[f], f, params.pattern_size))
-        return raw_patterns[f]
 
     def pattern(f: int) -> _Pattern:
         if f not in patterns:
@@ -583,6 +579,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             check_keyframe(keys[f], img.shape, params.pattern_size)
             patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size)
         return patterns[f]
+
+    polish = None if params.log_offset <= 0 else LogPolish(get_image, keys, params)
 
     def behind(f: int) -> int | None:   # the keyframe at or behind f (tracking order)
         cand = key_frames[key_frames <= f] if direction > 0 else key_frames[key_frames >= f]
@@ -676,15 +674,15 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 if not _consistent_backwards(img, prev_img, xy, pos, back_params,
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
+            if polish is not None and np.all(np.isfinite(xy)):
+                xy = polish(img, xy, pp.frame, None if pn is None else pn.frame, f)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
                     key_contrast[pp.frame] = target_appearance.keyframe_contrast(
-                        raw_image(pp.frame), keys[pp.frame], params)
-                raw_tpl = tpl if raw_image is get_image else _blend(
-                    raw_pattern(pp.frame), None if pn is None else raw_pattern(pn.frame), f)
+                        get_image(pp.frame), keys[pp.frame], params)
                 xy, score = target_appearance.appearance_step(
-                    _raw(img), _raw(prev_img), pos, pos + velocity, raw_tpl, params,
+                    img, prev_img, pos, pos + velocity, tpl, params,
                     key_contrast[pp.frame], (xy, score))
             prev_frame, prev_img = f, img
             frames.append(f)
@@ -719,28 +717,6 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     return TargetTrackResult(np.array(frames, dtype=np.int64), np.array(xys, dtype=np.float64),
                              np.array(scores, dtype=np.float64), np.array(is_key, dtype=bool),
                              reason)
-
-
-def _log_table(offset: float) -> NDArray[np.float32]:
-    """Grey level (0-255) -> log grey level, scaled to the grey levels at mid-grey."""
-    g = np.arange(256, dtype=np.float64)
-    return ((128.0 + offset) * np.log((g + offset) / (128.0 + offset)) + 128.0
-            ).astype(np.float32)
-
-
-class _LogImage:
-    """An image seen in log grey levels, converted crop by crop."""
-
-    def __init__(self, image: NDArray[Any], lut: NDArray[np.float32]) -> None:
-        self.raw, self.lut = image, lut
-        self.shape = image.shape
-
-    def __getitem__(self, key: Any) -> NDArray[np.float32]:
-        return self.lut[self.raw[key]]
-
-
-def _raw(image: Any) -> NDArray[Any]:
-    return image.raw if isinstance(image, _LogImage) else image
 
 
 def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
