@@ -37,6 +37,7 @@ __all__ = ["MAX_POLISH_PX", "LogPolish", "log_grey"]
 #: A polish that moves the grey-level position farther than this (px) is not taken: the
 #: two scales found different things.
 MAX_POLISH_PX = 1.0
+_NOISE = True
 
 _TABLES: dict[float, NDArray[np.float32]] = {}
 
@@ -130,7 +131,7 @@ class LogPolish:
             w = dp / float(dp + dn)
             raw = (1.0 - w) * raw + w * self.raws[next_key]
         c = self.offset
-        noise = (np.maximum(raw + c, 1e-3) / (128.0 + c)) ** 2
+        noise = (np.maximum(raw + c, 1e-3) / (128.0 + c)) ** 2 if _NOISE else None
         ref = _Refiner(tpl, self.params.weight_fraction * self.params.pattern_size,
                        noise_weight=noise)
         if next_key is None:    # a fixed pattern: kept for the run
