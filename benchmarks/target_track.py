@@ -32,6 +32,9 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   it, so every one of them shows the whole disc);
   with ``--reference`` also with the keyframe patterns alone (``follow_appearance``
   off: case ``blink_keyframe_only``), in the same run.
+- ``--compare-log-offset C``: the cases (ours only) and blink again with
+  ``log_offset=C`` (the keyframe match's position polished on log grey levels,
+  ``carapost.algorithms.target_polish``), case names ending ``_logC``.
 - ``missed``: markers visible throughout whose 2D and 3D are removed after frame 0 (as a
   marker the blob detector misses), recovered through the Session (Add Keyframe To
   Current Frame, Track forward to end, default settings):
@@ -184,17 +187,23 @@ KLT_CONFIGS = ((9, 3), (15, 3), (21, 3), (31, 4))
 
 
 def bench_case(name: str, frames: int, size: tuple[int, int],
-               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS) -> None:
+               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS,
+               overrides: dict | None = None, tag: str = "") -> None:
+    """One case; ``overrides`` (TargetTrackerParameters fields) and ``tag`` (appended to
+    the case's name): ours only, with those settings (no references)."""
+    overrides = overrides or {}
     cfg = SynthConfig(frames=frames, size=size, **CASES[name])
     t = time.time()
     scene, imgs = render(cfg)
     render_s = time.time() - t
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    common = {"case": name, "tracks": int(len(markers) * scene.n_cameras), "frames": frames,
+    common = {"case": name + tag, "tracks": int(len(markers) * scene.n_cameras),
+              "frames": frames, **overrides,
               "size": f"{size[0]}x{size[1]}", "held_out": name.startswith("heldout")}
     t = time.process_time()
-    E, wrong, _ = ours(imgs, uv, markers, TargetTrackerParameters(break_threshold=0.0))
+    E, wrong, _ = ours(imgs, uv, markers,
+                       TargetTrackerParameters(break_threshold=0.0, **overrides))
     cpu = time.process_time() - t
     med, p95 = _stats(E)
     drift = float(np.nanmedian(np.nanmedian(E[:, -10:], axis=1)))
@@ -203,11 +212,13 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
     emit("target_track_end_drift_px", round(drift, 4), "px", **common)
     emit("target_track_wrong_marker", wrong, "tracks", **common,
          cpu_frames_per_s=round(np.isfinite(E).sum() / cpu))
-    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters())
+    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters(**overrides))
     emit("target_track_complete_fraction", round(complete9 / E.shape[0], 3), "fraction",
          **common, break_threshold=0.9,
          median_px_tracked=round(float(np.nanmedian(E9)), 4))
     emit("target_track_wrong_marker_default", wrong9, "tracks", **common, break_threshold=0.9)
+    if overrides:
+        return
     best = None
     for win, lev in klt_configs:
         K = klt(imgs, uv, markers, win, lev)
@@ -620,6 +631,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="KLT window x pyramid levels to try (the best is reported)")
     ap.add_argument("--reference", action="store_true",
                     help="blink and faded also without appearance following (before/after)")
+    ap.add_argument("--compare-log-offset", type=float, default=None, metavar="C",
+                    help="the cases and blink also with log_offset C (the keyframe match "
+                         "polished on log grey levels), in the same run")
     ap.add_argument("--speed-frames", type=int, default=600)
     ap.add_argument("--skip-decode", action="store_true",
                     help="render the speed take in memory instead of decoding videos")
@@ -634,11 +648,18 @@ def main(argv: list[str] | None = None) -> int:
         a.skip_speed, a.skip_blink, a.skip_missed, a.cases = True, True, True, ""
     if not a.skip_speed:
         bench_speed(size, a.speed_frames, decode=not a.skip_decode)
+    log_c = a.compare_log_offset
+    log_tag = f"_log{log_c:g}" if log_c is not None else ""
     for name in [c for c in a.cases.split(",") if c]:
         bench_case(name, a.frames, size, klt_configs)
+        if log_c is not None:
+            bench_case(name, a.frames, size, overrides={"log_offset": log_c}, tag=log_tag)
     if not a.skip_blink:
         for seed in (0, 7):   # seed 7: held out (never looked at while tuning)
             bench_blink(a.frames, size, seed=seed)
+            if log_c is not None:
+                bench_blink(a.frames, size, seed=seed, tag=log_tag,
+                            params=TargetTrackerParameters(log_offset=log_c))
             if a.reference:   # the same takes without appearance following
                 bench_blink(a.frames, size, seed=seed, tag="_keyframe_only",
                             params=TargetTrackerParameters(follow_appearance=False))

@@ -32,12 +32,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MAX_POLISH_PX", "LogPolish", "log_grey"]
+__all__ = ["MAX_POLISH_PX", "POLISH_BELOW", "LogPolish", "log_grey"]
 
 #: A polish that moves the grey-level position farther than this (px) is not taken: the
 #: two scales found different things.
 MAX_POLISH_PX = 1.0
-_NOISE = True
+#: Only a keyframe match scoring below this is polished: one at or above it matches the
+#: keyframe's look nearly perfectly (a marker on even skin, far from any occlusion), and
+#: the polish would cost CPU (about 40 % of a frame) for changes of a few thousandths of
+#: a pixel.
+POLISH_BELOW = 0.98
 
 _TABLES: dict[float, NDArray[np.float32]] = {}
 
@@ -131,19 +135,21 @@ class LogPolish:
             w = dp / float(dp + dn)
             raw = (1.0 - w) * raw + w * self.raws[next_key]
         c = self.offset
-        noise = (np.maximum(raw + c, 1e-3) / (128.0 + c)) ** 2 if _NOISE else None
+        noise = (np.maximum(raw + c, 1e-3) / (128.0 + c)) ** 2
         ref = _Refiner(tpl, self.params.weight_fraction * self.params.pattern_size,
                        noise_weight=noise)
         if next_key is None:    # a fixed pattern: kept for the run
             self.refiners[rkey] = ref
         return ref
 
-    def __call__(self, image: NDArray[Any], xy: NDArray[np.float64], prev_key: int,
-                 next_key: int | None, frame: int) -> NDArray[np.float64]:
-        """The position ``xy`` (raw px) found on grey levels in ``image`` at ``frame``,
-        polished on log grey levels against the keyframe patterns of ``prev_key`` and
-        ``next_key``; ``xy`` itself when the polish fails or moves it farther than
-        `MAX_POLISH_PX`."""
+    def __call__(self, image: NDArray[Any], xy: NDArray[np.float64], score: float,
+                 prev_key: int, next_key: int | None, frame: int) -> NDArray[np.float64]:
+        """The position ``xy`` (raw px) found on grey levels in ``image`` at ``frame``
+        (its match ``score``), polished on log grey levels against the keyframe patterns
+        of ``prev_key`` and ``next_key``; ``xy`` itself when the score is at least
+        `POLISH_BELOW`, or the polish fails or moves it farther than `MAX_POLISH_PX`."""
+        if not score < POLISH_BELOW:
+            return xy
         P = self.params.pattern_size
         half = P // 2 + 6
         H, W = image.shape[:2]

@@ -675,7 +675,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
             if polish is not None and np.all(np.isfinite(xy)):
-                xy = polish(img, xy, pp.frame, None if pn is None else pn.frame, f)
+                xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
