@@ -63,8 +63,8 @@ def log_grey(image: NDArray[Any], offset: float) -> NDArray[np.float32]:
 
     Examples
     --------
-    >>> log_grey(np.array([0, 128, 255], np.uint8), 16.0).round(1).tolist()
-    [-94.4, 128.0, 223.6]
+    >>> log_grey(np.array([0, 128, 255], np.uint8), 16.0).astype(float).round(1).tolist()
+    [-188.4, 128.0, 219.1]
     """
     if image.dtype == np.uint8:
         lut = _TABLES.get(offset)
