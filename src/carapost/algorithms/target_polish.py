@@ -20,6 +20,13 @@ log stretches it where the image is dark. Only the position is polished: the sea
 ambiguity and identity checks and the match score stay on grey levels, where a marker on
 dark lips and one on pale skin do not look alike.
 
+Only matches scoring below `POLISH_BELOW` are polished. Measured side by side
+(``benchmarks/target_track.py --compare-log-offset 16``, docs/benchmarks.md): blink
+recovery 0.908 -> 0.920 (held out 0.895 -> 0.902), speech and fast a little more
+accurate, noise 5 with motion blur a little less (median 0.055 -> 0.059 px: the log
+stretches the noise of the dark pixels more than the weights give back, and a blurred
+ink is no longer a factor). Hence ``log_offset`` is 0 (off) by default.
+
 Coordinates are raw pixels with OpenCV's pixel-centre convention, as everywhere in
 carapost.
 """

@@ -172,7 +172,7 @@ class TargetTrackerParameters:
     log_offset: float = param(0.0, min=0.0, unit="grey levels", help=(
         "The keyframe match's position is polished on log(grey + this) (0: not), where "
         "a marker's ink darkens whatever skin is under it by the same factor: a marker "
-        "sliding over a darker lid crease keeps its look (algorithms/target_refine)."))
+        "sliding over a darker lid crease keeps its look (algorithms/target_polish)."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -219,7 +219,6 @@ class _Pattern:
 
     frame: int
     norm: NDArray[np.float32]          # (P, P) zero mean, unit variance
-    raw: NDArray[np.float32] | None = field(repr=False, default=None)  # (P, P) as sampled
     grads: NDArray[np.float64] = field(repr=False, default=None)  # (2, P, P)
 
 
@@ -301,7 +300,7 @@ def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int) -> _Patte
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
-    return _Pattern(frame, norm, raw=big[1:-1, 1:-1])
+    return _Pattern(frame, norm)
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
