@@ -32,6 +32,9 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   it, so every one of them shows the whole disc);
   with ``--reference`` also with the keyframe patterns alone (``follow_appearance``
   off: case ``blink_keyframe_only``), in the same run.
+- ``--blink-list FILE``: every blink frame not recovered, one JSON line each (marker,
+  camera, frame, the hidden stretch and the keyframes, frames from the occlusion, each
+  run's side, error and score, the score of a run that stopped on it).
 - ``--compare-log-offset C``: the cases (ours only) and blink again with
   ``log_offset=C`` (the keyframe match's position polished on log grey levels,
   ``carapost.algorithms.target_polish``), case names ending ``_logC``.
@@ -91,6 +94,8 @@ def _load() -> float:
 
 #: where rendered takes are kept between runs (``--cache DIR``; None: render every time)
 CACHE_DIR: str | None = None
+#: the blink frames not recovered, one dict each (``--blink-list FILE``; None: not kept)
+BLINK_LIST: list[dict] | None = None
 
 
 def render(cfg: SynthConfig):
@@ -265,6 +270,8 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
     late, attached, rec_err, rec_ok, n_vis, blinks = 0, 0, [], 0, 0, 0
     worst: dict[tuple[int, int, int], float] = {}
     spans: list[tuple[int, int, int, int, int, int]] = []
+    by_run: dict[tuple[int, int, int], list] = {}      # every run's (side, error, score)
+    stops: dict[tuple[int, int, int], float] = {}      # the frame a run stopped on: score
     for m in np.flatnonzero(scene.eyelid):
         for c in range(scene.n_cameras):
             for a, b in _runs(~vis[:, m, c]):
@@ -281,11 +288,17 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
                     # frames past the disappearance still carrying a confident position
                     late = max(late, int((good & hidden).sum()))
                     attached += int(_wrong(r.xy[good], r.frames[good], uv[:, :, c], m))
-                    for f, xy in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
-                                     strict=True):
+                    for f, xy, sc in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
+                                         r.score[good & ~hidden], strict=True):
                         e = float(np.hypot(*(xy - uv[f, m, c])))
                         rec_err.append(e)
                         worst[m, c, int(f)] = max(worst.get((m, c, int(f)), 0.0), e)
+                        by_run.setdefault((int(m), c, int(f)), []).append(
+                            ("forwards" if d > 0 else "backwards", round(e, 3),
+                             round(float(sc), 3)))
+                    if not np.isfinite(r.xy[-1, 0]):   # where the run stopped, and why
+                        f = int(r.frames[-1])
+                        stops[int(m), c, f] = round(float(r.score[-1]), 3)
                 seen = vis[k0 + 1:k1, m, c]
                 n_vis += int(seen.sum())
                 spans.append((int(m), c, a, b, k0, k1))
@@ -305,6 +318,15 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
             d = a - f if f < a else f - b
             row = by_dist.setdefault(d, {"untracked": 0, "off": 0})
             row["untracked" if e is None else "off"] += 1
+            if BLINK_LIST is not None:
+                BLINK_LIST.append({
+                    "case": "blink" + tag, "seed": seed, "marker": scene.labels[m],
+                    "camera": c, "frame": f, "hidden": [a, b], "keyframes": [k0, k1],
+                    "frames_from_occlusion": d, "before": f < a,
+                    "disc_visible_fraction": 1.0,
+                    "runs": [dict(zip(("side", "error_px", "score"), v, strict=True))
+                             for v in by_run.get((m, c, f), [])],
+                    "stopped_here_score": stops.get((m, c, f))})
     common = {"case": "blink" + tag, "blinks": blinks, "seed": seed, "held_out": seed != 0,
               "follow_appearance": params.follow_appearance,
               "eyelid_markers": int(scene.eyelid.sum())}
@@ -634,14 +656,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare-log-offset", type=float, default=None, metavar="C",
                     help="the cases and blink also with log_offset C (the keyframe match "
                          "polished on log grey levels), in the same run")
+    ap.add_argument("--blink-list", default=None, metavar="FILE",
+                    help="write every blink frame not recovered (JSON lines: frames from "
+                         "the occlusion, each run's side, error and score)")
     ap.add_argument("--speed-frames", type=int, default=600)
     ap.add_argument("--skip-decode", action="store_true",
                     help="render the speed take in memory instead of decoding videos")
     ap.add_argument("--cache", default=None,
                     help="keep the rendered takes in this directory between runs")
     a = ap.parse_args(argv)
-    global CACHE_DIR
+    global CACHE_DIR, BLINK_LIST
     CACHE_DIR = a.cache
+    BLINK_LIST = [] if a.blink_list else None
     size = tuple(int(v) for v in a.size.split("x"))
     klt_configs = tuple(tuple(int(v) for v in k.split("x")) for k in a.klt.split(","))
     if a.only_new:
@@ -679,6 +705,9 @@ def main(argv: list[str] | None = None) -> int:
                     with _KeyframeOnly():
                         bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
                                            tag="_keyframe_only")
+    if BLINK_LIST is not None:
+        with open(a.blink_list, "w") as fh:
+            fh.writelines(json.dumps(row) + "\n" for row in BLINK_LIST)
     emit("load_average", _load(), "")
     return 0
 
