@@ -27,8 +27,17 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``blink_attached_other`` (samples nearer another marker), ``blink_recovered_max_px`` and
   ``blink_recovered_fraction`` (visible frames between the keyframes tracked within
   0.3 px, each frame once), on seed 0 (tuned on) and seed 7 (held out: ``held_out``);
+  ``blink_unrecovered_frames`` (the others, by frames from the occlusion: untracked, or
+  tracked more than 0.3 px off; the blink take draws the whole disc until the lid hides
+  it, so every one of them shows the whole disc);
   with ``--reference`` also with the keyframe patterns alone (``follow_appearance``
   off: case ``blink_keyframe_only``), in the same run.
+- ``--blink-list FILE``: every blink frame not recovered, one JSON line each (marker,
+  camera, frame, the hidden stretch and the keyframes, frames from the occlusion, each
+  run's side, error and score, the score of a run that stopped on it).
+- ``--compare-log-offset C``: the cases (ours only) and blink again with
+  ``log_offset=C`` (the keyframe match's position polished on log grey levels,
+  ``carapost.algorithms.target_polish``), case names ending ``_logC``.
 - ``missed``: markers visible throughout whose 2D and 3D are removed after frame 0 (as a
   marker the blob detector misses), recovered through the Session (Add Keyframe To
   Current Frame, Track forward to end, default settings):
@@ -89,6 +98,8 @@ def _load() -> float:
 
 #: where rendered takes are kept between runs (``--cache DIR``; None: render every time)
 CACHE_DIR: str | None = None
+#: the blink frames not recovered, one dict each (``--blink-list FILE``; None: not kept)
+BLINK_LIST: list[dict] | None = None
 
 
 def render(cfg: SynthConfig):
@@ -185,17 +196,23 @@ KLT_CONFIGS = ((9, 3), (15, 3), (21, 3), (31, 4))
 
 
 def bench_case(name: str, frames: int, size: tuple[int, int],
-               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS) -> None:
+               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS,
+               overrides: dict | None = None, tag: str = "") -> None:
+    """One case; ``overrides`` (TargetTrackerParameters fields) and ``tag`` (appended to
+    the case's name): ours only, with those settings (no references)."""
+    overrides = overrides or {}
     cfg = SynthConfig(frames=frames, size=size, **CASES[name])
     t = time.time()
     scene, imgs = render(cfg)
     render_s = time.time() - t
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    common = {"case": name, "tracks": int(len(markers) * scene.n_cameras), "frames": frames,
+    common = {"case": name + tag, "tracks": int(len(markers) * scene.n_cameras),
+              "frames": frames, **overrides,
               "size": f"{size[0]}x{size[1]}", "held_out": name.startswith("heldout")}
     t = time.process_time()
-    E, wrong, _ = ours(imgs, uv, markers, TargetTrackerParameters(break_threshold=0.0))
+    E, wrong, _ = ours(imgs, uv, markers,
+                       TargetTrackerParameters(break_threshold=0.0, **overrides))
     cpu = time.process_time() - t
     med, p95 = _stats(E)
     drift = float(np.nanmedian(np.nanmedian(E[:, -10:], axis=1)))
@@ -204,11 +221,13 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
     emit("target_track_end_drift_px", round(drift, 4), "px", **common)
     emit("target_track_wrong_marker", wrong, "tracks", **common,
          cpu_frames_per_s=round(np.isfinite(E).sum() / cpu))
-    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters())
+    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters(**overrides))
     emit("target_track_complete_fraction", round(complete9 / E.shape[0], 3), "fraction",
          **common, break_threshold=0.9,
          median_px_tracked=round(float(np.nanmedian(E9)), 4))
     emit("target_track_wrong_marker_default", wrong9, "tracks", **common, break_threshold=0.9)
+    if overrides:
+        return
     best = None
     for win, lev in klt_configs:
         K = klt(imgs, uv, markers, win, lev)
@@ -254,6 +273,9 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
     params = params if params is not None else TargetTrackerParameters()
     late, attached, rec_err, rec_ok, n_vis, blinks = 0, 0, [], 0, 0, 0
     worst: dict[tuple[int, int, int], float] = {}
+    spans: list[tuple[int, int, int, int, int, int]] = []
+    by_run: dict[tuple[int, int, int], list] = {}      # every run's (side, error, score)
+    stops: dict[tuple[int, int, int], float] = {}      # the frame a run stopped on: score
     for m in np.flatnonzero(scene.eyelid):
         for c in range(scene.n_cameras):
             for a, b in _runs(~vis[:, m, c]):
@@ -270,15 +292,45 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
                     # frames past the disappearance still carrying a confident position
                     late = max(late, int((good & hidden).sum()))
                     attached += int(_wrong(r.xy[good], r.frames[good], uv[:, :, c], m))
-                    for f, xy in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
-                                     strict=True):
+                    for f, xy, sc in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
+                                         r.score[good & ~hidden], strict=True):
                         e = float(np.hypot(*(xy - uv[f, m, c])))
                         rec_err.append(e)
                         worst[m, c, int(f)] = max(worst.get((m, c, int(f)), 0.0), e)
+                        by_run.setdefault((int(m), c, int(f)), []).append(
+                            ("forwards" if d > 0 else "backwards", round(e, 3),
+                             round(float(sc), 3)))
+                    if not np.isfinite(r.xy[-1, 0]):   # where the run stopped, and why
+                        f = int(r.frames[-1])
+                        stops[int(m), c, f] = round(float(r.score[-1]), 3)
                 seen = vis[k0 + 1:k1, m, c]
                 n_vis += int(seen.sum())
+                spans.append((int(m), c, a, b, k0, k1))
     rec = np.array(rec_err)
     rec_ok = sum(e <= 0.3 for e in worst.values())
+    # the visible frames not recovered, by frames from the occlusion (1: the frame before
+    # the marker disappears or after it reappears): no run tracked them ("untracked": the
+    # track stopped early), or a run placed them more than 0.3 px off ("off")
+    by_dist: dict[int, dict[str, int]] = {}
+    for m, c, a, b, k0, k1 in spans:
+        for f in range(k0 + 1, k1):
+            if not vis[f, m, c]:
+                continue
+            e = worst.get((m, c, f))
+            if e is not None and e <= 0.3:
+                continue
+            d = a - f if f < a else f - b
+            row = by_dist.setdefault(d, {"untracked": 0, "off": 0})
+            row["untracked" if e is None else "off"] += 1
+            if BLINK_LIST is not None:
+                BLINK_LIST.append({
+                    "case": "blink" + tag, "seed": seed, "marker": scene.labels[m],
+                    "camera": c, "frame": f, "hidden": [a, b], "keyframes": [k0, k1],
+                    "frames_from_occlusion": d, "before": f < a,
+                    "disc_visible_fraction": 1.0,
+                    "runs": [dict(zip(("side", "error_px", "score"), v, strict=True))
+                             for v in by_run.get((m, c, f), [])],
+                    "stopped_here_score": stops.get((m, c, f))})
     common = {"case": "blink" + tag, "blinks": blinks, "seed": seed, "held_out": seed != 0,
               "follow_appearance": params.follow_appearance,
               "eyelid_markers": int(scene.eyelid.sum())}
@@ -288,6 +340,9 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
          **common, median_px=round(float(np.median(rec)), 4) if len(rec) else None)
     emit("blink_recovered_fraction", round(rec_ok / max(n_vis, 1), 3), "fraction", **common,
          visible_frames=n_vis)
+    emit("blink_unrecovered_frames", n_vis - rec_ok, "frames", **common,
+         by_frames_from_occlusion={str(d): by_dist[d] for d in sorted(by_dist)},
+         disc_visible_fraction=1.0)
 
 
 def bench_missed(frames: int, size: tuple[int, int]) -> None:
@@ -622,25 +677,39 @@ def main(argv: list[str] | None = None) -> int:
                     help="KLT window x pyramid levels to try (the best is reported)")
     ap.add_argument("--reference", action="store_true",
                     help="blink and faded also without appearance following (before/after)")
+    ap.add_argument("--compare-log-offset", type=float, default=None, metavar="C",
+                    help="the cases and blink also with log_offset C (the keyframe match "
+                         "polished on log grey levels), in the same run")
+    ap.add_argument("--blink-list", default=None, metavar="FILE",
+                    help="write every blink frame not recovered (JSON lines: frames from "
+                         "the occlusion, each run's side, error and score)")
     ap.add_argument("--speed-frames", type=int, default=600)
     ap.add_argument("--skip-decode", action="store_true",
                     help="render the speed take in memory instead of decoding videos")
     ap.add_argument("--cache", default=None,
                     help="keep the rendered takes in this directory between runs")
     a = ap.parse_args(argv)
-    global CACHE_DIR
+    global CACHE_DIR, BLINK_LIST
     CACHE_DIR = a.cache
+    BLINK_LIST = [] if a.blink_list else None
     size = tuple(int(v) for v in a.size.split("x"))
     klt_configs = tuple(tuple(int(v) for v in k.split("x")) for k in a.klt.split(","))
     if a.only_new:
         a.skip_speed, a.skip_blink, a.skip_missed, a.cases = True, True, True, ""
     if not a.skip_speed:
         bench_speed(size, a.speed_frames, decode=not a.skip_decode)
+    log_c = a.compare_log_offset
+    log_tag = f"_log{log_c:g}" if log_c is not None else ""
     for name in [c for c in a.cases.split(",") if c]:
         bench_case(name, a.frames, size, klt_configs)
+        if log_c is not None:
+            bench_case(name, a.frames, size, overrides={"log_offset": log_c}, tag=log_tag)
     if not a.skip_blink:
         for seed in (0, 7):   # seed 7: held out (never looked at while tuning)
             bench_blink(a.frames, size, seed=seed)
+            if log_c is not None:
+                bench_blink(a.frames, size, seed=seed, tag=log_tag,
+                            params=TargetTrackerParameters(log_offset=log_c))
             if a.reference:   # the same takes without appearance following
                 bench_blink(a.frames, size, seed=seed, tag="_keyframe_only",
                             params=TargetTrackerParameters(follow_appearance=False))
@@ -663,6 +732,9 @@ def main(argv: list[str] | None = None) -> int:
                             bench_missed_faded(min(a.frames, 120), size, mode=mode,
                                                seed=seed, tag="_keyframe_only",
                                                skin_motion=skin)
+    if BLINK_LIST is not None:
+        with open(a.blink_list, "w") as fh:
+            fh.writelines(json.dumps(row) + "\n" for row in BLINK_LIST)
     emit("load_average", _load(), "")
     return 0
 

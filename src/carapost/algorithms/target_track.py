@@ -46,6 +46,7 @@ from carapost.algorithms import target_appearance, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
+from carapost.algorithms.target_polish import LogPolish
 from carapost.algorithms.target_refine import (
     denoise_pattern,
     gaussian_window,
@@ -177,6 +178,10 @@ class TargetTrackerParameters:
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
     anchor_score: float = param(0.7, min=0.0, max=1.0, help=(
         "An appearance step holds while the keyframe pattern's centre matches this well."))
+    log_offset: float = param(0.0, min=0.0, unit="grey levels", help=(
+        "The keyframe match's position is polished on log(grey + this) (0: not), where "
+        "a marker's ink darkens whatever skin is under it by the same factor: a marker "
+        "sliding over a darker lid crease keeps its look (algorithms/target_polish)."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -337,7 +342,8 @@ class _Refiner:
     """
 
     def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0,
-                 shading: bool = True, marker: bool = True) -> None:
+                 shading: bool = True, marker: bool = True,
+                 noise_weight: NDArray[np.float64] | None = None) -> None:
         gy, gx = np.gradient(tpl.astype(np.float64))
         self.size = n = tpl.shape[0]
         g = (np.arange(n) - n // 2) / max(n // 2, 1)
@@ -349,6 +355,8 @@ class _Refiner:
         self.wt = wt.ravel() / wt.sum()   # the score's window
         # the fit weighs the marker blob and its rim, not the lid or lip edges around it
         fit = marker_weight(tpl, weight_sigma).ravel() if marker else self.wt
+        if noise_weight is not None:   # per-pixel inverse noise variance (log images)
+            fit = fit * noise_weight.ravel()
         JW = J * (fit / fit.sum())
         self.J = JW
         self.Hinv = np.linalg.pinv(JW @ J.T)
@@ -590,6 +598,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                                         params.denoise_pattern)
         return patterns[f]
 
+    polish = None if params.log_offset <= 0 else LogPolish(get_image, keys, params)
+
     def behind(f: int) -> int | None:   # the keyframe at or behind f (tracking order)
         cand = key_frames[key_frames <= f] if direction > 0 else key_frames[key_frames >= f]
         if not len(cand):
@@ -688,6 +698,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 xy, score = target_fade.fade_step(img, (pp.frame, pp.raw), (pn.frame, pn.raw),
                                                   f, pos + velocity, (xy, score), params,
                                                   fades)
+            if polish is not None and np.all(np.isfinite(xy)):
+                xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
