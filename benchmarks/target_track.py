@@ -27,14 +27,27 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``blink_attached_other`` (samples nearer another marker), ``blink_recovered_max_px`` and
   ``blink_recovered_fraction`` (visible frames between the keyframes tracked within
   0.3 px, each frame once), on seed 0 (tuned on) and seed 7 (held out: ``held_out``);
+  ``blink_unrecovered_frames`` (the others, by frames from the occlusion: untracked, or
+  tracked more than 0.3 px off; the blink take draws the whole disc until the lid hides
+  it, so every one of them shows the whole disc);
   with ``--reference`` also with the keyframe patterns alone (``follow_appearance``
   off: case ``blink_keyframe_only``), in the same run.
+- ``--blink-list FILE``: every blink frame not recovered, one JSON line each (marker,
+  camera, frame, the hidden stretch and the keyframes, frames from the occlusion, each
+  run's side, error and score, the score of a run that stopped on it).
+- ``--compare-log-offset C``: the cases (ours only) and blink again with
+  ``log_offset=C`` (the keyframe match's position polished on log grey levels,
+  ``carapost.algorithms.target_polish``), case names ending ``_logC``.
 - ``missed``: markers visible throughout whose 2D and 3D are removed after frame 0 (as a
   marker the blob detector misses), recovered through the Session (Add Keyframe To
   Current Frame, Track forward to end, default settings):
   ``missed_marker_p95_px`` (median over markers of the 95th percentile 2D error),
   ``missed_marker_rmse_mm`` (median over markers of the 3D RMSE over the stretch) and
   ``missed_marker_complete_fraction``.
+- ``missed_faded_*`` (``--faded``): six markers of a speech take fade to 20 % contrast
+  over 36 frames (``SynthConfig.missed_markers``), recovered through the Session in four
+  workflows (:func:`bench_missed_faded`), with ``--skin-motion`` also on takes whose
+  skin follows the markers.
 - ``target_track_patch_frames_per_s``: one marker, one camera, one frame per call,
   default pattern and search sizes, single core, over CPU time.
 - ``target_track_4cam_600_s``: one point in 4 cameras over 600 frames (300 forwards,
@@ -85,6 +98,8 @@ def _load() -> float:
 
 #: where rendered takes are kept between runs (``--cache DIR``; None: render every time)
 CACHE_DIR: str | None = None
+#: the blink frames not recovered, one dict each (``--blink-list FILE``; None: not kept)
+BLINK_LIST: list[dict] | None = None
 
 
 def render(cfg: SynthConfig):
@@ -181,17 +196,23 @@ KLT_CONFIGS = ((9, 3), (15, 3), (21, 3), (31, 4))
 
 
 def bench_case(name: str, frames: int, size: tuple[int, int],
-               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS) -> None:
+               klt_configs: tuple[tuple[int, int], ...] = KLT_CONFIGS,
+               overrides: dict | None = None, tag: str = "") -> None:
+    """One case; ``overrides`` (TargetTrackerParameters fields) and ``tag`` (appended to
+    the case's name): ours only, with those settings (no references)."""
+    overrides = overrides or {}
     cfg = SynthConfig(frames=frames, size=size, **CASES[name])
     t = time.time()
     scene, imgs = render(cfg)
     render_s = time.time() - t
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    common = {"case": name, "tracks": int(len(markers) * scene.n_cameras), "frames": frames,
+    common = {"case": name + tag, "tracks": int(len(markers) * scene.n_cameras),
+              "frames": frames, **overrides,
               "size": f"{size[0]}x{size[1]}", "held_out": name.startswith("heldout")}
     t = time.process_time()
-    E, wrong, _ = ours(imgs, uv, markers, TargetTrackerParameters(break_threshold=0.0))
+    E, wrong, _ = ours(imgs, uv, markers,
+                       TargetTrackerParameters(break_threshold=0.0, **overrides))
     cpu = time.process_time() - t
     med, p95 = _stats(E)
     drift = float(np.nanmedian(np.nanmedian(E[:, -10:], axis=1)))
@@ -200,11 +221,13 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
     emit("target_track_end_drift_px", round(drift, 4), "px", **common)
     emit("target_track_wrong_marker", wrong, "tracks", **common,
          cpu_frames_per_s=round(np.isfinite(E).sum() / cpu))
-    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters())
+    E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters(**overrides))
     emit("target_track_complete_fraction", round(complete9 / E.shape[0], 3), "fraction",
          **common, break_threshold=0.9,
          median_px_tracked=round(float(np.nanmedian(E9)), 4))
     emit("target_track_wrong_marker_default", wrong9, "tracks", **common, break_threshold=0.9)
+    if overrides:
+        return
     best = None
     for win, lev in klt_configs:
         K = klt(imgs, uv, markers, win, lev)
@@ -250,6 +273,9 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
     params = params if params is not None else TargetTrackerParameters()
     late, attached, rec_err, rec_ok, n_vis, blinks = 0, 0, [], 0, 0, 0
     worst: dict[tuple[int, int, int], float] = {}
+    spans: list[tuple[int, int, int, int, int, int]] = []
+    by_run: dict[tuple[int, int, int], list] = {}      # every run's (side, error, score)
+    stops: dict[tuple[int, int, int], float] = {}      # the frame a run stopped on: score
     for m in np.flatnonzero(scene.eyelid):
         for c in range(scene.n_cameras):
             for a, b in _runs(~vis[:, m, c]):
@@ -266,15 +292,45 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
                     # frames past the disappearance still carrying a confident position
                     late = max(late, int((good & hidden).sum()))
                     attached += int(_wrong(r.xy[good], r.frames[good], uv[:, :, c], m))
-                    for f, xy in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
-                                     strict=True):
+                    for f, xy, sc in zip(r.frames[good & ~hidden], r.xy[good & ~hidden],
+                                         r.score[good & ~hidden], strict=True):
                         e = float(np.hypot(*(xy - uv[f, m, c])))
                         rec_err.append(e)
                         worst[m, c, int(f)] = max(worst.get((m, c, int(f)), 0.0), e)
+                        by_run.setdefault((int(m), c, int(f)), []).append(
+                            ("forwards" if d > 0 else "backwards", round(e, 3),
+                             round(float(sc), 3)))
+                    if not np.isfinite(r.xy[-1, 0]):   # where the run stopped, and why
+                        f = int(r.frames[-1])
+                        stops[int(m), c, f] = round(float(r.score[-1]), 3)
                 seen = vis[k0 + 1:k1, m, c]
                 n_vis += int(seen.sum())
+                spans.append((int(m), c, a, b, k0, k1))
     rec = np.array(rec_err)
     rec_ok = sum(e <= 0.3 for e in worst.values())
+    # the visible frames not recovered, by frames from the occlusion (1: the frame before
+    # the marker disappears or after it reappears): no run tracked them ("untracked": the
+    # track stopped early), or a run placed them more than 0.3 px off ("off")
+    by_dist: dict[int, dict[str, int]] = {}
+    for m, c, a, b, k0, k1 in spans:
+        for f in range(k0 + 1, k1):
+            if not vis[f, m, c]:
+                continue
+            e = worst.get((m, c, f))
+            if e is not None and e <= 0.3:
+                continue
+            d = a - f if f < a else f - b
+            row = by_dist.setdefault(d, {"untracked": 0, "off": 0})
+            row["untracked" if e is None else "off"] += 1
+            if BLINK_LIST is not None:
+                BLINK_LIST.append({
+                    "case": "blink" + tag, "seed": seed, "marker": scene.labels[m],
+                    "camera": c, "frame": f, "hidden": [a, b], "keyframes": [k0, k1],
+                    "frames_from_occlusion": d, "before": f < a,
+                    "disc_visible_fraction": 1.0,
+                    "runs": [dict(zip(("side", "error_px", "score"), v, strict=True))
+                             for v in by_run.get((m, c, f), [])],
+                    "stopped_here_score": stops.get((m, c, f))})
     common = {"case": "blink" + tag, "blinks": blinks, "seed": seed, "held_out": seed != 0,
               "follow_appearance": params.follow_appearance,
               "eyelid_markers": int(scene.eyelid.sum())}
@@ -284,6 +340,9 @@ def bench_blink(frames: int, size: tuple[int, int], margin: int = 8, seed: int =
          **common, median_px=round(float(np.median(rec)), 4) if len(rec) else None)
     emit("blink_recovered_fraction", round(rec_ok / max(n_vis, 1), 3), "fraction", **common,
          visible_frames=n_vis)
+    emit("blink_unrecovered_frames", n_vis - rec_ok, "frames", **common,
+         by_frames_from_occlusion={str(d): by_dist[d] for d in sorted(by_dist)},
+         disc_visible_fraction=1.0)
 
 
 def bench_missed(frames: int, size: tuple[int, int]) -> None:
@@ -496,7 +555,8 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
 
 
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
-                       mode: str = "before", seed: int = 3, tag: str = "") -> None:
+                       mode: str = "before", seed: int = 3, tag: str = "",
+                       skin_motion: bool = False) -> None:
     """Markers the blob detector misses over a stretch (``SynthConfig.missed_markers``:
     their ink fades to a low contrast), recovered through the Session as a script would.
 
@@ -507,7 +567,12 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     of the stretch where it is fully faded, Track forward to the end of the stretch,
     then back to its start (the artist keys the marker as it looks while missed).
     ``mode="gaps"``: Gaps To Keys (keyframes either side of the stretch), Track forward
-    from the first (Stop On Next Keyframe), then back from the second."""
+    from the first (Stop On Next Keyframe), then back from the second.
+    ``mode="keyed"``: Gaps To Keys, Edit Target Track at the marker (its truth) on the
+    first fully faded frame in every camera, Track forward from the first keyframe to
+    the faded one, then from it to the last (the tracker fits the frames between
+    keyframes of different contrast as a mixture of both: algorithms/target_fade.py).
+    ``skin_motion``: the take's skin follows the markers (`SynthConfig.skin_motion`)."""
     import functools
 
     from carapost import Session
@@ -517,7 +582,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     from carapost.synth.occlusion import MISSED_RAMP
 
     project, scene, get = scene_project(frames=frames, size=size, preset="speech", seed=seed,
-                                        decorate=False, missed_markers=n)
+                                        decorate=False, missed_markers=n,
+                                        skin_motion=skin_motion)
     get = functools.lru_cache(maxsize=None)(get)
     pts = project.points
     s = Session(project, get_image=get)
@@ -546,6 +612,16 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             s.target_track(+1)
             s.current_frame = b + 1
             s.target_track(-1)
+        elif mode == "keyed":
+            # keyed as painted (either side, Gaps To Keys) and once as faded, tracked
+            # forwards from each keyframe to the next
+            s.gaps_to_keys(pid)
+            k = a + MISSED_RAMP
+            for c in range(scene.n_cameras):
+                s.edit_target_track(pid, c, k, scene.uv[k, m, c])
+            for start in (a - 1, k):
+                s.current_frame = start
+                s.target_track(+1)
         else:
             k = a + MISSED_RAMP
             s.current_frame = k
@@ -564,6 +640,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
     cpu = time.process_time() - t
     e2_all = np.array(e2_all)
     common = {"case": f"missed_faded_{mode}{tag}", "seed": seed, "held_out": seed != 3,
+              "skin_motion": skin_motion,
               "markers": len(missed), "frames": frames,
               "stretch_frames": int(scene.missed[:, missed].sum(0).max()),
               "labels": [scene.labels[m] for m in missed], "size": f"{size[0]}x{size[1]}"}
@@ -592,31 +669,47 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the partial-occlusion takes (eyelid fold, lip curl)")
     ap.add_argument("--faded", action="store_true",
                     help="also the faded markers the blob detector misses")
+    ap.add_argument("--skin-motion", action="store_true",
+                    help="--faded also on takes whose skin follows the markers")
     ap.add_argument("--only-new", action="store_true",
                     help="only --partial and --faded (skip everything else)")
     ap.add_argument("--klt", default="9x3,15x3,21x3,31x4",
                     help="KLT window x pyramid levels to try (the best is reported)")
     ap.add_argument("--reference", action="store_true",
                     help="blink and faded also without appearance following (before/after)")
+    ap.add_argument("--compare-log-offset", type=float, default=None, metavar="C",
+                    help="the cases and blink also with log_offset C (the keyframe match "
+                         "polished on log grey levels), in the same run")
+    ap.add_argument("--blink-list", default=None, metavar="FILE",
+                    help="write every blink frame not recovered (JSON lines: frames from "
+                         "the occlusion, each run's side, error and score)")
     ap.add_argument("--speed-frames", type=int, default=600)
     ap.add_argument("--skip-decode", action="store_true",
                     help="render the speed take in memory instead of decoding videos")
     ap.add_argument("--cache", default=None,
                     help="keep the rendered takes in this directory between runs")
     a = ap.parse_args(argv)
-    global CACHE_DIR
+    global CACHE_DIR, BLINK_LIST
     CACHE_DIR = a.cache
+    BLINK_LIST = [] if a.blink_list else None
     size = tuple(int(v) for v in a.size.split("x"))
     klt_configs = tuple(tuple(int(v) for v in k.split("x")) for k in a.klt.split(","))
     if a.only_new:
         a.skip_speed, a.skip_blink, a.skip_missed, a.cases = True, True, True, ""
     if not a.skip_speed:
         bench_speed(size, a.speed_frames, decode=not a.skip_decode)
+    log_c = a.compare_log_offset
+    log_tag = f"_log{log_c:g}" if log_c is not None else ""
     for name in [c for c in a.cases.split(",") if c]:
         bench_case(name, a.frames, size, klt_configs)
+        if log_c is not None:
+            bench_case(name, a.frames, size, overrides={"log_offset": log_c}, tag=log_tag)
     if not a.skip_blink:
         for seed in (0, 7):   # seed 7: held out (never looked at while tuning)
             bench_blink(a.frames, size, seed=seed)
+            if log_c is not None:
+                bench_blink(a.frames, size, seed=seed, tag=log_tag,
+                            params=TargetTrackerParameters(log_offset=log_c))
             if a.reference:   # the same takes without appearance following
                 bench_blink(a.frames, size, seed=seed, tag="_keyframe_only",
                             params=TargetTrackerParameters(follow_appearance=False))
@@ -629,13 +722,19 @@ def main(argv: list[str] | None = None) -> int:
                 with _KeyframeOnly():
                     bench_partial(min(a.frames, 120), size, seed=seed, tag="_keyframe_only")
     if a.faded:
-        for mode in ("before", "inside", "gaps"):
-            for seed in (3, 8):   # seed 8: held out
-                bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed)
-                if a.reference:
-                    with _KeyframeOnly():
-                        bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
-                                           tag="_keyframe_only")
+        for skin in (False, True) if a.skin_motion else (False,):
+            for mode in ("before", "inside", "gaps", "keyed"):
+                for seed in (3, 8):   # seed 8: held out
+                    bench_missed_faded(min(a.frames, 120), size, mode=mode, seed=seed,
+                                       skin_motion=skin)
+                    if a.reference:
+                        with _KeyframeOnly():
+                            bench_missed_faded(min(a.frames, 120), size, mode=mode,
+                                               seed=seed, tag="_keyframe_only",
+                                               skin_motion=skin)
+    if BLINK_LIST is not None:
+        with open(a.blink_list, "w") as fh:
+            fh.writelines(json.dumps(row) + "\n" for row in BLINK_LIST)
     emit("load_average", _load(), "")
     return 0
 

@@ -42,10 +42,17 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms import target_appearance
+from carapost.algorithms import target_appearance, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
+from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
-from carapost.algorithms.target_refine import gaussian_window, marker_weight, shift_patch
+from carapost.algorithms.target_polish import LogPolish
+from carapost.algorithms.target_refine import (
+    denoise_pattern,
+    gaussian_window,
+    marker_weight,
+    shift_patch,
+)
 
 __all__ = [
     "STOP_CANCELLED",
@@ -163,11 +170,18 @@ class TargetTrackerParameters:
     assign_first_step: bool = param(
         True, help="Check a run's first step against every disc like the marker around "
                    "it (carapost.algorithms.target_identity); ambiguous: stop.")
+    denoise_pattern: bool = param(False, help=(
+        "Make the keyframe pattern point-symmetric about the keyframe position inside the "
+        "marker weight (a disc is; the odd part there is the pattern's noise)."))
     follow_appearance: bool = param(True, help=(
         "Where the keyframe match fails after a tracked frame, match the marker's look "
         "in that frame (robust, anchored to the keyframe; algorithms/target_appearance)."))
     anchor_score: float = param(0.7, min=0.0, max=1.0, help=(
         "An appearance step holds while the keyframe pattern's centre matches this well."))
+    log_offset: float = param(0.0, min=0.0, unit="grey levels", help=(
+        "The keyframe match's position is polished on log(grey + this) (0: not), where "
+        "a marker's ink darkens whatever skin is under it by the same factor: a marker "
+        "sliding over a darker lid crease keeps its look (algorithms/target_polish)."))
 
     def __post_init__(self) -> None:
         validate(self)
@@ -215,6 +229,7 @@ class _Pattern:
     frame: int
     norm: NDArray[np.float32]          # (P, P) zero mean, unit variance
     grads: NDArray[np.float64] = field(repr=False, default=None)  # (2, P, P)
+    raw: NDArray[np.float32] = field(repr=False, default=None)    # (P, P) grey levels
 
 
 def check_keyframe(xy: Any, shape: tuple[int, ...], pattern_size: int) -> None:
@@ -289,13 +304,19 @@ def _normalise(p: NDArray[np.float32]) -> NDArray[np.float32] | None:
     return ((p - p.mean()) / s).astype(np.float32)
 
 
-def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int) -> _Pattern:
+def _make_pattern(image: NDArray[Any], xy: Any, frame: int, size: int,
+                  weight_sigma: float = 0.0, denoise: bool = False) -> _Pattern:
     big = sample_patch(image, xy, size + 2)
-    norm = _normalise(big[1:-1, 1:-1])
+    raw = big[1:-1, 1:-1]
+    norm = _normalise(raw)
     if norm is None:
         raise ValueError(f"the pattern at frame {frame} around ({float(xy[0]):g}, "
                          f"{float(xy[1]):g}) is flat: nothing to track")
-    return _Pattern(frame, norm)
+    if denoise:   # the odd part's noise shrunk inside the marker weight
+        out = _normalise(denoise_pattern(image, xy, raw, norm, weight_sigma
+                                         ).astype(np.float32))
+        norm = norm if out is None else out
+    return _Pattern(frame, norm, raw=raw)
 
 
 def _blend(prev: _Pattern, nxt: _Pattern | None, frame: int) -> NDArray[np.float32]:
@@ -321,7 +342,8 @@ class _Refiner:
     """
 
     def __init__(self, tpl: NDArray[np.float32], weight_sigma: float = 0.0,
-                 shading: bool = True, marker: bool = True) -> None:
+                 shading: bool = True, marker: bool = True,
+                 noise_weight: NDArray[np.float64] | None = None) -> None:
         gy, gx = np.gradient(tpl.astype(np.float64))
         self.size = n = tpl.shape[0]
         g = (np.arange(n) - n // 2) / max(n // 2, 1)
@@ -333,6 +355,8 @@ class _Refiner:
         self.wt = wt.ravel() / wt.sum()   # the score's window
         # the fit weighs the marker blob and its rim, not the lid or lip edges around it
         fit = marker_weight(tpl, weight_sigma).ravel() if marker else self.wt
+        if noise_weight is not None:   # per-pixel inverse noise variance (log images)
+            fit = fit * noise_weight.ravel()
         JW = J * (fit / fit.sum())
         self.J = JW
         self.Hinv = np.linalg.pinv(JW @ J.T)
@@ -362,6 +386,7 @@ class _Refiner:
             w = shift_patch(crop, cx, cy, size).ravel()
             sol = self.Hinv @ (self.J @ w)       # (a dx, a dy, a, b)
             a = sol[2]
+            self.last_gain = float(a)
             if not a > 1e-6:                      # contrast inverted or gone: no marker
                 return p, 0.0, False
             d = sol[:2] / a
@@ -568,8 +593,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 shape.append(img.shape[:2])
                 _check_sizes(img.shape[:2], params)
             check_keyframe(keys[f], img.shape, params.pattern_size)
-            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size)
+            patterns[f] = _make_pattern(img, keys[f], f, params.pattern_size,
+                                        params.weight_fraction * params.pattern_size,
+                                        params.denoise_pattern)
         return patterns[f]
+
+    polish = None if params.log_offset <= 0 else LogPolish(get_image, keys, params)
 
     def behind(f: int) -> int | None:   # the keyframe at or behind f (tracking order)
         cand = key_frames[key_frames <= f] if direction > 0 else key_frames[key_frames >= f]
@@ -605,6 +634,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
     key_contrast: dict[int, float] = {}   # per keyframe, for the appearance step
+    # keyframe pairs of different contrast: the fit's weights (None: not a fade)
+    fades: dict[tuple[int, int], NDArray[np.float64] | None] = {}
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
     back_params_first = replace(params, near_px=0, distance_penalty=0.0)
     # the previous frame, for the backwards check of long steps: the start frame too (a
@@ -663,6 +694,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 if not _consistent_backwards(img, prev_img, xy, pos, back_params,
                                              strict=not moving):
                     xy, score = np.array([np.nan, np.nan]), 0.0
+            if pn is not None:   # a fade keyed as painted and as faded: a mixture
+                xy, score = target_fade.fade_step(img, (pp.frame, pp.raw), (pn.frame, pn.raw),
+                                                  f, pos + velocity, (xy, score), params,
+                                                  fades)
+            if polish is not None and np.all(np.isfinite(xy)):
+                xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
@@ -731,50 +768,10 @@ def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray
         return bool(np.all(np.isfinite(back))
                     and np.hypot(*(back - pos)) < params.max_refine_px)
     refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
-    cands = _candidates(prev_img, tpl, xy, params, refiner)
+    cands = candidates(prev_img, tpl, xy, params, refiner)
     if not cands:
         return False
     return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
-
-
-def _candidates(image: NDArray[Any], tpl: NDArray[np.float32], centre: Any,
-                params: TargetTrackerParameters, refiner: _Refiner, n: int = 6
-                ) -> list[tuple[NDArray[np.float64], float]]:
-    """The ``n`` best NCC peaks of ``tpl`` in the search region around ``centre``,
-    refined and sorted by their marker-weighted NCC (best first)."""
-    P, S = params.pattern_size, params.search_size
-    hp, hs = P // 2, S // 2
-    H, W = image.shape[:2]
-    cx, cy = int(round(float(centre[0]))), int(round(float(centre[1])))
-    m = 3
-    x0, x1 = max(cx - hs - m, 0), min(cx + hs + m + 1, W)
-    y0, y1 = max(cy - hs - m, 0), min(cy + hs + m + 1, H)
-    if x1 - x0 < P + 2 * m or y1 - y0 < P + 2 * m:
-        return []
-    crop = np.asarray(image[y0:y1, x0:x1], dtype=np.float32)
-    # candidates by the NCC weighted to the marker like the refinement: a neighbour on
-    # another background is a candidate too
-    mask = (refiner.wt.reshape(P, P) / refiner.wt.max()).astype(np.float32)
-    res = cv2.matchTemplate(crop[m:-m, m:-m], tpl, cv2.TM_CCOEFF_NORMED, mask=mask)
-    res = np.nan_to_num(res, nan=-1.0, posinf=-1.0, neginf=-1.0)
-    peaks = (res >= cv2.dilate(res, np.ones((5, 5), np.uint8))) & (res > 0.3)
-    ys, xs = np.nonzero(peaks)
-    order = np.argsort(-res[ys, xs])[:n]
-    crop64 = crop.astype(np.float64)
-    out = []
-    for i in order:
-        peak = np.array([x0 + m + xs[i] + hp, y0 + m + ys[i] + hp], dtype=np.float64)
-        xy, ncc, _ = refiner.refine(crop64, (x0, y0), peak, params.max_iterations,
-                                    params.tolerance_px)
-        if np.all(np.isfinite(xy)) and np.hypot(*(xy - peak)) <= params.max_refine_px:
-            out.append((xy, float(refiner.last_ncc_w) if ncc > 0 else 0.0))
-    out.sort(key=lambda c: -c[1])
-    # one entry per place: peaks refined onto the same spot count once
-    uniq: list[tuple[NDArray[np.float64], float]] = []
-    for c in out:
-        if all(np.hypot(*(c[0] - u[0])) > max(hp // 2, 2) for u in uniq):
-            uniq.append(c)
-    return uniq
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:

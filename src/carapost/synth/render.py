@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import camera_centres, pixel_rays, project
-from carapost.synth import face, rig
+from carapost.synth import face, rig, skin_motion
 from carapost.synth.scene import SynthScene
 
 __all__ = ["render_frame", "render_background", "prepare"]
@@ -483,7 +483,12 @@ def render_frame(scene: SynthScene, frame: int, camera: int, *, sensor: bool = T
     A_head, A_brim = scene.cache["warps"]
     w, h = scene.size
     img = np.full((h, w), np.float32(_VOID))
-    hw, (x0, y0, x1, y1) = _warp_roi(bg["head"], A_head[frame, camera], bg["head_roi"], (w, h))
+    if scene.rest_points3d is not None:   # the skin follows the markers
+        hw, (x0, y0, x1, y1) = skin_motion.warp_head(scene, bg["head"], A_head[frame, camera],
+                                                     frame, camera, bg["head_roi"])
+    else:
+        hw, (x0, y0, x1, y1) = _warp_roi(bg["head"], A_head[frame, camera], bg["head_roi"],
+                                         (w, h))
     img[y0:y1, x0:x1] += hw
     bw, (x0, y0, x1, y1) = _warp_roi(bg["brim"], A_brim[frame, camera], bg["brim_roi"], (w, h))
     if bw.size:

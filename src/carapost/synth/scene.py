@@ -110,6 +110,12 @@ class SynthConfig:
     missed_markers : int
         Markers (visible throughout) whose ink fades to a low contrast over one stretch
         each, so that the blob detector misses them there; the truth gains the stretches.
+    skin_motion : bool
+        The skin texture and shading follow the markers (`carapost.synth.skin_motion`:
+        a thin-plate warp of the background through each visible marker's motion
+        relative to the head), as painted markers move with the skin they are painted
+        on. Off (the default), the background follows the head's motion only, so a
+        marker slides over the skin by its expression motion (up to 15 px on the lips).
     """
 
     preset: str = "speech"
@@ -139,6 +145,7 @@ class SynthConfig:
     slip_scale: float = 1.0
     partial_occlusion: bool = False
     missed_markers: int = 0
+    skin_motion: bool = False
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad parameter."""
@@ -283,6 +290,10 @@ class SynthScene:
     #: (F, M) and the stretches where it is faded (F, M) bool.
     contrast: NDArray[np.float64] | None = field(default=None, repr=False)
     missed: NDArray[np.bool_] | None = field(default=None, repr=False)
+    #: Skin motion (`SynthConfig.skin_motion`, else None): each face marker's place on
+    #: the head at rest, undeformed (M, 3) mm in the head frame, where the background
+    #: layer shows the skin under it.
+    rest_points3d: NDArray[np.float64] | None = field(default=None, repr=False)
     cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -580,6 +591,9 @@ def build_scene(config: SynthConfig) -> SynthScene:
         cand = np.flatnonzero(visible.all(axis=(0, 2)) & ~eyelid)
         extras["contrast"], extras["missed"] = occlusion.missed_stretches(
             cand, int(config.missed_markers), len(labels), F, rng_missed)
+
+    if config.skin_motion:
+        extras["rest_points3d"] = face.surface_points(phi, psi) * head_scale
 
     return SynthScene(
         config=config, intrinsics=intr, cam_R=cam_R, cam_t=cam_t, points3d=points3d,
