@@ -38,6 +38,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics, project
+from carapost.algorithms.pose_smoothing import (  # re-exported: the pose fit's home
+    POSE_SMOOTHING_FRAMES,
+    savgol_quadratic,
+    smooth_camera_poses,
+)
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 
 __all__ = [
@@ -55,11 +60,6 @@ __all__ = [
     "width_noise_scale",
 ]
 
-#: Window (frames) of the pose fit. On rendered takes with rig flex up to 2.5 Hz at
-#: 60 fps, 9-11 frames removed most of the per-frame resection noise (camera tilt error
-#: 0.033 -> 0.020 deg RMS) and 15+ frames began to lag the flex (docs/benchmarks.md).
-POSE_SMOOTHING_FRAMES = 11
-
 #: Floor (px) of the per-camera 2D noise: a camera with too few redundant observations
 #: to measure its noise is not trusted more than this.
 MIN_NOISE_PX = 0.05
@@ -74,117 +74,6 @@ BLOB_WIDTH_REF_PX = 3.0
 #: Semi-minor axes (px) outside this range count as its ends: narrower blobs are rare and
 #: their measured axis is itself noisy; a wide blob's centre is not better than this.
 BLOB_WIDTH_RANGE_PX = (1.0, 6.0)
-
-
-def _rotvec(Rm: NDArray[np.float64]) -> NDArray[np.float64]:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(Rm.reshape(-1, 3, 3)).as_rotvec().reshape(Rm.shape[:-2] + (3,))
-
-
-def _matrix(rv: NDArray[np.float64]) -> NDArray[np.float64]:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
-
-
-def savgol_quadratic(x: ArrayLike, window: int) -> NDArray[np.float64]:
-    """Savitzky-Golay filter of order 2 along the first axis, a quadratic fitted to the
-    first and last ``window`` samples at the ends.
-
-    The values of :func:`scipy.signal.savgol_filter` ``(x, window, 2, axis=0,
-    mode="interp")`` (to ~1e-14 relative: the same least-squares fit, computed once):
-    importing `scipy.signal` (which imports `scipy.stats`, `scipy.fft` and
-    `scipy.integrate`) cost every process that smooths poses ~0.3-0.5 s of CPU, a
-    batch's start-up included (docs/benchmarks.md).
-
-    Parameters
-    ----------
-    x : array_like, shape (F, ...)
-        Samples along the first axis.
-    window : int
-        Odd number of samples of each fit, ``3 <= window <= F``.
-
-    Returns
-    -------
-    ndarray, shape (F, ...)
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> f = np.arange(7.0)
-    >>> bool(np.allclose(savgol_quadratic(3 * f ** 2 - f + 2, 5), 3 * f ** 2 - f + 2))
-    True
-    """
-    from scipy.ndimage import correlate1d
-
-    xs = np.asarray(x, dtype=np.float64)
-    F, w = xs.shape[0], int(window)
-    if w < 3 or w % 2 == 0 or w > F:
-        raise ValueError(f"window must be odd, at least 3 and at most {F}, got {window}")
-    half = w // 2
-    V = np.vander(np.arange(-half, half + 1, dtype=np.float64), 3, increasing=True)
-    fit = np.linalg.pinv(V)  # (3, w): the quadratic's coefficients from w samples
-    out = correlate1d(xs, fit[0], axis=0, mode="constant")  # its value at the centre
-    # the ends: the quadratic of the first / last w samples at their positions
-    out[:half] = np.tensordot(V[:half] @ fit, xs[:w], axes=1)
-    out[F - half:] = np.tensordot(V[half + 1:] @ fit, xs[F - w:], axes=1)
-    return out
-
-
-def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING_FRAMES,
-                        keep: ArrayLike | None = None
-                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Fit every camera's per-frame pose by a local quadratic over ``window`` frames.
-
-    A Savitzky-Golay filter (`savgol_quadratic`: order 2, polynomial fit at the ends)
-    on each camera's rotation (as a rotation vector relative to its middle frame's) and
-    centre. A quadratic follows smooth flex without lag; what it removes
-    is the frame-to-frame scatter of independent resections.
-
-    Parameters
-    ----------
-    R : array_like, shape (F, C, 3, 3)
-        World->camera rotations per frame.
-    t : array_like, shape (F, C, 3)
-        Translations (mm).
-    window : int
-        Frames of the fit (odd; shortened on short takes). Below 5 nothing changes.
-    keep : array_like of bool, shape (F,), optional
-        Frames whose poses stay as they are (an initialised frame).
-
-    Returns
-    -------
-    R, t : ndarray
-        Smoothed poses, same shapes.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> R = np.tile(np.eye(3), (30, 2, 1, 1)); t = np.zeros((30, 2, 3))
-    >>> t[:, :, 2] = 150 + np.random.default_rng(0).normal(0, 0.1, (30, 2))
-    >>> Rs, ts = smooth_camera_poses(R, t)
-    >>> bool(np.std(ts[..., 2]) < np.std(t[..., 2]))
-    True
-    """
-    Rm = np.asarray(R, dtype=np.float64)
-    tm = np.asarray(t, dtype=np.float64)
-    F = Rm.shape[0]
-    w = min(int(window), F if F % 2 else F - 1)
-    if w < 5:
-        return Rm.copy(), tm.copy()
-    w += 1 - w % 2
-    ref = Rm[F // 2]  # (C, 3, 3)
-    rv = _rotvec(np.einsum("fcij,ckj->fcik", Rm, ref))  # R_f = exp(rv) ref
-    centre = -np.einsum("fcji,fcj->fci", Rm, tm)
-    rv_s = savgol_quadratic(rv, w)
-    cen_s = savgol_quadratic(centre, w)
-    Rs = np.einsum("fcij,cjk->fcik", _matrix(rv_s), ref)
-    ts = -np.einsum("fcij,fcj->fci", Rs, cen_s)
-    if keep is not None:
-        k = np.asarray(keep, dtype=bool)
-        Rs[k], ts[k] = Rm[k], tm[k]
-    return Rs, ts
 
 
 def width_noise_scale(minor_px: ArrayLike) -> NDArray[np.float64]:
