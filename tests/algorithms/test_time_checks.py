@@ -112,15 +112,21 @@ def test_clean_take_loses_no_observation(scene):
     assert flag.sum() <= 0.0005 * tri.sum()
 
 
+def _caddy_23_only(scene) -> np.ndarray:
+    """Up to six markers seen by cameras 2 and 3 only, on every frame."""
+    one = scene.visible[..., 2] & scene.visible[..., 3] & ~scene.visible[..., 0] & \
+        ~scene.visible[..., 1]
+    pts = np.flatnonzero(one.all(0))[:6]
+    assert pts.size >= 3
+    return pts
+
+
 def test_single_sensor_samples_from_both_sides(scene):
     rng = np.random.default_rng(2)
     o = _arrays(scene, rng)
     F, M, C = scene.visible.shape
     # markers of caddy (2, 3) only; camera 3 misses them on frames 12-21
-    one = scene.visible[..., 2] & scene.visible[..., 3] & ~scene.visible[..., 0] & \
-        ~scene.visible[..., 1]
-    pts = np.flatnonzero(one.all(0))[:6]
-    assert pts.size >= 3
+    pts = _caddy_23_only(scene)
     run = slice(12, 22)
     o["obs"][run, pts, 3] = np.nan
     block = o["positions"][run]
@@ -276,10 +282,7 @@ def test_single_sensor_threshold(scene):
     rng = np.random.default_rng(9)
     o = _arrays(scene, rng)
     F, M, C = scene.visible.shape
-    one = scene.visible[..., 2] & scene.visible[..., 3] & ~scene.visible[..., 0] & \
-        ~scene.visible[..., 1]
-    pts = np.flatnonzero(one.all(0))[:6]
-    assert pts.size >= 3
+    pts = _caddy_23_only(scene)
     run = slice(12, 15)
     o["obs"][run, pts, 3] = np.nan
     rec = o["recon"][run]
