@@ -281,3 +281,14 @@ def test_bad_input_is_refused_and_changes_nothing(session):
     assert len(s.history()) == 0
     s.select(points=[])
     assert snapshot(s.project) == before
+
+
+def test_a_lost_tracks_message_says_what_its_last_frame_matched():
+    """A measured match is truncated (never rounded up to the threshold it fell below);
+    a first step with no disc, or two alike, has no match to report ("match 0.000" was
+    shown for it)."""
+    from carapost.commands.target_track import _match_text
+
+    assert _match_text(0.89999) == "match 0.899"
+    assert _match_text(0.0) == "no unambiguous match"
+    assert _match_text(float("nan")) == "no unambiguous match"

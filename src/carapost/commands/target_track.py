@@ -539,6 +539,16 @@ class TargetTrackJob(Job):
                                  last)
 
 
+def _match_text(score: float) -> str:
+    """How a lost track's last frame matched, for the run's message."""
+    if not score > 0.0:
+        # the first step's assignment found no disc, or two that fit alike
+        # (`target_identity.first_step` gives no score then): nothing was measured
+        return "no unambiguous match"
+    # the match truncated, never rounded up to the threshold it fell below
+    return f"match {np.floor(score * 1000) / 1000:.3f}"
+
+
 def _run_message(tracks: list[_Track], results: list[Any], tracked: int, last: int,
                  threshold: float) -> str:
     """What a run did, for the status bar and the log: how far it got and, for every
@@ -551,10 +561,8 @@ def _run_message(tracks: list[_Track], results: list[Any], tracked: int, last: i
     lost = [(tr, r) for tr, r in zip(tracks, results, strict=True)
             if r is not None and r.reason == STOP_THRESHOLD]
     if lost:
-        # the match truncated, never rounded up to the threshold it fell below
         where = ", ".join(f"point {tr.point} camera {tr.camera} at frame "
-                          f"{int(r.frames[-1])} (match "
-                          f"{np.floor(float(r.score[-1]) * 1000) / 1000:.3f})"
+                          f"{int(r.frames[-1])} ({_match_text(float(r.score[-1]))})"
                           for tr, r in lost[:4])
         more = f" and {len(lost) - 4} more" if len(lost) > 4 else ""
         text += f"; lost the marker: {where}{more}, below the Break Threshold {threshold:g}"
