@@ -395,30 +395,24 @@ class FrameService(TakeFrames):
         state = self._cams[camera]
         if state.origin is None or self._read_ahead == 0:
             return None
-        frame_bytes = max(sum(int(w) * int(h) for w, h in
-                              (c.image_size for c in self.take.cameras)), 1)
-        limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
-        step = self._direction
-        key_cam = camera + _PROXY_KEY if self._use_proxy(camera) else camera
-        src = self._sources.get(camera, _UNOPENED)
-        if src is None:  # no video: nothing to read ahead (and no busy loop)
-            return None
-        offset = int(self.take.cameras[camera].frame_offset)
-        for f in _ahead_order(state.origin, step, limit, self._playing):
-            if not 0 <= f < self.take.n_frames:
-                continue
-            if src is not _UNOPENED and not 0 <= f + offset < src.n_frames:
-                continue  # outside a short video: blank, nothing to decode
-            if (self._cache_get((f, key_cam)) is None
-                    and self._cache_get((f, camera)) is None
-                    and (f, camera) not in self._frame_errors):
+        if self._sources.get(camera, _UNOPENED) is None:
+            return None  # no video: nothing to read ahead (and no busy loop)
+        for f in _ahead_order(state.origin, self._direction, self._ahead_limit(),
+                              self._playing):
+            if 0 <= f < self.take.n_frames and not self._done(f, camera):
                 return f
         return None
 
+    def _ahead_limit(self) -> int:
+        """Frames read ahead at most: the setting, within half the cache."""
+        frame_bytes = max(sum(int(w) * int(h) for w, h in
+                              (c.image_size for c in self.take.cameras)), 1)
+        return min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
+
     def _done(self, frame: int, camera: int) -> bool:
-        """Whether ``camera`` has nothing to decode at ``frame`` while playing: its
-        image (or the proxy's) is cached, it cannot be decoded, or there is no video
-        there (a missing video, a frame outside a short one: shown blank)."""
+        """Whether ``camera`` has nothing to decode at ``frame`` (read ahead, or while
+        playing): its image (or the proxy's) is cached, it cannot be decoded, or there
+        is no video there (a missing video, a frame outside a short one: shown blank)."""
         src = self._sources.get(camera, _UNOPENED)
         if src is None:
             return True
@@ -444,10 +438,7 @@ class FrameService(TakeFrames):
         due = self._play.clock
         if due is None:
             return None
-        frame_bytes = max(sum(int(w) * int(h) for w, h in
-                              (c.image_size for c in self.take.cameras)), 1)
-        limit = min(self._read_ahead, int(self.cache_bytes / 2 / frame_bytes))
-        end = min(due + max(limit, 1), self.take.n_frames)
+        end = min(due + max(self._ahead_limit(), 1), self.take.n_frames)
         return self._play.next(camera, self._done, self._started, end)
 
     def _played(self, camera: int) -> None:
