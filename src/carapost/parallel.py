@@ -182,8 +182,7 @@ class ProcessPool:
         try:
             return self.executor(workers)
         except BaseException:
-            with self._lock:  # not acquired: the idle shutdown must still come
-                self._users -= 1
+            self.release()   # not acquired: the idle shutdown must still come
             raise
 
     def release(self) -> None:
