@@ -65,6 +65,13 @@ MAX_GAP = 2
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
 
 
+
+def _make_gaps(o: dict[str, NDArray[Any]], mask: NDArray[np.bool_]) -> None:
+    """Turn the (F, P) ``mask`` samples of ``o`` into gaps (no position, no residual)."""
+    o["recon"][mask] = RECON_NONE
+    o["positions"][mask] = np.nan
+    o["residual"][mask] = np.nan
+
 def detach_observations(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> None:
     """Remove the (F, P, C) ``drop`` observations from the arrays (not keyframes)."""
     for k in ("obs", "source", "detection", "quality"):
@@ -130,9 +137,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if single_sensor:
         o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
     lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
-    o["recon"][lost] = RECON_NONE
-    o["positions"][lost] = np.nan
-    o["residual"][lost] = np.nan
+    _make_gaps(o, lost)
     return n
 
 
@@ -166,9 +171,7 @@ def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
     if not bad.any():
         return bad
     detach_observations(o, np.broadcast_to(bad[..., None], o["detection"].shape))
-    o["recon"][bad] = RECON_NONE
-    o["positions"][bad] = np.nan
-    o["residual"][bad] = np.nan
+    _make_gaps(o, bad)
     return bad
 
 
@@ -245,8 +248,6 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             drop = single & ((res > threshold_mm) | (sigma > threshold_mm))
         if drop.any():
             detach_observations(o, drop[..., None] & has)
-            o["recon"][drop] = RECON_NONE
-            o["positions"][drop] = np.nan
-            o["residual"][drop] = np.nan
+            _make_gaps(o, drop)
             sigma[drop] = np.nan
     return sigma
