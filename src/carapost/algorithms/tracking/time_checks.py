@@ -65,7 +65,6 @@ MAX_GAP = 2
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
 
 
-
 def _make_gaps(o: dict[str, NDArray[Any]], mask: NDArray[np.bool_]) -> None:
     """Turn the (F, P) ``mask`` samples of ``o`` into gaps (no position, no residual)."""
     o["recon"][mask] = RECON_NONE
