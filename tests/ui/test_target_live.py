@@ -21,13 +21,25 @@ from tests.commands.test_edit_commands import snapshot
 from tests.ui.test_target_tracker_ui import _keyed_point, take  # noqa: F401 (fixture)
 
 
-def _slow_window(make_window, take, qtbot, delay: float = 0.01):  # noqa: F811
+def _slow_window(make_window, take, qtbot, delay: float = 0.01,  # noqa: F811
+                 holds: dict | None = None):
+    """A window whose frame source takes ``delay`` s per image; ``holds`` maps a frame to
+    a condition the tracking worker waits for before it gets that frame's images (at
+    most 30 s), so that what the GUI shows part-way through a run is seen however
+    loaded the machine is. The GUI thread itself is never held."""
     import copy
+    import threading
 
     project, scene, get = take
     p = copy.deepcopy(project)
+    holds = dict(holds or {})
 
     def slow(f: int, c: int):
+        hold = holds.get(f)
+        if hold is not None and threading.current_thread() is not threading.main_thread():
+            deadline = time.monotonic() + 30.0
+            while not hold() and time.monotonic() < deadline:
+                time.sleep(0.005)
         time.sleep(delay)
         return get(f, c)
 
@@ -37,17 +49,17 @@ def _slow_window(make_window, take, qtbot, delay: float = 0.01):  # noqa: F811
     return w, p, scene
 
 
-
-
 @pytest.mark.parametrize("live", [True, False])
 def test_timeline_draws_the_tracked_span_while_tracking(make_window, take, qtbot,  # noqa: F811
                                                         monkeypatch, live):
     monkeypatch.setattr(target_live, "INTERVAL", 0.0)
-    w, p, scene = _slow_window(make_window, take, qtbot)
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    # with the timeline live, the run waits at frames 6 and 12 until the chart has drawn
+    holds = {6: lambda: len(seen) >= 1, 12: lambda: len(seen) >= 2} if live else {}
+    w, p, scene = _slow_window(make_window, take, qtbot, holds=holds)
     set_preference(w.context.settings, target_live.LIVE_TIMELINE, live)
     pid, col, m = _keyed_point(w, scene)
     chart = w.pane("Selected Point").chart
-    seen: list[tuple[np.ndarray, np.ndarray]] = []
     real = chart.show_live
 
     def spy(column, camera, frames, scores):
@@ -85,7 +97,10 @@ def test_timeline_draws_the_tracked_span_while_tracking(make_window, take, qtbot
 def test_a_paused_run_leaves_the_charts_showing_the_model(make_window, take, qtbot,  # noqa: F811
                                                           monkeypatch):
     monkeypatch.setattr(target_live, "INTERVAL", 0.0)
-    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.03)
+    paused: list[bool] = []
+    # the run waits at frame 8 until Pause has been clicked
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.03,
+                               holds={8: lambda: bool(paused)})
     set_preference(w.context.settings, target_live.LIVE_TIMELINE, True)
     pid, col, m = _keyed_point(w, scene, cameras=(0,))
     chart = w.pane("Selected Point").chart
@@ -93,6 +108,7 @@ def test_a_paused_run_leaves_the_charts_showing_the_model(make_window, take, qtb
     pane.buttons["forward_to_end"].click()
     qtbot.waitUntil(lambda: chart.live_draws >= 2, timeout=60_000)
     pane.buttons["forward_to_end"].click()      # Pause
+    paused.append(True)
     qtbot.waitUntil(lambda: not w.runner.busy, timeout=60_000)
     w.flush()
     kept = np.flatnonzero(p.points.source[:, col, 0] == SOURCE_TARGET)
@@ -103,11 +119,13 @@ def test_a_paused_run_leaves_the_charts_showing_the_model(make_window, take, qtb
 
 def test_views_follow_every_camera_being_tracked_in_lockstep(make_window, take, qtbot,  # noqa: F811
                                                              monkeypatch):
-    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.015)
+    shown: list[int] = []
+    # the run waits at frame 8 until the views have followed it at least once
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.015,
+                               holds={8: lambda: len(shown) >= 1})
     set_preference(w.context.settings, "tracker_update_2d_view_every_frame", True)
     set_preference(w.context.settings, target_live.LIVE_TIMELINE, False)
     pid, col, m = _keyed_point(w, scene, cameras=(0, 1, 2))
-    shown: list[int] = []
     real = w.context.set_frame
 
     def spy(frame, *a, **k):
@@ -154,11 +172,13 @@ def test_views_draw_the_tracked_position_while_following(make_window, take, qtbo
     tracked the point on the frame shown (the model is written only at the end)."""
     from carapost.algorithms.target_track import TargetTrackerParameters
 
-    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.03)
+    checked: list[tuple[int, float]] = []
+    # the run waits at frame 8 until a view has been checked part-way
+    w, p, scene = _slow_window(make_window, take, qtbot, delay=0.03,
+                               holds={8: lambda: bool(checked)})
     set_preference(w.context.settings, "tracker_update_2d_view_every_frame", True)
     pid, col, m = _keyed_point(w, scene, cameras=(0, 1))
     views = {v.camera: v for v in w.workspace.views() if v.kind == "sensor"}
-    checked = []
 
     def check(_done, _total):
         f = p.current_frame
