@@ -23,7 +23,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import RBFInterpolator
 
 from carapost.algorithms.camera import project
 
@@ -125,6 +124,9 @@ def warp_head(scene, src: NDArray[np.float32], A: NDArray, frame: int, camera: i
     gy = np.arange(y0, y1 + GRID_PX, GRID_PX, dtype=np.float64)
     grid = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
     if len(at) >= 3:
+        # imported here: every render imports this module, few takes move their skin
+        from scipy.interpolate import RBFInterpolator
+
         field = RBFInterpolator(at, offset, kernel="thin_plate_spline")(grid)
     else:
         field = np.zeros_like(grid)
