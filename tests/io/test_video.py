@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from carapost.io.errors import CaraFileError
 from carapost.io import video as video_module
+from carapost.io.errors import CaraFileError
 from carapost.io.video import (
     TakeFrames,
-    free_in_slices,
     VideoSource,
+    free_in_slices,
     image_sequence_files,
     natural_key,
 )
