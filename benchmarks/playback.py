@@ -297,12 +297,19 @@ class Bench:
             # previous take's read-ahead, the worker's GIL use) are phase "opens_read".
             self.stalls.phase = "opens_read"
             box: list = []
-            reader = threading.Thread(target=lambda box=box: box.append(Session.import_take(take)))
+
+            def read(box: list = box) -> None:
+                try:
+                    box.append(Session.import_take(take))
+                except BaseException as exc:  # raised again on the GUI thread
+                    box.append(exc)
+
+            reader = threading.Thread(target=read)
             reader.start()
             while reader.is_alive():
                 self.pump(0.01)
-            if not box:
-                raise RuntimeError("the take could not be read")
+            if isinstance(box[0], BaseException):
+                raise RuntimeError("the take could not be read") from box[0]
             session = box[0]
             self.stalls.phase = "opens"
             # a frame of its own per opening: a view still showing the previous take's
