@@ -9,10 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
+from carapost.io import video as video_module
 from carapost.io.errors import CaraFileError
 from carapost.io.video import (
     TakeFrames,
     VideoSource,
+    free_in_slices,
     image_sequence_files,
     natural_key,
 )
@@ -256,3 +258,52 @@ def test_reading_backwards_decodes_blocks_in_order(tmp_path, rng, monkeypatch):
         for f in range(39, 29, -1):
             np.testing.assert_array_equal(tf.get(f, 0), a[f])
     assert len(moves) == 10
+
+
+class _Freed:
+    """Stands for a cached image: records when it is freed."""
+
+    def __init__(self, log: list[int], key: int) -> None:
+        self.log, self.key = log, key
+
+    def __del__(self) -> None:
+        self.log.append(self.key)
+
+
+def test_free_in_slices_hands_the_gil_over_between_slices(monkeypatch):
+    freed: list[int] = []
+    handovers: list[int] = []  # images freed when the GIL was given away
+    monkeypatch.setattr(video_module.time, "sleep", lambda s: handovers.append(len(freed)))
+    images = {k: _Freed(freed, k) for k in range(21)}
+    free_in_slices(images, slice_size=8)
+    assert images == {} and sorted(freed) == list(range(21))
+    assert handovers == [8, 16, 21]
+
+
+def test_clear_cache_frees_outside_the_cache_lock(tmp_path, rng):
+    frames = make_frames(rng, 6)
+    path = write_video(tmp_path / "t_cam0.mkv", frames)
+    tf = TakeFrames(_take([path], 6), cache_mb=50)
+    try:
+        for f in range(6):
+            tf.get(f, 0)
+        assert tf.cache_used_bytes == 6 * W * H
+        lock_free: list[bool] = []
+
+        class Probe:
+            # freed among the images: a decoder (or the GUI thread's `get_cached`)
+            # must find the lock free while a closing thread frees a full cache
+            def __del__(self) -> None:
+                got = tf._cache_lock.acquire(blocking=False)
+                lock_free.append(got)
+                if got:
+                    tf._cache_lock.release()
+
+        tf._cache[(99, 0)] = Probe()
+        tf.clear_cache()
+        assert lock_free == [True]
+        assert tf.cache_used_bytes == 0 and tf.get_cached(3, 0) is None
+        np.testing.assert_array_equal(tf.get(3, 0), frames[3])  # the cache fills again
+        assert tf.cache_used_bytes == W * H
+    finally:
+        tf.close()

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import re
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -61,6 +62,10 @@ __all__ = [
 
 #: Frames decoded in order at once when a camera is read backwards (see `TakeFrames.get`).
 BACKWARD_BLOCK = 16
+
+#: Cached images freed between two hand-overs of the GIL when a cache is emptied
+#: (`free_in_slices`): 8 images of 1280x720 take ~0.5 ms to free.
+FREE_SLICE = 8
 
 #: Containers imported as camera videos (anything OpenCV's FFmpeg reads would do; these
 #: are the ones a take is looked up by).
@@ -431,6 +436,30 @@ class PrefetchRequest:
         return not pending
 
 
+def free_in_slices(images: dict[Any, Any], slice_size: int = FREE_SLICE) -> None:
+    """Empty ``images`` (e.g. a cache of decoded frames) ``slice_size`` items at a time,
+    handing the GIL to any waiting thread between slices.
+
+    Each image of a cache is a separate allocation that freeing gives back to the
+    system (a ``munmap`` for a 1280x720 frame: 50-100 us, more on a loaded machine).
+    ``dict.clear`` frees them all in one C call that holds the GIL throughout: 400
+    cached frames kept the GUI thread from running for 28-81 ms when the previous take
+    was closed behind it; in slices its longest wait is 1-4 ms (measured on 2 loaded
+    cores, docs/benchmarks.md).
+
+    Parameters
+    ----------
+    images : dict
+        Emptied in place; nothing else may be using it.
+    slice_size : int
+        Items freed between two hand-overs of the GIL.
+    """
+    while images:
+        for _ in range(min(slice_size, len(images))):
+            images.popitem()
+        time.sleep(0)  # releases the GIL; a thread that asked for it takes it now
+
+
 class TakeFrames:
     """Images of every camera of a take, by take frame, with cache and read-ahead.
 
@@ -547,10 +576,16 @@ class TakeFrames:
         return self._cache_used
 
     def clear_cache(self) -> None:
-        """Forget every cached image (e.g. after Relocate Files or an offset change)."""
+        """Forget every cached image (e.g. after Relocate Files or an offset change).
+
+        The images are freed outside the cache lock and a few at a time
+        (`free_in_slices`), so a thread clearing a full cache (closing a take) never
+        holds the GIL for long.
+        """
         with self._cache_lock:
-            self._cache.clear()
+            images, self._cache = self._cache, OrderedDict()
             self._cache_used = 0
+        free_in_slices(images)
 
     def reset_sources(self) -> None:
         """Reopen videos on next use (after a camera's video path changed)."""
