@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from carapost.io.frameservice import DECODER_NICE, FrameService
+from carapost.io.decode import AVReader
+from carapost.io.frameservice import DECODER_NICE, DECODER_THREADS, FrameService
 from carapost.model.project import CameraChannel, Take
 
 
@@ -36,3 +37,35 @@ def test_decoder_threads_run_below_the_callers_priority(tmp_path):
         assert nice == min(mine + DECODER_NICE, 19)
         # the calling thread keeps its own priority
         assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
+
+
+def _video(path, n=10):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 60.0, (64, 48),
+                             isColor=False)
+    rng = np.random.default_rng(3)
+    for _ in range(n):
+        writer.write(rng.integers(0, 256, (48, 64), dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def test_frame_service_decoders_use_one_ffmpeg_thread_each(tmp_path):
+    """Each camera has a decoder thread of its own, so FFmpeg adds no threads per
+    decoder (they would compete with the GUI thread); the pixels are the same."""
+    path = _video(tmp_path / "t_cam0.mkv")
+    take = Take(name="t", n_frames=10, cameras=[
+        CameraChannel(name="cam0", video_path=str(path), image_size=(64, 48))])
+    default = AVReader(path)
+    assert default._stream.codec_context.thread_count != DECODER_THREADS
+    with FrameService(take) as fs:
+        images = [fs.get(f, 0) for f in (7, 2, 3)]
+        reader = fs.source(0)._reader
+        assert reader.threads == DECODER_THREADS
+        assert reader._stream.codec_context.thread_count == DECODER_THREADS
+        decoder = next(t for t in threading.enumerate()
+                       if t.name.startswith("carapost-decode"))
+    for img, f in zip(images, (7, 2, 3), strict=True):
+        np.testing.assert_array_equal(img, default.read(f))
+    default.close()
+    decoder.join(timeout=5)
+    assert not decoder.is_alive()  # closing the service ends its decoder threads

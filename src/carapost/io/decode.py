@@ -179,6 +179,11 @@ class AVReader:
     ----------
     path : Path
         The video file.
+    threads : int
+        FFmpeg's decoding threads for this file (0: FFmpeg's choice, about one per
+        core). The frame service decodes each camera on a thread of its own and passes
+        1: the cameras already fill the cores, and more threads per decoder only add
+        threads that compete with the GUI thread for them.
 
     Attributes
     ----------
@@ -197,11 +202,12 @@ class AVReader:
         If the file cannot be opened or holds no video stream with timestamps.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, threads: int = 0) -> None:
         import av
 
         self.path = Path(path)
         self._av = av
+        self.threads = max(int(threads), 0)
         self.seeks = 0
         self.decoded = 0
         self._open()
@@ -259,6 +265,9 @@ class AVReader:
             self._container.close()
             raise CaraFileError(self.path, "holds a video stream that cannot be decoded "
                                 "(unknown codec or damaged header)") from exc
+        if self.threads:
+            # before the first decode, which opens the codec (and FFmpeg's threads)
+            self._stream.codec_context.thread_count = self.threads
         # A fresh file is positioned at its start: the decode iterator yields frame 0.
         self._frames: Any = self._container.decode(self._stream)
         self._next = 0  # index the iterator yields next (-1: not positioned)

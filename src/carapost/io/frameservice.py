@@ -60,11 +60,18 @@ DEFAULT_CACHE_MB = 1500.0
 
 #: Nice increment of the decoder threads (Linux: per thread; FFmpeg's own decoding
 #: threads inherit it). The GUI thread needs a core at once when a frame lands or the
-#: user acts; four busy decoders at the same priority would make it wait in the run
-#: queue behind them for tens of milliseconds on a 2-core machine. With +4 the GUI
-#: thread weighs 2.4x a decoder, so it runs first, and the decoders still get every
-#: cycle the GUI does not use.
-DECODER_NICE = 4
+#: user acts; busy decoders at the same priority would make it wait in the run queue
+#: behind them for tens of milliseconds on a 2-core machine. At +10 the GUI thread
+#: weighs 9.3x a decoder (+4, 2.4x, still left it 20-60 ms in the run queue behind
+#: four decoders while stepping; docs/benchmarks.md "Playback and stepping: decoder
+#: threads", tenth session), and the decoders still get every cycle the GUI does not use.
+DECODER_NICE = 10
+
+#: FFmpeg's decoding threads per camera decoder. Every camera decodes on a thread of
+#: its own, so four cameras already fill the cores; FFmpeg's default (a thread per
+#: core and one more, for each decoder) only added 8 threads that compete with the GUI
+#: thread for 2 cores. All-intra proxy frames (MJPEG) decode on one thread anyway.
+DECODER_THREADS = 1
 
 #: Screen pixels per image pixel above which a view counts as zoomed in (playback then
 #: shows that camera's original instead of its proxy).
@@ -148,7 +155,8 @@ class FrameService(TakeFrames):
                 if not cam.video_path:
                     raise CaraFileError(f"<{cam.name}>", "the camera has no video file")
                 # Opened without decoding: the first frame wanted is decoded next.
-                src = VideoSource(cam.video_path, probe=False)
+                src = VideoSource(cam.video_path, probe=False,
+                                  decoder_threads=DECODER_THREADS)
                 reader = src._reader
                 if reader is not None and reader.index.decodable is None:
                     # checked when the decoder is idle or nears the end (`_verify`):
@@ -192,7 +200,8 @@ class FrameService(TakeFrames):
             if path is None:
                 continue
             try:
-                proxy = ProxyReader(path)  # opens the container: no decode on the GUI thread
+                # opens the container only: no decode on the GUI thread
+                proxy = ProxyReader(path, threads=DECODER_THREADS)
             except CaraFileError as exc:
                 log.warning("Camera %s: the playback proxy is unusable (%s)", cam.name, exc)
                 continue

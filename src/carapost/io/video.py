@@ -131,6 +131,9 @@ class VideoSource:
         Decode frame 0 while opening, so a file that cannot be decoded at all fails
         here (importing a take). False opens without decoding (the frame service: the
         first frame wanted is rarely frame 0, and a read error says the same later).
+    decoder_threads : int
+        FFmpeg's decoding threads for a video read through PyAV (0: FFmpeg's choice;
+        see `carapost.io.decode.AVReader`).
 
     Attributes
     ----------
@@ -151,7 +154,8 @@ class VideoSource:
         frame, or is an image folder without images.
     """
 
-    def __init__(self, path: str | Path, *, seek: str = "auto", probe: bool = True) -> None:
+    def __init__(self, path: str | Path, *, seek: str = "auto", probe: bool = True,
+                 decoder_threads: int = 0) -> None:
         if seek not in ("auto", "seek", "decode"):
             raise ValueError(f"seek must be 'auto', 'seek' or 'decode', got {seek!r}")
         self.path = Path(path)
@@ -180,7 +184,7 @@ class VideoSource:
             # FFmpeg's demuxer with a keyframe index: exact seeks at a keyframe interval's
             # cost (OpenCV's seek re-reads from far back: ~0.9 s per jump on FFV1).
             check_input_file(self.path)  # a FIFO or device would block the demuxer
-            self._reader = AVReader(self.path)
+            self._reader = AVReader(self.path, threads=decoder_threads)
             self.n_frames = self._reader.n_frames
             self.fps = self._reader.fps
             self._seek_ok = True
