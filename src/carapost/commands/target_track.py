@@ -22,6 +22,7 @@ has a 3D position (``RECON_SINGLE_SENSOR``).
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -611,9 +612,11 @@ def _neighbour_xyz(project: Project, cols: NDArray, lo: int, hi: int,
     Xs = np.where(tri[sample][..., None], pts.positions[sample], np.nan)
     out = []
     for col in cols:
-        with np.errstate(all="ignore"):
-            d = np.nanmedian(np.linalg.norm(Xs[:, None, col] - Xs, axis=-1), axis=0) \
-                if np.isfinite(Xs[:, col]).any() else np.full(P, np.nan)
+        d = np.full(P, np.nan)
+        if np.isfinite(Xs[:, col]).any():
+            with warnings.catch_warnings():   # points never triangulated: NaN, skipped
+                warnings.simplefilter("ignore", RuntimeWarning)
+                d = np.nanmedian(np.linalg.norm(Xs[:, None, col] - Xs, axis=-1), axis=0)
         d[col] = np.nan
         d[np.isin(np.arange(P), cols)] = np.nan   # points tracked in this run move too
         order = np.argsort(np.where(np.isfinite(d), d, np.inf))[:k]
