@@ -587,7 +587,11 @@ class TargetTrackJob(Job):
         recon = self.block["recon"][:, i]
         own = np.where((np.isfinite(positions).all(-1) & (recon == RECON_TRIANGULATED)
                         & ~touched)[:, None], positions, np.nan)
-        multi = np.isfinite(obs).all(-1).sum(1) >= 2
+        # the run's own anchors from three cameras or more: a pair of cameras on one
+        # side of the face fixes the depth poorly (a lower-lid marker of seed 4: 1.1 mm
+        # off from two cameras 0.1 px off each, just before a third loses it), and the
+        # frames after it would inherit that depth
+        multi = np.isfinite(obs).all(-1).sum(1) >= 3
         if multi.any() and self.intr is not None:
             p, _, _ = resolve_3d(obs[multi], self.R[rows[multi]], self.t[rows[multi]],
                                  self.intr, np.full((int(multi.sum()), 3), np.nan), False)
