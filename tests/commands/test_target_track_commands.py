@@ -181,6 +181,31 @@ def test_single_sensor_tracking_keeps_the_point_on_its_ray(session):
     assert err.max() < 0.2
 
 
+def test_single_sensor_depth_follows_the_neighbours_motion(session):
+    """A chin marker keyed in one camera and tracked there: its depth on the ray comes
+    from its neighbours' motion since the keyframe, not from the keyframe's 3D (the
+    chin moves up to 8 mm over the take; held at the keyframe's depth it is 4.9 mm off)."""
+    s, scene = session
+    m = _marker(scene, "Chin_Crease")
+    pts = s.project.points
+    col = _from_truth(s, scene, m)
+    pts.obs[:, col, 1:] = np.nan                  # camera 0 only, keyed on frame 0
+    pts.obs[1:, col] = np.nan                     # (and its 3D): nothing after it
+    pts.source[:, col, 1:] = 0
+    pts.source[1:, col] = 0
+    pts.positions[1:, col] = np.nan
+    pts.recon[1:, col] = 0
+    s.select(points=[int(pts.ids[col])])
+    s.set_property("Target Tracker", "tracker_overwrite_existing_tracks", True)
+    s.current_frame = 0
+    s.target_track(+1)
+    got = np.flatnonzero(np.isfinite(pts.obs[1:, col, 0, 0])) + 1
+    assert len(got) >= 5
+    assert (pts.recon[got, col] == RECON_SINGLE_SENSOR).all()
+    e3 = np.linalg.norm(pts.positions[got, col] - scene.points3d[got, m], axis=-1)
+    assert e3.max() < 0.5
+
+
 def test_clear_tracked_points_removes_target_data_only(session):
     s, scene = session
     m = _marker(scene)
