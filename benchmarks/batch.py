@@ -15,6 +15,11 @@ Metrics (one JSON object per line):
   detected), so this is below 2; ``with_fixed`` adds both batches' fixed parts. Only
   a measure on an idle machine: under load a take's wall time stretches past its CPU
   time and the figure passes 2;
+- ``batch_scaling_takes``: the same ratio on the takes alone, measured: 2 x the median
+  wall of a take on the 1-worker batch over the median wall of a take on the 2-worker
+  batch (both workers busy), so what the ratio would be with no start-up, no tail and
+  no idle worker. It is below ``batch_scaling_bound`` by what two takes at once cost
+  each other (two takes' decoding and detection threads on two cores);
 - ``batch_overhead_s``: (1-worker batch wall time - the sum of ``carapost process``
   wall times on the same takes, each a fresh process) / takes (target <= 1 s);
 - ``batch_overhead_cpu_s``: the same difference in CPU seconds (driver, scheduler and
@@ -202,6 +207,9 @@ def main() -> None:
            **common} for k in ("1", "2")),
         {"metric": "batch_scaling_2w", "value": round(med["1"] / med["2"], 3),
          "unit": "ratio", "target": 1.7, **common},
+        {"metric": "batch_scaling_takes",
+         "value": round(2 * take1 / statistics.median(take_s["2"]), 3), "unit": "ratio",
+         **common},
         {"metric": "batch_scaling_bound", "value": round(bound, 3), "unit": "ratio",
          "cores_per_take_1w": round(1 / (bound / 2), 3),
          "with_fixed": round((fixed["1"] + n * take1) / (fixed["2"] + n * take1 / bound), 3),
