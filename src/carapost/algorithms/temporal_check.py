@@ -172,9 +172,7 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
     frames) hides each of its samples behind the others: the reference on one side
     is a wrong sample too. Each window of that many frames is therefore tested as a
     whole, every sample in it predicted from the triangulated samples outside it,
-    with the same three tests but twice ``min_mm`` (predictions from farther away
-    err more in fast motion); a window is removed when all its samples fail them
-    and it starts and ends with a jump against the samples next to it.
+    with the same three tests; a window is removed when all its samples fail them.
 
     Parameters
     ----------
@@ -236,7 +234,7 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
     some = d_ok.any(0)
     usual[some] = np.nanmedian(np.where(d_ok, dev, np.nan)[:, some], 0)
     local = np.maximum(local, usual[None])
-    return suspect | _wrong_runs(X, tri & ~suspect, nb, local, 2.0 * min_mm, ratio,
+    return suspect | _wrong_runs(X, tri & ~suspect, nb, local, min_mm, ratio,
                                  local_ratio, max_run)
 
 
