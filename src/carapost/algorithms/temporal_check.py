@@ -251,10 +251,9 @@ def _wrong_runs(X: NDArray[np.float64], ref: NDArray[np.bool_], nb: NDArray[np.i
     # next to it (a point that only moves unlike its neighbours drifts, with no jump:
     # without this, fast expressions chain windows along whole tracks)
     before, after = loo_sides(X, ref, nb)
-    jump = np.maximum(min_mm, local_ratio * local)
     with np.errstate(invalid="ignore"):
-        jump_in = np.linalg.norm(X - before, axis=-1) > jump
-        jump_out = np.linalg.norm(X - after, axis=-1) > jump
+        jump_in = np.linalg.norm(X - before, axis=-1) > min_mm
+        jump_out = np.linalg.norm(X - after, axis=-1) > min_mm
     for w in range(2, min(max_run, F) + 1):
         n = F - w + 1
         # window starting at frame s, for every point
