@@ -226,14 +226,6 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
         if np.array_equal(now, suspect):
             break
         suspect = now
-    # each point's own usual deviation: a point whose depth is noisy (one caddy,
-    # short baseline) deviates by a millimetre on every frame, and a window tested
-    # in several places would find chance runs along its whole track
-    d_ok = tri & ~suspect & np.isfinite(dev)
-    usual = np.full(tri.shape[1], np.inf)
-    some = d_ok.any(0)
-    usual[some] = np.nanmedian(np.where(d_ok, dev, np.nan)[:, some], 0)
-    local = np.maximum(local, usual[None])
     return suspect | _wrong_runs(X, tri & ~suspect, nb, local, min_mm, ratio,
                                  local_ratio, max_run)
 
@@ -243,21 +235,12 @@ def _wrong_runs(X: NDArray[np.float64], ref: NDArray[np.bool_], nb: NDArray[np.i
                 local_ratio: float, max_run: int) -> NDArray[np.bool_]:
     """(F, P) the samples of runs of 2..``max_run`` frames that their motion
     contradicts as a whole (see :func:`inconsistent_samples`); ``local`` (F, P) is
-    the larger of the median deviation of each point's face neighbours at each frame
-    and the point's own median deviation over the take (mm)."""
+    the median deviation of each point's face neighbours at each frame (mm)."""
     F, P = ref.shape
     out = np.zeros((F, P), bool)
-    # a wrong blob's run starts and ends with a jump against the point's own samples
-    # next to it (a point that only moves unlike its neighbours drifts, with no jump:
-    # without this, fast expressions chain windows along whole tracks)
-    before, after = loo_sides(X, ref, nb)
-    with np.errstate(invalid="ignore"):
-        jump_in = np.linalg.norm(X - before, axis=-1) > min_mm
-        jump_out = np.linalg.norm(X - after, axis=-1) > min_mm
     for w in range(2, min(max_run, F) + 1):
         n = F - w + 1
-        # window starting at frame s, for every point
-        whole = jump_in[:n] & jump_out[w - 1:]
+        whole = np.ones((n, P), bool)  # window starting at frame s, for every point
         for k in range(w):  # the window's k-th frame, predicted from outside it
             before, after = loo_sides(X, ref, nb, skip_before=k, skip_after=w - 1 - k)
             dev = np.linalg.norm(X - 0.5 * (before + after), axis=-1)
