@@ -307,32 +307,3 @@ def test_single_sensor_threshold(scene):
     assert (o["residual"][[12, 14]][:, pts][right] <= 0.5).all()
     assert (sigma[[12, 14]][:, pts][right] <= 0.5).all()
 
-
-
-def test_a_short_run_of_the_same_wrong_match_is_removed(scene):
-    # the same wrong blob, 2 mm off, on 2-4 consecutive frames in both cameras of a
-    # caddy: inside the run each sample's neighbours in time are wrong too
-    rng = np.random.default_rng(11)
-    o = _arrays(scene, rng)
-    F, M, C = scene.visible.shape
-    ok = _one_caddy(o, scene)
-    pts = rng.choice(np.flatnonzero(ok[5:-7].all(0)), 9, replace=False)
-    wrong = np.zeros((F, M), bool)
-    for k, p in enumerate(pts):
-        f0, w = int(rng.integers(5, F - 10)), 2 + k % 3
-        d = rng.normal(0, 1, 3) * [1, 1, 0.2]
-        d *= 2.0 / np.linalg.norm(d)
-        for f in range(f0, f0 + w):
-            X = scene.points3d[f, p] + d
-            uv, _ = project(X[None], scene.cam_R[f], scene.cam_t[f], scene.intrinsics)
-            row = o["obs"][f, p]
-            row[:2] = uv[0, :2]
-            o["obs"][f, p] = row
-            o["positions"][f, p] = X
-            o["residual"][f, p] = 0.0
-            wrong[f, p] = True
-    tri_before = (o["recon"] == RECON_TRIANGULATED).sum()
-    n = reject_wrong_samples(o, np.ones(M, bool), np.zeros(F, bool)).sum()
-    gone = o["recon"] == RECON_NONE
-    assert gone[wrong].mean() >= 0.8
-    assert n - (gone & wrong).sum() <= 0.0005 * tri_before

@@ -58,10 +58,6 @@ MIN_SAMPLE_OFF_MM = 1.0
 #: the same frame.
 LOCAL_RATIO = 3.0
 
-#: Longest run of wrong whole samples (frames) tested as one: inside a run, each
-#: sample's neighbours in time are the run's other wrong samples, which agree with it.
-MAX_RUN = 4
-
 
 def loo_prediction(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
                    max_frames: int = 10) -> NDArray[np.float64]:
@@ -98,15 +94,11 @@ def loo_prediction(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
 
 
 def loo_sides(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
-              max_frames: int = 10, skip_before: int = 0, skip_after: int = 0
-              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+              max_frames: int = 10) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The two one-sided predictions of :func:`loo_prediction`: from the point's
     nearest triangulated sample before each frame, and from the one after it.
 
-    Parameters and shapes as for :func:`loo_prediction`; ``skip_before`` and
-    ``skip_after`` (frames) leave out that many more frames on each side, so that
-    frame ``f`` is predicted from outside the window ``f - skip_before`` ..
-    ``f + skip_after`` (a run of wrong samples tested as a whole).
+    Parameters and shapes as for :func:`loo_prediction`.
 
     Returns
     -------
@@ -126,12 +118,6 @@ def loo_sides(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
     idx = np.where(tri, frames[:, None], F)
     nxt = np.full((F, P), F)
     nxt[:-1] = np.minimum.accumulate(idx[::-1], axis=0)[::-1][1:]  # first one > f
-    if skip_before:  # last triangulated frame < f - skip_before
-        sb = min(skip_before, F)
-        prev = np.concatenate([np.full((sb, P), -1), prev[:F - sb]])
-    if skip_after:  # first one > f + skip_after
-        sa = min(skip_after, F)
-        nxt = np.concatenate([nxt[sa:], np.full((sa, P), F)])
     Xn = X[:, nn]  # (F, P, k, 3) the neighbours at every frame
     Tn = tri[:, nn] & valid[None]
     out = []
@@ -150,8 +136,8 @@ def loo_sides(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
 
 def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
                          min_mm: float = MIN_SAMPLE_OFF_MM, ratio: float = SAMPLE_RATIO,
-                         local_ratio: float = LOCAL_RATIO, iterations: int = 4,
-                         max_run: int = MAX_RUN) -> NDArray[np.bool_]:
+                         local_ratio: float = LOCAL_RATIO, iterations: int = 4
+                         ) -> NDArray[np.bool_]:
     """Whole samples the point's motion contradicts: a wrong match in every camera.
 
     A sample whose observations are all on a wrong blob (a neighbour's, or a blob
@@ -168,12 +154,6 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
     wrong sample spoils its neighbours' predictions) until the set no longer
     changes, at most ``iterations`` times.
 
-    A run of such samples (the same wrong blob on 2 to ``max_run`` consecutive
-    frames) hides each of its samples behind the others: the reference on one side
-    is a wrong sample too. Each window of that many frames is therefore tested as a
-    whole, every sample in it predicted from the triangulated samples outside it,
-    with the same three tests; a window is removed when all its samples fail them.
-
     Parameters
     ----------
     X : array_like, shape (F, P, 3)
@@ -184,8 +164,6 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
         Each point's neighbours on the face (-1 for none).
     min_mm, ratio, local_ratio : float
     iterations : int
-    max_run : int
-        Longest run of consecutive wrong samples tested as one (frames; 1 for none).
 
     Returns
     -------
@@ -226,32 +204,7 @@ def inconsistent_samples(X: ArrayLike, tri: ArrayLike, nb: NDArray[np.intp], *,
         if np.array_equal(now, suspect):
             break
         suspect = now
-    return suspect | _wrong_runs(X, tri & ~suspect, nb, local, min_mm, ratio,
-                                 local_ratio, max_run)
-
-
-def _wrong_runs(X: NDArray[np.float64], ref: NDArray[np.bool_], nb: NDArray[np.intp],
-                local: NDArray[np.float64], min_mm: float, ratio: float,
-                local_ratio: float, max_run: int) -> NDArray[np.bool_]:
-    """(F, P) the samples of runs of 2..``max_run`` frames that their motion
-    contradicts as a whole (see :func:`inconsistent_samples`); ``local`` (F, P) is
-    the median deviation of each point's face neighbours at each frame (mm)."""
-    F, P = ref.shape
-    out = np.zeros((F, P), bool)
-    for w in range(2, min(max_run, F) + 1):
-        n = F - w + 1
-        whole = np.ones((n, P), bool)  # window starting at frame s, for every point
-        for k in range(w):  # the window's k-th frame, predicted from outside it
-            before, after = loo_sides(X, ref, nb, skip_before=k, skip_after=w - 1 - k)
-            dev = np.linalg.norm(X - 0.5 * (before + after), axis=-1)
-            spread = np.linalg.norm(before - after, axis=-1)
-            with np.errstate(invalid="ignore"):
-                hit = ref & np.isfinite(dev) & (dev > min_mm) & (dev > ratio * spread) \
-                    & (dev > local_ratio * local)
-            whole &= hit[k:k + n]
-        for k in range(w):
-            out[k:k + n] |= whole
-    return out
+    return suspect
 
 
 def inconsistent_observations(obs: ArrayLike, pred: ArrayLike, R: ArrayLike, t: ArrayLike,
