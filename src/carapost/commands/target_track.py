@@ -544,7 +544,6 @@ class TargetTrackJob(Job):
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
 
-
     def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
                          touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
         """Where point ``i``'s one-camera frames of this run are placed on their ray.
