@@ -462,3 +462,19 @@ def test_bad_input_or_nothing_to_do_leaves_no_fork_server(source_take, tmp_path)
     assert got["summary"]["done"] == 1 and got["pid"] is not None  # the batch's own
     got = _in_fresh_python(code, str(source_take), str(out), "rerun")
     assert (got["summary"]["skipped"], got["pid"]) == (1, None)
+    # an error after planning and before any worker (here: reading the manifest) also
+    # stops it
+    code = (
+        "import json, sys\n"
+        "from multiprocessing import forkserver\n"
+        "import carapost.batch as batch\n"
+        "def broken(outdir):\n"
+        "    raise RuntimeError('manifest reader broke')\n"
+        "batch.read_manifest = broken\n"
+        "try:\n"
+        "    batch.run([sys.argv[1]], sys.argv[2], workers=1)\n"
+        "except RuntimeError as exc:\n"
+        "    error = str(exc)\n"
+        "print(json.dumps({'error': error, 'pid': forkserver._forkserver._forkserver_pid}))\n")
+    got = _in_fresh_python(code, str(source_take), str(tmp_path / "broken"))
+    assert got == {"error": "manifest reader broke", "pid": None}

@@ -551,93 +551,92 @@ def run(inputs: Iterable[str | os.PathLike[str]] | str | os.PathLike[str],
     # The fork server of a local cluster imports the take's modules (~1.2 s CPU, the
     # start-up's longest wait: the first worker is forked from it) on the other core
     # while this process plans (whose imports of the pipeline and scipy are ~0.4 s of
-    # CPU), reads the manifest and starts the scheduler. Bad input stops it again.
+    # CPU), reads the manifest and starts the scheduler.
     forked = client is None and not scheduler and start_fork_server()
+    # stopped on every way out before a worker was forked from it (bad input, a
+    # locked OUTDIR, nothing to do, an error): its preload is then no use
+    workers_forked = False
     try:
         tasks = plan(inputs, out, settings)
-    except BaseException:
-        if forked:
-            stop_fork_server()
-        raise
-    outdir = Path(out).absolute()
-    own: tuple[Any, ...] | None = None
-    if client is None and scheduler:
-        client = _connect(scheduler, connect_timeout)
-        own = (None, client)
-    outdir.mkdir(exist_ok=True)
-    try:
-        # one batch per OUTDIR at a time: two would interleave their manifests
-        lock = _lock_outdir(outdir)
-    except BatchError:
-        _close(own)
-        if forked:
-            stop_fork_server()
-        raise
-    try:
-        manifest = read_manifest(outdir)
-        rows: dict[int, dict[str, Any]] = {}
-        todo: list[int] = []
-        for i, t in enumerate(tasks):
-            entry = manifest.get(t.key(outdir))
-            if not force and _is_current(t, entry):
-                rows[i] = {**entry.get("row", {}), "status": "skipped", "error": "",
-                           "seconds": 0.0, "attempts": 0}
-            else:
-                todo.append(i)
-        state = {"total": len(tasks), "done": 0, "failed": 0, "skipped": len(rows),
-                 "running": 0, "elapsed_s": 0.0, "eta_s": None}
-        n_workers = 0
-
-        def report(cancelled: bool = False) -> dict[str, Any]:
-            all_rows = []
-            for i, t in enumerate(tasks):
-                row = rows.get(i) or {"take": str(t.take), "status": "cancelled" if cancelled
-                                      else "pending", "error": "interrupted" if cancelled else ""}
-                all_rows.append({k: row.get(k) for k in REPORT_FIELDS})
-            counts = {s: sum(r["status"] == s for r in all_rows)
-                      for s in ("done", "failed", "skipped", "cancelled")}
-            rep = {"carapost": __version__, "outdir": str(outdir),
-                   "settings": asdict(settings), "workers": n_workers,
-                   "seconds": round(time.perf_counter() - started, 3),
-                   "summary": {"total": len(tasks), **counts}, "takes": all_rows}
-            _write_report(outdir, rep)
-            return rep
-
-        if progress is not None:
-            progress(dict(state))
-        if not todo:
-            if forked:  # every take is up to date: no worker is needed
-                stop_fork_server()
-            return report()
+        outdir = Path(out).absolute()
+        own: tuple[Any, ...] | None = None
+        if client is None and scheduler:
+            client = _connect(scheduler, connect_timeout)
+            own = (None, client)
+        outdir.mkdir(exist_ok=True)
         try:
-            if client is None:
-                n = min(int(workers or os.cpu_count() or 1), len(todo))
-                own = _local_cluster(n, wait=False)  # waited for once the takes are queued
-                client = own[1]
-                n_workers = n  # they join while the takes are queued
-            else:
-                n_workers = len(client.scheduler_info().get("workers", {}))
-            _run_tasks(client, tasks, _longest_first(tasks, todo), settings, outdir,
-                       manifest, rows, state, retries, task, progress, started,
-                       first_worker=own is not None)
-            # every take has ended: the report is written before the cluster is shut down
-            rep = report()
-        except KeyboardInterrupt:
-            log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
-                        state["failed"], len(todo))
+            # one batch per OUTDIR at a time: two would interleave their manifests
+            lock = _lock_outdir(outdir)
+        except BatchError:
             _close(own)
-            own = None
-            for i in todo:
-                if i not in rows:
-                    _remove_partials(tasks[i])
-            report(cancelled=True)
             raise
-        finally:
-            _close(own)
-        return rep
-    finally:
-        os.close(lock)  # closing releases the lock
+        try:
+            manifest = read_manifest(outdir)
+            rows: dict[int, dict[str, Any]] = {}
+            todo: list[int] = []
+            for i, t in enumerate(tasks):
+                entry = manifest.get(t.key(outdir))
+                if not force and _is_current(t, entry):
+                    rows[i] = {**entry.get("row", {}), "status": "skipped", "error": "",
+                               "seconds": 0.0, "attempts": 0}
+                else:
+                    todo.append(i)
+            state = {"total": len(tasks), "done": 0, "failed": 0, "skipped": len(rows),
+                     "running": 0, "elapsed_s": 0.0, "eta_s": None}
+            n_workers = 0
 
+            def report(cancelled: bool = False) -> dict[str, Any]:
+                all_rows = []
+                for i, t in enumerate(tasks):
+                    row = rows.get(i) or {
+                        "take": str(t.take), "status": "cancelled" if cancelled else "pending",
+                        "error": "interrupted" if cancelled else ""}
+                    all_rows.append({k: row.get(k) for k in REPORT_FIELDS})
+                counts = {s: sum(r["status"] == s for r in all_rows)
+                          for s in ("done", "failed", "skipped", "cancelled")}
+                rep = {"carapost": __version__, "outdir": str(outdir),
+                       "settings": asdict(settings), "workers": n_workers,
+                       "seconds": round(time.perf_counter() - started, 3),
+                       "summary": {"total": len(tasks), **counts}, "takes": all_rows}
+                _write_report(outdir, rep)
+                return rep
+
+            if progress is not None:
+                progress(dict(state))
+            if not todo:  # every take is up to date: no worker is needed
+                return report()
+            try:
+                if client is None:
+                    n = min(int(workers or os.cpu_count() or 1), len(todo))
+                    workers_forked = True   # from here its workers fork from the server
+                    own = _local_cluster(n, wait=False)  # waited for once the takes are queued
+                    client = own[1]
+                    n_workers = n  # they join while the takes are queued
+                else:
+                    n_workers = len(client.scheduler_info().get("workers", {}))
+                _run_tasks(client, tasks, _longest_first(tasks, todo), settings, outdir,
+                           manifest, rows, state, retries, task, progress, started,
+                           first_worker=own is not None)
+                # every take has ended: the report is written before the cluster is shut down
+                rep = report()
+            except KeyboardInterrupt:
+                log.warning("Batch interrupted: %d of %d takes finished", state["done"] +
+                            state["failed"], len(todo))
+                _close(own)
+                own = None
+                for i in todo:
+                    if i not in rows:
+                        _remove_partials(tasks[i])
+                report(cancelled=True)
+                raise
+            finally:
+                _close(own)
+            return rep
+        finally:
+            os.close(lock)  # closing releases the lock
+    finally:
+        if forked and not workers_forked:
+            stop_fork_server()
 
 LOCK_NAME = ".batch.lock"
 
