@@ -33,28 +33,32 @@ import sys
 import numpy as np
 
 import target_track as tt
-from carapost.algorithms.target_track import TargetTrackerParameters, track_target
+from carapost.algorithms.target_track import TargetTrackerParameters
 from carapost.synth import SynthConfig
+
+
+class _Keyed:
+    """``frames[f, c]`` with frame 0 of every camera replaced by ``key_img(c)`` (the
+    keyframe image), indexed like the benchmark's image arrays for `target_track.ours`."""
+
+    def __init__(self, frames: np.ndarray, key_img) -> None:
+        self.frames, self.key_img, self.keys = frames, key_img, {}
+
+    def __getitem__(self, fc: tuple[int, int]) -> np.ndarray:
+        f, c = fc
+        if f != 0:
+            return self.frames[f, c]
+        if c not in self.keys:
+            self.keys[c] = self.key_img(c)
+        return self.keys[c]
 
 
 def _errors(frames_imgs: np.ndarray, key_img, uv: np.ndarray, markers: np.ndarray
             ) -> np.ndarray:
     """(tracks, F - 1) errors (px) of every marker in every camera, keyframe at 0 from
     ``key_img(c)``, the other frames from ``frames_imgs``; NaN where not tracked."""
-    F, _, C, _ = uv.shape
     params = TargetTrackerParameters(break_threshold=0.0)
-    out = []
-    for c in range(C):
-        k0 = key_img(c)
-        for m in markers:
-            r = track_target(lambda f, c=c, k0=k0: k0 if f == 0 else frames_imgs[f, c],
-                             {0: uv[0, m, c]}, start=0, stop=F - 1, direction=1,
-                             params=params)
-            e = np.full(F - 1, np.nan)
-            e[:len(r.frames) - 1] = np.linalg.norm(r.xy[1:] - uv[r.frames[1:], m, c],
-                                                   axis=-1)
-            out.append(e)
-    return np.array(out)
+    return tt.ours(_Keyed(frames_imgs, key_img), uv, markers, params)[0]
 
 
 def main(argv: list[str] | None = None) -> int:
