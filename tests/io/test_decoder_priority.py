@@ -14,6 +14,7 @@ import pytest
 from carapost.io.decode import AVReader
 from carapost.io.frameservice import DECODER_NICE, DECODER_THREADS, FrameService
 from carapost.model.project import CameraChannel, Take
+from tests.io.test_video import write_video
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice: Linux")
@@ -39,20 +40,13 @@ def test_decoder_threads_run_below_the_callers_priority(tmp_path):
         assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
 
 
-def _video(path, n=10):
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 60.0, (64, 48),
-                             isColor=False)
-    rng = np.random.default_rng(3)
-    for _ in range(n):
-        writer.write(rng.integers(0, 256, (48, 64), dtype=np.uint8))
-    writer.release()
-    return path
-
-
 def test_frame_service_decoders_use_one_ffmpeg_thread_each(tmp_path):
     """Each camera has a decoder thread of its own, so FFmpeg adds no threads per
     decoder (they would compete with the GUI thread); the pixels are the same."""
-    path = _video(tmp_path / "t_cam0.mkv")
+    rng = np.random.default_rng(3)
+    path = write_video(tmp_path / "t_cam0.mkv",
+                       [rng.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(10)],
+                       fps=60.0)
     take = Take(name="t", n_frames=10, cameras=[
         CameraChannel(name="cam0", video_path=str(path), image_size=(64, 48))])
     default = AVReader(path)
