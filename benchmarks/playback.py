@@ -47,6 +47,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -296,21 +297,11 @@ class Bench:
             # were counted as one gap of the "opens" phase. The ticks meanwhile (the
             # previous take's read-ahead, the worker's GIL use) are phase "opens_read".
             self.stalls.phase = "opens_read"
-            box: list = []
-
-            def read(box: list = box) -> None:
-                try:
-                    box.append(Session.import_take(take))
-                except BaseException as exc:  # raised again on the GUI thread
-                    box.append(exc)
-
-            reader = threading.Thread(target=read)
-            reader.start()
-            while reader.is_alive():
-                self.pump(0.01)
-            if isinstance(box[0], BaseException):
-                raise RuntimeError("the take could not be read") from box[0]
-            session = box[0]
+            with ThreadPoolExecutor(1) as reader:
+                read = reader.submit(Session.import_take, take)
+                while not read.done():
+                    self.pump(0.01)
+            session = read.result()   # an error of the reading is raised here
             self.stalls.phase = "opens"
             # a frame of its own per opening: a view still showing the previous take's
             # frame must not count as drawn
