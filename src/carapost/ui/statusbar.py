@@ -6,6 +6,7 @@ from PySide6.QtWidgets import QLabel, QProgressBar, QPushButton, QStatusBar
 
 from carapost.model.events import Change
 from carapost.ui.context import ActionContext
+from carapost.ui.fixed_label import fix_to_text
 
 
 class JobStatus:
@@ -23,15 +24,8 @@ class JobStatus:
         # proxies' progress; a label whose size follows its text made Qt lay out the
         # status bar and the whole main window each time, in the middle of playback.
         # Fixed at the size of its longest text, it lays nothing out.
-        fm = self.frames_label.fontMetrics()
-        widest = max("0123456789", key=fm.horizontalAdvance)
-        longest = (f"Images: Original  |  {widest * 3}/{widest * 3} fps  |  Proxies "
-                   f"{widest * 2}/{widest * 2} ({widest * 3}%)")
-        margins = self.frames_label.contentsMargins()
-        self.frames_label.setFixedSize(
-            fm.horizontalAdvance(longest) + margins.left() + margins.right() + 6,
-            max(self.frames_label.sizeHint().height(),
-                fm.height() + margins.top() + margins.bottom()))
+        fix_to_text(self.frames_label,
+                    "Images: Original  |  000/000 fps  |  Proxies 00/00 (000%)")
         self.progress = QProgressBar()
         self.progress.setMaximumWidth(260)
         self.progress.hide()

@@ -8,6 +8,7 @@ from PySide6.QtGui import QColor, QPainter, QPen
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QSpinBox, QToolButton, QWidget
 
 from carapost.model.project import Project
+from carapost.ui.fixed_label import fix_to_text
 
 
 def timecode_text(project: Project, frame: int) -> str:
@@ -242,18 +243,10 @@ class Timebar(QWidget):
         p = self.project
         if p is None:
             return
-        fm = self.label.fontMetrics()
-        widest = max("0123456789", key=fm.horizontalAdvance)
-        digits = len(str(max(p.n_frames - 1, 0)))
-        n = widest * digits
+        n = "0" * len(str(max(p.n_frames - 1, 0)))
         last = max(p.n_frames - 1, 0)
         longest = max((timecode_text(p, f) for f in {0, min(1, last), last}), key=len)
-        tc = "".join(widest if ch.isdigit() else ch for ch in longest)
-        text = f"{tc}  frame {n} / {n}  active {n}-{n}"
-        margins = self.label.contentsMargins()
-        width = fm.horizontalAdvance(text) + margins.left() + margins.right() + 6
-        height = max(self.label.sizeHint().height(), fm.height() + margins.top() + margins.bottom())
-        self.label.setFixedSize(max(210, width), height)
+        fix_to_text(self.label, f"{longest}  frame {n} / {n}  active {n}-{n}", min_width=210)
 
     def set_playing(self, playing: bool) -> None:
         """Reflect the play state on the button."""
