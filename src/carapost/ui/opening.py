@@ -176,6 +176,18 @@ class OpenSlices(QObject):
         return (key in self._steps and change is not None and change.parts is not None
                 and change.parts <= _FRAME_ONLY)
 
+    def hold(self, key: Hashable, change: Change | None, fn: Callable[[], None]) -> bool:
+        """The rule every listener follows while a take opens: a change of the file
+        defers ``fn`` (the redraw of ``key``) to its slice, and a change of the
+        current frame alone is skipped when ``key``'s pending redraw will show it.
+
+        Returns True when the listener must not redraw now.
+        """
+        if (change is not None and change.parts is not None and "file" in change.parts
+                and self.defer(key, fn)):
+            return True
+        return self.covers(key, change)
+
     def change_arrived(self, change: Change) -> None:
         """Slot for the views' ``changed`` (connected before every listener): a change
         after the opening's own is shown on a window drawn from the new take (a frame
@@ -236,12 +248,9 @@ def defer_while_opening(slot: Callable[..., None]) -> Callable[..., None]:
     def wrapper(self, change: Change | None, *args, **kwargs) -> None:
         ctx = getattr(self.ctx, "view", self.ctx)
         slices: OpenSlices | None = getattr(ctx, "opening", None)
-        if slices is not None:
-            if (change is not None and change.parts is not None and "file" in change.parts
-                    and slices.defer(self, lambda: slot(self, change, *args, **kwargs))):
-                return
-            if slices.covers(self, change):
-                return  # the pending redraw shows the new frame
+        if slices is not None and slices.hold(
+                self, change, lambda: slot(self, change, *args, **kwargs)):
+            return
         slot(self, change, *args, **kwargs)
 
     wrapper.__name__ = slot.__name__

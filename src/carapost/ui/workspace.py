@@ -207,10 +207,7 @@ class Workspace(QWidget):
         opening = self.ctx.opening
         for c in self.containers:
             view = c.view
-            if change is not None and change.parts is not None and "file" in change.parts \
-                    and opening.defer(view, lambda v=view: v.refresh(change)):
-                continue
-            if not opening.covers(view, change):  # (the pending redraw shows the frame)
+            if not opening.hold(view, change, lambda v=view: v.refresh(change)):
                 view.refresh(change)
 
 
