@@ -31,7 +31,9 @@ unbiased estimator could reach on it, and how far ours is from that:
   could). ``crlb_anchor_p95_px`` is that offset's bound; ``crlb_case_*`` the bound on
   the benchmark's own figures (over every sample: the offset of its track plus the
   frame's own error; ``temporal``: the offset alone, what a perfect use of every frame
-  of the track would leave).
+  of the track would leave), over all samples and over those the benchmark's runs
+  tracked (``samples``: the benchmark's figures are over the latter; a run whose first
+  step is refused tracks none).
 - **Temporal estimation** (unless ``--skip-temporal``): the cases' tracks as the
   benchmark runs them (Break Threshold 0), their errors smoothed *ideally* (the signed
   error itself averaged over a centred window: zero lag, the motion known), and the
@@ -114,16 +116,21 @@ def _rms(C: np.ndarray) -> float:
     return float(math.sqrt(max(np.trace(C), 0.0)))
 
 
-def bench_bound(frames: int, step: int, trials: int) -> None:
-    """The bound per frame, ours against it, the keyframe anchor (see the module)."""
+def bench_bound(frames: int, step: int, trials: int,
+                tracked: np.ndarray | None = None) -> None:
+    """The bound per frame, ours against it, the keyframe anchor (see the module).
+
+    ``tracked`` (tracks, frames - 1) bool, tracks in marker-major order as the benchmark
+    runs them: the samples the benchmark's figures are over (its runs track a sample
+    or not); the case's bound is given over those too."""
     rng = np.random.default_rng(0)
     cfg = SynthConfig(frames=frames, size=(1280, 720), preset="speech", noise=0.0,
                       motion_blur=True)
     scene = build_scene(cfg)
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    rows: dict[tuple[int, int], list[dict]] = {(m, c): [] for m in markers
-                                                for c in range(scene.n_cameras)}
+    keys = [(m, c) for m in markers for c in range(scene.n_cameras)]
+    rows: dict[tuple[int, int], list[dict]] = {k: [] for k in keys}
     anchor: dict[tuple[int, int], dict] = {}
     t0 = time.process_time()
     for f in [0, *range(1, frames, step)]:
@@ -138,6 +145,7 @@ def bench_bound(frames: int, step: int, trials: int) -> None:
                 x, y = (float(v) for v in uv[f, m, c])
                 row = _bounds(I0, ink, x, y)
                 row["mc"] = _ours_mc(I0, x, y, trials, rng)
+                row["f"] = f
                 (anchor.__setitem__((m, c), row) if f == 0 else rows[(m, c)].append(row))
     cpu = time.process_time() - t0
     flat = [r for v in rows.values() for r in v]
@@ -159,18 +167,25 @@ def bench_bound(frames: int, step: int, trials: int) -> None:
             full_p95_px=round(_p95([r["full"] for r in a], rng), 4),
             rms_median_px=round(float(np.median([_rms(r["ink"]) for r in a])), 4),
             ours_to_ink_bound_median=round(float(np.median(ratio0)), 3), tracks=len(a))
-    for kind in ("ink", "full"):   # the benchmark's figures: offset per track + the frame's
-        per, temporal = [], []
-        for _ in range(50):
-            for key, rs in rows.items():
-                off = rng.multivariate_normal([0.0, 0.0], anchor[key][kind])
-                for r in rs:
-                    per.append(np.hypot(*(off + rng.multivariate_normal([0.0, 0.0], r[kind]))))
-                    temporal.append(np.hypot(*off))
-        tt.emit(f"crlb_case_{kind}_p95_px", round(float(np.percentile(per, 95)), 4), "px",
-                median_px=round(float(np.median(per)), 4),
-                temporal_p95_px=round(float(np.percentile(temporal, 95)), 4),
-                temporal_median_px=round(float(np.median(temporal)), 4))
+    masks = {"all": None} if tracked is None else {"all": None, "tracked": tracked}
+    for samples, mask in masks.items():
+        for kind in ("ink", "full"):   # the benchmark's figures: offset per track + the frame's
+            per, temporal = [], []
+            for _ in range(50):
+                for i, key in enumerate(keys):
+                    rs = [r for r in rows[key] if mask is None or mask[i, r["f"] - 1]]
+                    if not rs:
+                        continue
+                    off = rng.multivariate_normal([0.0, 0.0], anchor[key][kind])
+                    for r in rs:
+                        e = off + rng.multivariate_normal([0.0, 0.0], r[kind])
+                        per.append(np.hypot(*e))
+                        temporal.append(np.hypot(*off))
+            tt.emit(f"crlb_case_{kind}_p95_px", round(float(np.percentile(per, 95)), 4), "px",
+                    median_px=round(float(np.median(per)), 4),
+                    temporal_p95_px=round(float(np.percentile(temporal, 95)), 4),
+                    temporal_median_px=round(float(np.median(temporal)), 4),
+                    samples=samples, n=len(per) // 50)
     tt.emit("crlb_cpu_s", round(cpu, 1), "s")
 
 
@@ -214,8 +229,10 @@ def _predicted_var(img: np.ndarray, xy: np.ndarray) -> float:
     return float(s * s * gain * (L * L).sum() / 2.0 / max(float(raw.std()) ** 2, 1e-12))
 
 
-def bench_temporal(case: str, frames: int) -> None:
-    """Ideal and constant-velocity smoothing of the case's tracks (see the module)."""
+def bench_temporal(case: str, frames: int) -> np.ndarray:
+    """Ideal and constant-velocity smoothing of the case's tracks (see the module).
+
+    Returns the samples tracked, (tracks, frames - 1) bool."""
     scene, imgs = tt.render(SynthConfig(frames=frames, size=(1280, 720), **tt.CASES[case]))
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
@@ -254,6 +271,7 @@ def bench_temporal(case: str, frames: int) -> None:
         tt.emit("temporal_ideal_p95_px", p95, "px", case=case, window=k, median_px=med)
     med, p95 = stats(np.array(smooth))
     tt.emit("temporal_rts_p95_px", p95, "px", case=case, median_px=med)
+    return np.isfinite(E[..., 0])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -266,10 +284,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-temporal", action="store_true")
     args = ap.parse_args(argv)
     tt.CACHE_DIR = args.cache
-    bench_bound(args.frames, args.step, args.trials)
+    tracked = None
     if not args.skip_temporal:
         for case in args.cases.split(","):
-            bench_temporal(case, args.frames)
+            t = bench_temporal(case, args.frames)
+            tracked = t if case == "noisy" else tracked
+    bench_bound(args.frames, args.step, args.trials, tracked)
     return 0
 
 
