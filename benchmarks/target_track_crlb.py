@@ -1,7 +1,7 @@
 """How close the Target Tracker can get on the ``noisy`` case: the Cramér-Rao bound.
 
     python benchmarks/target_track_crlb.py [--step 10] [--trials 16] [--cache DIR]
-        [--cases noisy,speech,fast] [--skip-temporal]
+        [--cases noisy,speech,fast] [--skip-temporal] [--scratch DIR] [--skip-decompose]
 
 The ``noisy`` case of ``benchmarks/target_track.py`` is the speech take with noise 5
 and motion blur, one keyframe from the truth at frame 0. This script asks what *any*
@@ -41,6 +41,12 @@ unbiased estimator could reach on it, and how far ours is from that:
   measurement noise is the refinement's predicted variance (the image's noise,
   Immerkaer's estimate, through the refinement's normal equations at the keyframe) and
   whose process noise follows the track's own local second differences.
+
+- **The error, source by source** (unless ``--skip-decompose``): the noisy case's
+  tracks with its frames' and its keyframe's noise switched off in turn (the noiseless
+  render of the same take, kept in ``--scratch``), on the samples all runs track, and
+  the offset the keyframe's noise alone gives each track against the bound at frame 0
+  (:func:`bench_decompose`).
 
 Prints JSON lines like ``benchmarks/target_track.py``. ``--cache`` is where that
 benchmark keeps its renders (read only).
@@ -274,6 +280,72 @@ def bench_temporal(case: str, frames: int) -> np.ndarray:
     return np.isfinite(E[..., 0])
 
 
+def bench_decompose(frames: int, scratch: str | None) -> None:
+    """The noisy case's error with its noise switched off in turn, on common samples.
+
+    The noisy case's frames and keyframe image against the noiseless render of the same
+    take (``noise=0``, the same motion blur; kept in ``scratch``): noisy frames with the
+    noisy keyframe (the benchmark), with the noiseless keyframe, and noiseless frames
+    with the noiseless keyframe (the tracker's systematic error alone). The figures are
+    over each run's own samples and over the samples all three runs track. Also the
+    offset the keyframe's noise alone gives each track (the mean over the track of the
+    first run's positions less the second's), against the bound at frame 0: the mean of
+    ``offset' Sigma0^-1 offset`` is 2 for an estimator at the bound."""
+    from target_track_noisy_tail import _Keyed
+
+    base = {"frames": frames, "size": (1280, 720)}
+    scene, noisy = tt.render(SynthConfig(**base, **tt.CASES["noisy"]))
+    cache, tt.CACHE_DIR = tt.CACHE_DIR, scratch
+    _, clean = tt.render(SynthConfig(**base, preset="speech", noise=0.0, motion_blur=True))
+    tt.CACHE_DIR = cache
+    uv, vis = scene.uv, scene.visible
+    markers = np.flatnonzero(vis.all(axis=(0, 2)))
+    params = T.TargetTrackerParameters(break_threshold=0.0)
+
+    def run(imgs) -> np.ndarray:   # (tracks, frames, 2) positions, NaN where not tracked
+        out = []
+        for m in markers:
+            for c in range(scene.n_cameras):
+                r = T.track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0,
+                                   stop=frames - 1, direction=1, params=params)
+                xy = np.full((frames, 2), np.nan)
+                xy[:len(r.frames)] = r.xy
+                out.append(xy)
+        return np.array(out)
+
+    runs = {"noisy frames, noisy key (the benchmark)": (noisy, lambda c: noisy[0, c]),
+            "noisy frames, noiseless key": (noisy, lambda c: clean[0, c]),
+            "noiseless frames, noiseless key": (clean, lambda c: clean[0, c])}
+    truth = np.array([uv[:, m, c] for m in markers for c in range(scene.n_cameras)])
+    XY = {k: run(_Keyed(imgs, key)) for k, (imgs, key) in runs.items()}
+    E = {k: np.linalg.norm(xy[:, 1:] - truth[:, 1:], axis=-1) for k, xy in XY.items()}
+    common = np.all([np.isfinite(e) for e in E.values()], axis=0)
+    for k, e in E.items():
+        own = e[np.isfinite(e)]
+        tt.emit("decompose_p95_px", round(float(np.percentile(own, 95)), 4), "px", run=k,
+                median_px=round(float(np.median(own)), 4), samples=int(own.size),
+                common_p95_px=round(float(np.percentile(e[common], 95)), 4),
+                common_median_px=round(float(np.median(e[common])), 4),
+                common_samples=int(common.sum()))
+    a, b = XY["noisy frames, noisy key (the benchmark)"], XY["noisy frames, noiseless key"]
+    d = a[:, 1:] - b[:, 1:]
+    ok = np.isfinite(d[..., 0]).any(axis=1)
+    off = np.array([np.nanmean(t, axis=0) for t in d[ok]])
+    cfg = SynthConfig(**base, preset="speech", noise=0.0, motion_blur=True)
+    bscene = build_scene(cfg)
+    I0 = [render_frame(bscene, 0, c).astype(np.float64) for c in range(scene.n_cameras)]
+    shown = bscene.visible
+    bscene.visible = np.zeros_like(shown)
+    bare = [render_frame(bscene, 0, c).astype(np.float64) for c in range(scene.n_cameras)]
+    kept = [(m, c) for i, (m, c) in enumerate((m, c) for m in markers
+                                               for c in range(scene.n_cameras)) if ok[i]]
+    chi = [float(o @ np.linalg.inv(_bounds(I0[c], bare[c] - I0[c], *uv[0, m, c])["ink"]) @ o)
+           for o, (m, c) in zip(off, kept, strict=True)]
+    tt.emit("keyframe_noise_offset_chi2_mean", round(float(np.mean(chi)), 2), "",
+            tracks=int(ok.sum()), median=round(float(np.median(chi)), 2),
+            offset_p95_px=round(float(np.percentile(np.linalg.norm(off, axis=1), 95)), 4))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300)
@@ -282,6 +354,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=None)
     ap.add_argument("--cases", default="noisy,speech,fast")
     ap.add_argument("--skip-temporal", action="store_true")
+    ap.add_argument("--scratch", default=None,
+                    help="keeps the noiseless render of the noisy take between runs")
+    ap.add_argument("--skip-decompose", action="store_true")
     args = ap.parse_args(argv)
     tt.CACHE_DIR = args.cache
     tracked = None
@@ -290,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
             t = bench_temporal(case, args.frames)
             tracked = t if case == "noisy" else tracked
     bench_bound(args.frames, args.step, args.trials, tracked)
+    if not args.skip_decompose:
+        bench_decompose(args.frames, args.scratch)
     return 0
 
 
