@@ -10,10 +10,13 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   tuning): every face marker visible in all cameras throughout, one keyframe from the
   truth at frame 0, tracked forwards over the take in each camera.
   ``target_track_median_px``, ``target_track_p95_px`` (over every tracked sample of every
-  track, Break Threshold 0 so that every track runs to the end), ``target_track_end_drift_px``
+  track, Break Threshold 0 so that no track stops on its score), ``target_track_end_drift_px``
   (median over tracks of the median error over the last 10 frames),
   ``target_track_wrong_marker`` (tracks with any sample nearer another marker's truth
-  than its own), and with the default Break Threshold (0.9)
+  than its own), ``target_track_tracked_fraction`` (the samples those figures are over,
+  of every frame of every track: a run whose first step is refused stops even at Break
+  Threshold 0; ``tracks_with_none``: runs that tracked no frame), and with the default
+  Break Threshold (0.9)
   ``target_track_complete_fraction`` and ``target_track_wrong_marker_default``;
   the same markers by ``cv2.calcOpticalFlowPyrLK`` (frame to frame, the best window we
   found) -> ``klt_median_px``, ``klt_p95_px``, and by integer-peak ``cv2.matchTemplate``
@@ -221,6 +224,10 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
     emit("target_track_end_drift_px", round(drift, 4), "px", **common)
     emit("target_track_wrong_marker", wrong, "tracks", **common,
          cpu_frames_per_s=round(np.isfinite(E).sum() / cpu))
+    # the figures above are over the samples tracked: a run whose first step is refused
+    # (ambiguous, or failed its checks) stops even at Break Threshold 0
+    emit("target_track_tracked_fraction", round(float(np.isfinite(E).mean()), 3), "fraction",
+         **common, tracks_with_none=int((~np.isfinite(E)).all(axis=1).sum()))
     E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters(**overrides))
     emit("target_track_complete_fraction", round(complete9 / E.shape[0], 3), "fraction",
          **common, break_threshold=0.9,
