@@ -75,6 +75,19 @@ _NAMES = ("positions", "recon", "residual", "obs", "source", "detection", "quali
 
 ImageFn = Callable[[int, int], NDArray[np.uint8]]
 
+#: A restarted camera's track is kept while it lies this close (px) to the projection of
+#: the point's 3D from the other cameras (one camera's 3D at the predicted depth
+#: projects 0.1-1.5 px off on the missed-marker takes; a neighbouring marker is 20 px
+#: or more away).
+REACQUIRE_PX = 3.0
+#: ... and within this (px) of the projection of the point triangulated from two other
+#: cameras or more.
+REACQUIRE_TRI_PX = 0.35
+#: Where a restart keeps nothing, the next is tried this many frames on.
+REACQUIRE_SKIP = 2
+#: Restarts tried per lost track at most (each failed one costs a frame or two).
+REACQUIRE_ATTEMPTS = 60
+
 
 def tracker_parameters(project: Project, **overrides: Any) -> TargetTrackerParameters:
     """The Target Tracker settings of the project's properties (plus overrides)."""
@@ -437,6 +450,9 @@ class TargetTrackJob(Job):
     #: per point: its nearest points' triangulated 3D over first.. (n, k, 3) mm, NaN
     #: where not triangulated; their motion carries a one-camera frame's depth
     neighbour_xyz: list[NDArray] | None = None
+    #: put cameras that lost the marker back from the other cameras' 3D
+    #: (:meth:`_reacquire`; with Allow Single Sensor Tracking)
+    reacquire: bool = True
     #: What the run has tracked so far, appended on the worker as it goes: (point id,
     #: camera, frame, score) per tracked frame (the window draws the span growing, and
     #: shows the frame being tracked). Read it from another thread by slicing.
@@ -520,29 +536,163 @@ class TargetTrackJob(Job):
                 tracked += len(fr)
                 far = int(res.frames[ok][-1])
                 last = far if (far - last) * d > 0 else last
+        if (P.allow_single_sensor_tracking and self.reacquire and not cancelled
+                and self.intr is not None):
+            tracked += self._reacquire(block, touched, results, reasons, progress)
         # 3D of every frame a camera was tracked in
         rows = np.flatnonzero(touched)
         for i in range(len(self.ids)):
             if not len(rows):
                 break
-            obs = block["obs"][rows, i].astype(np.float64)
-            positions = block["positions"][:, i].astype(np.float64)
-            ref = _nearest_reference(np.where(touched[:, None], np.nan, positions), rows)
-            if P.allow_single_sensor_tracking and self.neighbour_xyz is not None:
-                ref = self._depth_reference(i, rows, obs, positions, touched, ref)
-            p, r, e = resolve_3d(obs, self.R[rows], self.t[rows], self.intr, ref,
-                                 P.allow_single_sensor_tracking)
-            bad = ~self.solved[rows]
-            p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
+            p, r, e = self._solve(block, touched, i)
             block["positions"][rows, i] = p
             block["recon"][rows, i] = r
             block["residual"][rows, i] = e
             block["sigma"][rows, i] = np.nan     # the old 3D's uncertainty, not this one's
+        if len(rows):
+            far = int(rows[-1] if d > 0 else rows[0]) + self.first
+            last = far if (far - last) * d > 0 else last
         message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
+
+    def _solve(self, block: dict[str, NDArray], touched: NDArray, i: int
+               ) -> tuple[NDArray[np.float32], NDArray[np.int8], NDArray[np.float32]]:
+        """3D of point ``i`` on the frames the run re-solves (``touched``) from the
+        block's observations: triangulated from two cameras or more, on the one
+        camera's ray at the predicted depth otherwise (:meth:`_depth_reference`).
+
+        Returns positions (m, 3) mm, recon (m,) and residual (m,) over
+        ``np.flatnonzero(touched)`` (NaN / RECON_NONE on unsolved frames)."""
+        P = self.params
+        rows = np.flatnonzero(touched)
+        obs = block["obs"][rows, i].astype(np.float64)
+        positions = self.block["positions"][:, i].astype(np.float64)   # before the run
+        ref = _nearest_reference(np.where(touched[:, None], np.nan, positions), rows)
+        if P.allow_single_sensor_tracking and self.neighbour_xyz is not None:
+            ref = self._depth_reference(i, rows, obs, positions, touched, ref)
+        p, r, e = resolve_3d(obs, self.R[rows], self.t[rows], self.intr, ref,
+                             P.allow_single_sensor_tracking)
+        bad = ~self.solved[rows]
+        p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
+        return p, r, e
+
+    def _reacquire(self, block: dict[str, NDArray], touched: NDArray,
+                   results: list[Any], reasons: dict[tuple[int, int], str],
+                   progress: Progress) -> int:
+        """Put the cameras that lost the marker back where the others still see it.
+
+        A lip marker moving 15-30 px a frame is lost by some cameras while one goes on;
+        its 3D from that one camera is then only as good as the depth its neighbours
+        predict (0.2-0.7 mm on the missed-marker takes). Where a camera stopped (score
+        below the Break Threshold) and the point still has 3D from the other cameras,
+        that 3D is projected into it and the camera tracks again from there
+        (:func:`~carapost.algorithms.target_track.track_target` from the projection,
+        its own keyframes, no motion assumed, so that the first step is checked against
+        every disc around it), up to the track's own stop. A frame is kept while it
+        scores above the Break Threshold and lies within `REACQUIRE_PX` of the
+        projection (a neighbouring marker is farther); the 3D is solved again after
+        every kept restart, so a second camera back makes the projection into a third
+        a triangulated one. Where a restart keeps nothing, the next is tried
+        `REACQUIRE_SKIP` frames on.
+
+        Writes the kept frames into ``block`` (as the run's own) and ``touched``;
+        returns how many observations it added.
+        """
+        from carapost.algorithms.camera import project as project_points
+        from carapost.algorithms.target_track import track_target
+
+        d, P = self.direction, self.params
+        index = {pid: i for i, pid in enumerate(self.ids)}
+        n = len(touched)
+        # per lost track: the next frame to try a restart from (block row)
+        nxt: dict[int, int] = {}
+        for j, res in enumerate(results):
+            if res is not None and res.reason == STOP_THRESHOLD:
+                nxt[j] = int(res.frames[-1]) - self.first
+        added, budget = 0, REACQUIRE_ATTEMPTS * len(nxt)
+        X: dict[int, NDArray[np.float64]] = {}
+
+        def solved(i: int) -> NDArray[np.float64]:
+            if i not in X:
+                out = np.full((n, 3), np.nan)
+                rows = np.flatnonzero(touched)
+                if len(rows):
+                    out[rows] = self._solve(block, touched, i)[0]
+                X[i] = out
+            return X[i]
+
+        while nxt and budget > 0:
+            if progress is not None and progress(n, n) is False:
+                break
+            # the earliest restart in the direction of travel: its 3D is the best known
+            j = min(nxt, key=lambda j: nxt[j] * d)
+            tr, g = self.tracks[j], nxt[j]
+            i, c = index[tr.point], tr.camera
+            end = tr.stop - self.first
+            if (end - g) * d <= 0:
+                del nxt[j]
+                continue
+            Xi = solved(i)
+            # the first frame from g on where this camera has nothing and the point 3D
+            span = np.arange(g, end, d)
+            free = span[~np.isfinite(block["obs"][span, i, c, 0])
+                        & np.isfinite(Xi[span]).all(-1)]
+            if not len(free):
+                del nxt[j]
+                continue
+            if free[0] != g:
+                nxt[j] = int(free[0])
+                continue
+            budget -= 1
+            uv = project_points(Xi[:, None], self.R, self.t, self.intr)[0][:, 0, c]  # (n, 2)
+            try:
+                res = track_target(lambda f, c=c: self.get_image(f, c), tr.keys,
+                                   start=g + self.first, stop=tr.stop, direction=d,
+                                   params=tr.params if tr.params is not None else P,
+                                   start_xy=uv[g])
+            except ValueError:   # the projection's pattern box leaves the image
+                nxt[j] = g + REACQUIRE_SKIP * d
+                continue
+            ok = res.tracked & (res.frames != res.frames[0])
+            fr = res.frames[ok] - self.first
+            xy = res.xy[ok]
+            # kept while another camera sees the point (the frame is triangulated, not
+            # a new one-camera stretch), the track stays on that 3D, and this camera
+            # has no data there
+            others = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).any(1)
+            far = ~(np.linalg.norm(xy - uv[fr], axis=-1) <= REACQUIRE_PX)
+            busy = np.isfinite(block["obs"][fr, i, c, 0])
+            cut = np.flatnonzero(far | busy | ~others)
+            keep = cut[0] if len(cut) else len(fr)
+            fr, xy, sc = fr[:keep], xy[:keep], res.score[ok][:keep]
+            # where two other cameras or more triangulate the point its projection is
+            # good to a few tenths of a pixel: a frame farther off is this camera's
+            # mismatch (a lip's look changed since the keyframe), left out
+            tri = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).sum(1) >= 2
+            off = tri & (np.linalg.norm(xy - uv[fr], axis=-1) > REACQUIRE_TRI_PX)
+            fr, xy, sc = fr[~off], xy[~off], sc[~off]
+            if not len(fr):
+                nxt[j] = g + REACQUIRE_SKIP * d
+                continue
+            block["obs"][fr, i, c] = xy.astype(np.float32)
+            block["source"][fr, i, c] = SOURCE_TARGET
+            block["detection"][fr, i, c] = -1
+            block["quality"][fr, i, c] = sc.astype(np.float16)
+            block["keyframe"][fr, i, c] = False
+            touched[fr] = True
+            added += len(fr)
+            X.pop(i, None)
+            self.live.extend((tr.point, c, int(f) + self.first, float(q))
+                             for f, q in zip(fr, sc, strict=True))
+            self.live_xy[(tr.point, c)] = (int(fr[-1]) + self.first, float(xy[-1, 0]),
+                                           float(xy[-1, 1]))
+            reasons[(tr.point, c)] = (tr.limit if res.reason == STOP_END and tr.limit
+                                      else res.reason)
+            nxt[j] = int(fr[-1]) + d
+        return added
 
     def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
                          touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
