@@ -536,9 +536,12 @@ class TargetTrackJob(Job):
                 tracked += len(fr)
                 far = int(res.frames[ok][-1])
                 last = far if (far - last) * d > 0 else last
+        added = 0
         if (P.allow_single_sensor_tracking and self.reacquire and not cancelled
                 and self.intr is not None):
-            tracked += self._reacquire(block, touched, results, reasons, progress)
+            added, paused = self._reacquire(block, touched, results, reasons, progress,
+                                            lock.total)
+            tracked, cancelled = tracked + added, paused
         # 3D of every frame a camera was tracked in
         rows = np.flatnonzero(touched)
         for i in range(len(self.ids)):
@@ -553,6 +556,9 @@ class TargetTrackJob(Job):
             far = int(rows[-1] if d > 0 else rows[0]) + self.first
             last = far if (far - last) * d > 0 else last
         message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
+        if added:
+            message += (f"; {added} observation{'s' if added != 1 else ''} tracked again "
+                        "in cameras that had lost the marker, from the others' 3D")
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
@@ -581,7 +587,7 @@ class TargetTrackJob(Job):
 
     def _reacquire(self, block: dict[str, NDArray], touched: NDArray,
                    results: list[Any], reasons: dict[tuple[int, int], str],
-                   progress: Progress) -> int:
+                   progress: Progress, total: int) -> tuple[int, bool]:
         """Put the cameras that lost the marker back where the others still see it.
 
         A lip marker moving 15-30 px a frame is lost by some cameras while one goes on;
@@ -599,7 +605,9 @@ class TargetTrackJob(Job):
         `REACQUIRE_SKIP` frames on.
 
         Writes the kept frames into ``block`` (as the run's own) and ``touched``;
-        returns how many observations it added.
+        returns how many observations it added and whether it was paused:
+        ``progress(total, total)`` is asked before every restart (the run's frames are
+        done), and False stops there (Pause keeps what was put back).
         """
         from carapost.algorithms.camera import project as project_points
         from carapost.algorithms.target_track import track_target
@@ -625,8 +633,8 @@ class TargetTrackJob(Job):
             return X[i]
 
         while nxt and budget > 0:
-            if progress is not None and progress(n, n) is False:
-                break
+            if progress is not None and progress(total, total) is False:   # Pause
+                return added, True
             # the earliest restart in the direction of travel: its 3D is the best known
             j = min(nxt, key=lambda j: nxt[j] * d)
             tr, g = self.tracks[j], nxt[j]
@@ -692,7 +700,7 @@ class TargetTrackJob(Job):
             reasons[(tr.point, c)] = (tr.limit if res.reason == STOP_END and tr.limit
                                       else res.reason)
             nxt[j] = int(fr[-1]) + d
-        return added
+        return added, False
 
     def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
                          touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
