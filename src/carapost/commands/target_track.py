@@ -12,11 +12,11 @@ and its :class:`TargetTrackResult` writes the tracked 2D observations (source
 ``SOURCE_TARGET``, the score in ``quality``) and the re-solved 3D of every tracked frame
 as one History entry. A paused (cancelled) run keeps what it tracked.
 
-3D after each tracked frame: with two or more cameras the point is triangulated from
-all its observations (Gauss-Newton on the reprojection error,
-:func:`carapost.algorithms.triangulation.triangulate`); with one camera and Allow Single
-Sensor Tracking, it is put on that camera's ray at the depth of the nearest frame that
-has a 3D position (``RECON_SINGLE_SENSOR``).
+3D after each tracked frame: triangulated from two cameras or more (Gauss-Newton on the
+reprojection error, :func:`carapost.algorithms.triangulation.triangulate`); from one
+camera, with Allow Single Sensor Tracking, on its ray nearest the neighbours'
+prediction (``RECON_SINGLE_SENSOR``). Cameras that lost the marker are first tracked
+again from the others' 3D (:mod:`carapost.commands.target_reacquire`).
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from carapost.algorithms.target_track import (
 )
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
+from carapost.commands.target_reacquire import reacquire
 from carapost.commands.target_sizes import track_parameters
 from carapost.model.project import Project
 
@@ -74,19 +75,6 @@ _NAMES = ("positions", "recon", "residual", "obs", "source", "detection", "quali
           "keyframe", "sigma")
 
 ImageFn = Callable[[int, int], NDArray[np.uint8]]
-
-#: A restarted camera's track is kept while it lies this close (px) to the projection of
-#: the point's 3D from the other cameras (one camera's 3D at the predicted depth
-#: projects 0.1-1.5 px off on the missed-marker takes; a neighbouring marker is 20 px
-#: or more away).
-REACQUIRE_PX = 3.0
-#: ... and within this (px) of the projection of the point triangulated from two other
-#: cameras or more.
-REACQUIRE_TRI_PX = 0.35
-#: Where a restart keeps nothing, the next is tried this many frames on.
-REACQUIRE_SKIP = 2
-#: Restarts tried per lost track at most (each failed one costs a frame or two).
-REACQUIRE_ATTEMPTS = 60
 
 
 def tracker_parameters(project: Project, **overrides: Any) -> TargetTrackerParameters:
@@ -450,8 +438,7 @@ class TargetTrackJob(Job):
     #: per point: its nearest points' triangulated 3D over first.. (n, k, 3) mm, NaN
     #: where not triangulated; their motion carries a one-camera frame's depth
     neighbour_xyz: list[NDArray] | None = None
-    #: put cameras that lost the marker back from the other cameras' 3D
-    #: (:meth:`_reacquire`; with Allow Single Sensor Tracking)
+    #: track the cameras that lost the marker again (`target_reacquire`)
     reacquire: bool = True
     #: What the run has tracked so far, appended on the worker as it goes: (point id,
     #: camera, frame, score) per tracked frame (the window draws the span growing, and
@@ -534,27 +521,22 @@ class TargetTrackJob(Job):
                 block["keyframe"][fr, i, tr.camera] = False
                 touched[fr] = True
                 tracked += len(fr)
-                far = int(res.frames[ok][-1])
-                last = far if (far - last) * d > 0 else last
         added = 0
         if (P.allow_single_sensor_tracking and self.reacquire and not cancelled
                 and self.intr is not None):
-            added, paused = self._reacquire(block, touched, results, reasons, progress,
-                                            lock.total)
+            added, paused = reacquire(self, block, touched, results, reasons, progress,
+                                      lock.total)
             tracked, cancelled = tracked + added, paused
         # 3D of every frame a camera was tracked in
         rows = np.flatnonzero(touched)
         for i in range(len(self.ids)):
             if not len(rows):
                 break
-            p, r, e = self._solve(block, touched, i)
-            block["positions"][rows, i] = p
-            block["recon"][rows, i] = r
-            block["residual"][rows, i] = e
+            (block["positions"][rows, i], block["recon"][rows, i],
+             block["residual"][rows, i]) = self.solve(block, touched, i)
             block["sigma"][rows, i] = np.nan     # the old 3D's uncertainty, not this one's
-        if len(rows):
-            far = int(rows[-1] if d > 0 else rows[0]) + self.first
-            last = far if (far - last) * d > 0 else last
+        if len(rows):   # the farthest frame tracked (cameras tracked again included)
+            last = int(rows[-1] if d > 0 else rows[0]) + self.first
         message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
         if added:
             message += (f"; {added} observation{'s' if added != 1 else ''} tracked again "
@@ -564,14 +546,11 @@ class TargetTrackJob(Job):
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
 
-    def _solve(self, block: dict[str, NDArray], touched: NDArray, i: int
-               ) -> tuple[NDArray[np.float32], NDArray[np.int8], NDArray[np.float32]]:
-        """3D of point ``i`` on the frames the run re-solves (``touched``) from the
-        block's observations: triangulated from two cameras or more, on the one
-        camera's ray at the predicted depth otherwise (:meth:`_depth_reference`).
-
-        Returns positions (m, 3) mm, recon (m,) and residual (m,) over
-        ``np.flatnonzero(touched)`` (NaN / RECON_NONE on unsolved frames)."""
+    def solve(self, block: dict[str, NDArray], touched: NDArray, i: int
+              ) -> tuple[NDArray[np.float32], NDArray[np.int8], NDArray[np.float32]]:
+        """3D of point ``i`` over the re-solved frames ``np.flatnonzero(touched)`` from
+        the block's observations (:func:`resolve_3d`, depth from
+        :meth:`_depth_reference`): positions (m, 3) mm, recon (m,), residual (m,)."""
         P = self.params
         rows = np.flatnonzero(touched)
         obs = block["obs"][rows, i].astype(np.float64)
@@ -584,123 +563,6 @@ class TargetTrackJob(Job):
         bad = ~self.solved[rows]
         p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
         return p, r, e
-
-    def _reacquire(self, block: dict[str, NDArray], touched: NDArray,
-                   results: list[Any], reasons: dict[tuple[int, int], str],
-                   progress: Progress, total: int) -> tuple[int, bool]:
-        """Put the cameras that lost the marker back where the others still see it.
-
-        A lip marker moving 15-30 px a frame is lost by some cameras while one goes on;
-        its 3D from that one camera is then only as good as the depth its neighbours
-        predict (0.2-0.7 mm on the missed-marker takes). Where a camera stopped (score
-        below the Break Threshold) and the point still has 3D from the other cameras,
-        that 3D is projected into it and the camera tracks again from there
-        (:func:`~carapost.algorithms.target_track.track_target` from the projection,
-        its own keyframes, no motion assumed, so that the first step is checked against
-        every disc around it), up to the track's own stop. A frame is kept while it
-        scores above the Break Threshold and lies within `REACQUIRE_PX` of the
-        projection (a neighbouring marker is farther); the 3D is solved again after
-        every kept restart, so a second camera back makes the projection into a third
-        a triangulated one. Where a restart keeps nothing, the next is tried
-        `REACQUIRE_SKIP` frames on.
-
-        Writes the kept frames into ``block`` (as the run's own) and ``touched``;
-        returns how many observations it added and whether it was paused:
-        ``progress(total, total)`` is asked before every restart (the run's frames are
-        done), and False stops there (Pause keeps what was put back).
-        """
-        from carapost.algorithms.camera import project as project_points
-        from carapost.algorithms.target_track import track_target
-
-        d, P = self.direction, self.params
-        index = {pid: i for i, pid in enumerate(self.ids)}
-        n = len(touched)
-        # per lost track: the next frame to try a restart from (block row)
-        nxt: dict[int, int] = {}
-        for j, res in enumerate(results):
-            if res is not None and res.reason == STOP_THRESHOLD:
-                nxt[j] = int(res.frames[-1]) - self.first
-        added, budget = 0, REACQUIRE_ATTEMPTS * len(nxt)
-        X: dict[int, NDArray[np.float64]] = {}
-
-        def solved(i: int) -> NDArray[np.float64]:
-            if i not in X:
-                out = np.full((n, 3), np.nan)
-                rows = np.flatnonzero(touched)
-                if len(rows):
-                    out[rows] = self._solve(block, touched, i)[0]
-                X[i] = out
-            return X[i]
-
-        while nxt and budget > 0:
-            if progress is not None and progress(total, total) is False:   # Pause
-                return added, True
-            # the earliest restart in the direction of travel: its 3D is the best known
-            j = min(nxt, key=lambda j: nxt[j] * d)
-            tr, g = self.tracks[j], nxt[j]
-            i, c = index[tr.point], tr.camera
-            end = tr.stop - self.first
-            if (end - g) * d <= 0:
-                del nxt[j]
-                continue
-            Xi = solved(i)
-            # the first frame from g on where this camera has nothing and the point 3D
-            span = np.arange(g, end, d)
-            free = span[~np.isfinite(block["obs"][span, i, c, 0])
-                        & np.isfinite(Xi[span]).all(-1)]
-            if not len(free):
-                del nxt[j]
-                continue
-            if free[0] != g:
-                nxt[j] = int(free[0])
-                continue
-            budget -= 1
-            uv = project_points(Xi[:, None], self.R, self.t, self.intr)[0][:, 0, c]  # (n, 2)
-            try:
-                res = track_target(lambda f, c=c: self.get_image(f, c), tr.keys,
-                                   start=g + self.first, stop=tr.stop, direction=d,
-                                   params=tr.params if tr.params is not None else P,
-                                   start_xy=uv[g])
-            except ValueError:   # the projection's pattern box leaves the image
-                nxt[j] = g + REACQUIRE_SKIP * d
-                continue
-            ok = res.tracked & (res.frames != res.frames[0])
-            fr = res.frames[ok] - self.first
-            xy = res.xy[ok]
-            # kept while another camera sees the point (the frame is triangulated, not
-            # a new one-camera stretch), the track stays on that 3D, and this camera
-            # has no data there
-            others = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).any(1)
-            far = ~(np.linalg.norm(xy - uv[fr], axis=-1) <= REACQUIRE_PX)
-            busy = np.isfinite(block["obs"][fr, i, c, 0])
-            cut = np.flatnonzero(far | busy | ~others)
-            keep = cut[0] if len(cut) else len(fr)
-            fr, xy, sc = fr[:keep], xy[:keep], res.score[ok][:keep]
-            # where two other cameras or more triangulate the point its projection is
-            # good to a few tenths of a pixel: a frame farther off is this camera's
-            # mismatch (a lip's look changed since the keyframe), left out
-            tri = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).sum(1) >= 2
-            off = tri & (np.linalg.norm(xy - uv[fr], axis=-1) > REACQUIRE_TRI_PX)
-            fr, xy, sc = fr[~off], xy[~off], sc[~off]
-            if not len(fr):
-                nxt[j] = g + REACQUIRE_SKIP * d
-                continue
-            block["obs"][fr, i, c] = xy.astype(np.float32)
-            block["source"][fr, i, c] = SOURCE_TARGET
-            block["detection"][fr, i, c] = -1
-            block["quality"][fr, i, c] = sc.astype(np.float16)
-            block["keyframe"][fr, i, c] = False
-            touched[fr] = True
-            added += len(fr)
-            X.pop(i, None)
-            self.live.extend((tr.point, c, int(f) + self.first, float(q))
-                             for f, q in zip(fr, sc, strict=True))
-            self.live_xy[(tr.point, c)] = (int(fr[-1]) + self.first, float(xy[-1, 0]),
-                                           float(xy[-1, 1]))
-            reasons[(tr.point, c)] = (tr.limit if res.reason == STOP_END and tr.limit
-                                      else res.reason)
-            nxt[j] = int(fr[-1]) + d
-        return added, False
 
     def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
                          touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
