@@ -80,6 +80,9 @@ from carapost.algorithms.target_track import (
 )
 from carapost.synth import SynthConfig, build_scene, render_frame
 
+#: the missed-marker seeds looked at while tuning (every other seed is held out: 8)
+TUNING_MISSED_SEEDS = (3, 4)
+
 CASES = {
     "speech": {"preset": "speech"},
     "fast": {"preset": "fast"},
@@ -389,7 +392,7 @@ def bench_missed(frames: int, size: tuple[int, int], seed: int = 3) -> None:
         for k, v in saved.items():
             pts.arrays[k][:, m] = v
     cpu = time.process_time() - t
-    common = {"case": "missed", "seed": seed, "held_out": seed != 3,
+    common = {"case": "missed", "seed": seed, "held_out": seed not in TUNING_MISSED_SEEDS,
               "markers": len(markers), "frames": frames,
               "size": f"{size[0]}x{size[1]}"}
     emit("missed_marker_p95_px", round(float(np.nanmedian(px)), 4), "px", **common,
@@ -564,6 +567,18 @@ def _partial_run(scene, imgs, kind, preset, frames, size, margin, covered, cover
     emit("partial_occlusion_wrong_marker", wrong, "tracks", **common)
 
 
+def _track_rest(s, direction: int, **kw) -> None:
+    """The second run of a stretch, unless the first left nothing to track (it put back
+    every camera up to the keyframe ahead): the artist is told so and goes on."""
+    from carapost.commands.stack import CommandError
+
+    try:
+        s.target_track(direction, **kw)
+    except CommandError as exc:
+        if "nothing to track" not in str(exc):
+            raise
+
+
 def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
                        mode: str = "before", seed: int = 3, tag: str = "",
                        skin_motion: bool = False) -> None:
@@ -621,7 +636,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             s.current_frame = a - 1
             s.target_track(+1)
             s.current_frame = b + 1
-            s.target_track(-1)
+            _track_rest(s, -1)
         elif mode == "keyed":
             # keyed as painted (either side, Gaps To Keys) and once as faded, tracked
             # forwards from each keyframe to the next
@@ -638,7 +653,7 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
             for c in range(scene.n_cameras):
                 s.edit_target_track(pid, c, k, scene.uv[k, m, c])
             s.target_track(+1, to=b)
-            s.target_track(-1, to=a)
+            _track_rest(s, -1, to=a)
         e2 = np.linalg.norm(pts.obs[a:b + 1, m] - scene.uv[a:b + 1, m], axis=-1)
         e3 = np.linalg.norm(pts.positions[a:b + 1, m] - scene.points3d[a:b + 1, m], axis=-1)
         complete += int(np.isfinite(e2).all() and np.isfinite(e3).all())
@@ -649,7 +664,8 @@ def bench_missed_faded(frames: int, size: tuple[int, int], n: int = 6,
         rmse.append(float(np.sqrt(np.nanmean(e3 ** 2))) if np.isfinite(e3).any() else np.nan)
     cpu = time.process_time() - t
     e2_all = np.array(e2_all)
-    common = {"case": f"missed_faded_{mode}{tag}", "seed": seed, "held_out": seed != 3,
+    common = {"case": f"missed_faded_{mode}{tag}", "seed": seed,
+              "held_out": seed not in TUNING_MISSED_SEEDS,
               "skin_motion": skin_motion,
               "markers": len(missed), "frames": frames,
               "stretch_frames": int(scene.missed[:, missed].sum(0).max()),

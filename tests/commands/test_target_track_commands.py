@@ -317,3 +317,49 @@ def test_a_lost_tracks_message_says_what_its_last_frame_matched():
     assert _match_text(0.89999) == "match 0.899"
     assert _match_text(0.0) == "no unambiguous match"
     assert _match_text(float("nan")) == "no unambiguous match"
+
+
+def test_cameras_that_lost_the_marker_are_tracked_again_from_the_others_3d(take):
+    """A lip marker keyed on frame 0 in every camera: three cameras lose it on the
+    fast lip motion, one tracks on. Projected from that camera's 3D the marker is found
+    again in the others (a restart from the projection), so the frames are triangulated
+    instead of placed on one ray at a predicted depth."""
+    import copy
+
+    project, scene, get = take
+    m = _marker(scene, "Mouth_Outer_L")
+    runs = {}
+    for again in (False, True):
+        s = Session(copy.deepcopy(project), get_image=get)
+        pts = s.project.points
+        pts.obs[0, m], pts.positions[0, m] = scene.uv[0, m], scene.points3d[0, m]
+        for name, fill in (("obs", np.nan), ("positions", np.nan), ("source", 0),
+                           ("detection", -1), ("recon", 0), ("keyframe", False)):
+            pts.arrays[name][1:, m] = fill
+        s.select(points=[int(pts.ids[m])])
+        s.current_frame = 0
+        s.add_keyframe()
+        before = snapshot(s.project)
+        job = s.prepare_target_track(+1)
+        job.reacquire = again
+        result = job.compute()
+        s.apply(result)
+        runs[again] = (pts.obs[:, m].copy(), pts.positions[:, m].copy(),
+                       pts.recon[:, m].copy(), result.message)
+        if again:
+            _undo_redo(s, before)
+    (obs0, X0, _, msg0), (obs1, X1, recon1, msg1) = runs[False], runs[True]
+    n0 = np.isfinite(obs0[1:, :, 0]).sum(1)
+    n1 = np.isfinite(obs1[1:, :, 0]).sum(1)
+    assert ((n0 == 1) & (n1 >= 2)).sum() >= 8          # one-camera frames triangulated
+    back = np.isfinite(obs1[..., 0]) & ~np.isfinite(obs0[..., 0])
+    err = np.linalg.norm(obs1[back] - scene.uv[:, m][back], axis=-1)
+    assert err.max() < 0.5                              # the marker, not a neighbour
+    assert (recon1[back.any(1)] == RECON_TRIANGULATED).all()
+    rmse = [float(np.sqrt(np.nanmean(np.sum((X[1:] - scene.points3d[1:, m]) ** 2, -1))))
+            for X in (X0, X1)]
+    assert rmse[1] < 0.85 * rmse[0]
+    assert "tracked again" in msg1 and "tracked again" not in msg0
+    # what was tracked in the first pass is kept as it was
+    kept = np.isfinite(obs0[..., 0])
+    np.testing.assert_array_equal(obs1[kept], obs0[kept])

@@ -12,11 +12,11 @@ and its :class:`TargetTrackResult` writes the tracked 2D observations (source
 ``SOURCE_TARGET``, the score in ``quality``) and the re-solved 3D of every tracked frame
 as one History entry. A paused (cancelled) run keeps what it tracked.
 
-3D after each tracked frame: with two or more cameras the point is triangulated from
-all its observations (Gauss-Newton on the reprojection error,
-:func:`carapost.algorithms.triangulation.triangulate`); with one camera and Allow Single
-Sensor Tracking, it is put on that camera's ray at the depth of the nearest frame that
-has a 3D position (``RECON_SINGLE_SENSOR``).
+3D after each tracked frame: triangulated from two cameras or more (Gauss-Newton on the
+reprojection error, :func:`carapost.algorithms.triangulation.triangulate`); from one
+camera, with Allow Single Sensor Tracking, on its ray nearest the neighbours'
+prediction (``RECON_SINGLE_SENSOR``). Cameras that lost the marker are first tracked
+again from the others' 3D (:mod:`carapost.commands.target_reacquire`).
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from carapost.algorithms.target_track import (
 )
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
+from carapost.commands.target_reacquire import reacquire
 from carapost.commands.target_sizes import track_parameters
 from carapost.model.project import Project
 
@@ -437,6 +438,8 @@ class TargetTrackJob(Job):
     #: per point: its nearest points' triangulated 3D over first.. (n, k, 3) mm, NaN
     #: where not triangulated; their motion carries a one-camera frame's depth
     neighbour_xyz: list[NDArray] | None = None
+    #: track the cameras that lost the marker again (`target_reacquire`)
+    reacquire: bool = True
     #: What the run has tracked so far, appended on the worker as it goes: (point id,
     #: camera, frame, score) per tracked frame (the window draws the span growing, and
     #: shows the frame being tracked). Read it from another thread by slicing.
@@ -518,31 +521,48 @@ class TargetTrackJob(Job):
                 block["keyframe"][fr, i, tr.camera] = False
                 touched[fr] = True
                 tracked += len(fr)
-                far = int(res.frames[ok][-1])
-                last = far if (far - last) * d > 0 else last
+        added = 0
+        if (P.allow_single_sensor_tracking and self.reacquire and not cancelled
+                and self.intr is not None):
+            added, paused = reacquire(self, block, touched, results, reasons, progress,
+                                      lock.total)
+            tracked, cancelled = tracked + added, paused
         # 3D of every frame a camera was tracked in
         rows = np.flatnonzero(touched)
         for i in range(len(self.ids)):
             if not len(rows):
                 break
-            obs = block["obs"][rows, i].astype(np.float64)
-            positions = block["positions"][:, i].astype(np.float64)
-            ref = _nearest_reference(np.where(touched[:, None], np.nan, positions), rows)
-            if P.allow_single_sensor_tracking and self.neighbour_xyz is not None:
-                ref = self._depth_reference(i, rows, obs, positions, touched, ref)
-            p, r, e = resolve_3d(obs, self.R[rows], self.t[rows], self.intr, ref,
-                                 P.allow_single_sensor_tracking)
-            bad = ~self.solved[rows]
-            p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
-            block["positions"][rows, i] = p
-            block["recon"][rows, i] = r
-            block["residual"][rows, i] = e
+            (block["positions"][rows, i], block["recon"][rows, i],
+             block["residual"][rows, i]) = self.solve(block, touched, i)
             block["sigma"][rows, i] = np.nan     # the old 3D's uncertainty, not this one's
+        if len(rows):   # the farthest frame tracked (cameras tracked again included)
+            last = int(rows[-1] if d > 0 else rows[0]) + self.first
         message = _run_message(self.tracks, results, tracked, last, P.break_threshold)
+        if added:
+            message += (f"; {added} observation{'s' if added != 1 else ''} tracked again "
+                        "in cameras that had lost the marker, from the others' 3D")
         log.info("%s", message)
         return TargetTrackResult(self.first, list(self.ids), block, self.description,
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
+
+    def solve(self, block: dict[str, NDArray], touched: NDArray, i: int
+              ) -> tuple[NDArray[np.float32], NDArray[np.int8], NDArray[np.float32]]:
+        """3D of point ``i`` over the re-solved frames ``np.flatnonzero(touched)`` from
+        the block's observations (:func:`resolve_3d`, depth from
+        :meth:`_depth_reference`): positions (m, 3) mm, recon (m,), residual (m,)."""
+        P = self.params
+        rows = np.flatnonzero(touched)
+        obs = block["obs"][rows, i].astype(np.float64)
+        positions = self.block["positions"][:, i].astype(np.float64)   # before the run
+        ref = _nearest_reference(np.where(touched[:, None], np.nan, positions), rows)
+        if P.allow_single_sensor_tracking and self.neighbour_xyz is not None:
+            ref = self._depth_reference(i, rows, obs, positions, touched, ref)
+        p, r, e = resolve_3d(obs, self.R[rows], self.t[rows], self.intr, ref,
+                             P.allow_single_sensor_tracking)
+        bad = ~self.solved[rows]
+        p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
+        return p, r, e
 
     def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
                          touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
