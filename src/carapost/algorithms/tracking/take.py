@@ -43,6 +43,7 @@ from carapost.algorithms.tracking.time_checks import (
     detach_observations,
     place_single_sensor,
     reject_by_motion,
+    reject_merged_blobs,
     reject_wrong_samples,
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
@@ -437,6 +438,10 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
     scales its 2D noise in the sigma."""
     face = kind != KIND_BRIM
+    if widths is not None:
+        # merged blobs first: their centres are pixels off in every camera alike, so
+        # neither the outlier rejection nor the motion checks below see them
+        reject_merged_blobs(o, widths, R, t, face, intr, fixed, single_sensor=single_sensor)
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():
