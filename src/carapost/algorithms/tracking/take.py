@@ -428,7 +428,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
-    ``depth_window`` frames and estimate each sample's sigma.
+    ``depth_window`` frames and estimate each sample's sigma. First, with ``widths``,
+    the face observations on merged blobs are removed
+    (:func:`carapost.algorithms.tracking.time_checks.reject_merged_blobs`).
 
     With ``target_px`` > 0 (the per-frame tracker's target) the re-solve rejects
     outliers (one camera may be dropped from a sample seen by three or more, see

@@ -98,7 +98,7 @@ def detach_observations(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> 
 
 def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RATIO,
                  half: int = _WIDTH_HALF, support: int = _WIDTH_SUPPORT,
-                 chunk: int = 2048) -> NDArray[np.bool_]:
+                 chunk: int = 512) -> NDArray[np.bool_]:
     """Observations whose blob is much wider than the same marker's around it.
 
     A marker's blob changes its width slowly, as the face turns it against the camera;
@@ -121,7 +121,8 @@ def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RA
     support : int
         Fewest widths in the window to judge an observation.
     chunk : int
-        Frames per block (memory stays ``O(chunk * P * C * (2 half + 1))``).
+        Frames per block (memory stays ``O(chunk * P * C * (2 half + 1))``, about 50 MB
+        for 150 points of four cameras).
 
     Returns
     -------
@@ -134,16 +135,18 @@ def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RA
     >>> np.argwhere(merged_blobs(w)[:, 0, 0]).ravel().tolist()
     [10, 11, 12]
     """
-    w = np.asarray(widths, np.float64)
+    w = np.asarray(widths)
     F = w.shape[0]
     out = np.zeros(w.shape, bool)
     if F == 0 or not np.isfinite(w).any():
         return out
-    pad = np.concatenate([np.full((half,) + w.shape[1:], np.nan), w,
-                          np.full((half,) + w.shape[1:], np.nan)])
     for a in range(0, F, chunk):
         b = min(F, a + chunk)
-        win = np.lib.stride_tricks.sliding_window_view(pad[a:b + 2 * half], 2 * half + 1,
+        # the block with `half` frames either side (NaN beyond the take)
+        lo, hi = max(0, a - half), min(F, b + half)
+        blk = np.full((b - a + 2 * half,) + w.shape[1:], np.nan)
+        blk[lo - (a - half):hi - (a - half)] = w[lo:hi]
+        win = np.lib.stride_tricks.sliding_window_view(blk, 2 * half + 1,
                                                        axis=0)  # (b - a, P, C, 2h + 1)
         n = np.isfinite(win).sum(-1)
         judge = np.isfinite(w[a:b]) & (n >= support)
