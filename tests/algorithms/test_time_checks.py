@@ -8,7 +8,8 @@ neighbours' motion gives from both sides, with a sigma measured on the take. A s
 whose observations are all on a wrong blob, consistently in both cameras of a caddy
 (small residual), is removed by its neighbours in time; a single-sensor sample whose
 ray misses its prediction by more than the Single Sensor Tracking Threshold is not
-kept.
+kept. An observation on a blob twice as wide as the marker's blob in the frames around
+it (merged with a neighbour, its centre pixels off in every camera alike) is removed.
 """
 
 import numpy as np
@@ -25,8 +26,10 @@ from carapost.algorithms.codes import (
 from carapost.algorithms.single_sensor import neighbour_prediction
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
 from carapost.algorithms.tracking.time_checks import (
+    merged_blobs,
     place_single_sensor,
     reject_by_motion,
+    reject_merged_blobs,
     reject_wrong_samples,
 )
 from carapost.algorithms.uncertainty import retriangulate
@@ -307,3 +310,87 @@ def test_single_sensor_threshold(scene):
     assert (o["residual"][[12, 14]][:, pts][right] <= 0.5).all()
     assert (sigma[[12, 14]][:, pts][right] <= 0.5).all()
 
+
+
+def _widths(scene, rng):
+    """(F, M, C) semi-minor axes (px) changing slowly, as a face turning would change
+    them: 1.5-4 px per marker-camera, up to 40 % over the take, 3 % noise."""
+    F, M, C = scene.visible.shape
+    base = rng.uniform(1.5, 4.0, (1, M, C))
+    drift = 1.0 + 0.4 * np.sin(np.linspace(0, np.pi, F))[:, None, None] * \
+        rng.uniform(-1, 1, (1, M, C))
+    w = base * drift * (1.0 + rng.normal(0, 0.03, (F, M, C)))
+    return np.where(scene.visible, w, np.nan)
+
+
+def test_observations_on_merged_blobs_are_removed(scene):
+    rng = np.random.default_rng(11)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    ok = _one_caddy(o, scene)
+    widths = _widths(scene, rng)
+    # three points merge with a neighbour's blob in both cameras of caddy (0, 1) for
+    # 1-4 frames: the blob is 2.2 times as wide, its centre 8 px off in each camera
+    cand = np.unique(np.argwhere(ok[5:-8].all(0)).ravel())
+    pts = rng.choice(cand, 3, replace=False)
+    runs = [(8, 9), (15, 18), (25, 29)]
+    for p, (a, b) in zip(pts, runs, strict=True):
+        blk = o["obs"][a:b, p]
+        blk[:, :2] += [6.0, 5.3]
+        o["obs"][a:b, p] = blk
+        widths[a:b, p, :2] *= 2.2
+        X, _ = retriangulate(o["obs"][a:b, p][:, None].astype(float), scene.cam_R[a:b],
+                             scene.cam_t[a:b], scene.intrinsics, np.ones((b - a, 1), bool))
+        o["positions"][a:b, p] = X[:, 0]
+    wrong = np.zeros((F, M), bool)
+    for p, (a, b) in zip(pts, runs, strict=True):
+        wrong[a:b, p] = True
+    assert _error(o, scene)[wrong].min() > 1.0
+    tri = o["recon"] == RECON_TRIANGULATED
+    n_obs = np.isfinite(o["obs"][..., 0]).sum()
+    drop = reject_merged_blobs(o, widths, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                               scene.intrinsics, np.zeros(F, bool))
+    # every merged observation, and no other
+    assert drop.any(-1)[wrong].all()
+    assert drop.sum() == 2 * wrong.sum()
+    assert np.isfinite(o["obs"][..., 0]).sum() == n_obs - drop.sum()
+    # those samples had only the two merged cameras: they are gaps now, not wrong points
+    assert (o["recon"][wrong] == RECON_NONE).all()
+    assert np.isnan(o["positions"][wrong]).all()
+    assert np.isnan(widths[drop]).all()
+    # the rest of the take is as it was
+    assert (o["recon"][tri & ~wrong] == RECON_TRIANGULATED).all()
+
+
+def test_a_merged_camera_of_three_leaves_a_sample_of_two(scene):
+    rng = np.random.default_rng(12)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    three = (scene.visible.sum(-1) >= 3) & (o["recon"] == RECON_TRIANGULATED)
+    f, p = np.argwhere(three[12:-12])[0] + [12, 0]
+    c = int(np.flatnonzero(scene.visible[f, p])[0])
+    widths = _widths(scene, rng)
+    widths[f, p, c] *= 2.5
+    row = o["obs"][f, p]
+    row[c] += [7.0, 0.0]
+    o["obs"][f, p] = row
+    X, _ = retriangulate(o["obs"][f:f + 1, p:p + 1].astype(float), scene.cam_R[f:f + 1],
+                         scene.cam_t[f:f + 1], scene.intrinsics, np.ones((1, 1), bool))
+    o["positions"][f, p] = X[0, 0]
+    before = _error(o, scene)[f, p]
+    drop = reject_merged_blobs(o, widths, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                               scene.intrinsics, np.zeros(F, bool))
+    assert np.argwhere(drop).tolist() == [[f, p, c]]
+    assert o["recon"][f, p] == RECON_TRIANGULATED
+    assert _error(o, scene)[f, p] < min(0.3, before / 3)
+
+
+def test_widths_that_change_slowly_are_not_merged(scene):
+    rng = np.random.default_rng(13)
+    w = _widths(scene, rng)
+    assert not merged_blobs(w).any()
+    # a blob seen too rarely around a frame is not judged
+    sparse = np.full_like(w, np.nan)
+    sparse[::6] = w[::6]
+    sparse[18] = 3 * np.nan_to_num(w[18], nan=2.0)
+    assert not merged_blobs(sparse).any()

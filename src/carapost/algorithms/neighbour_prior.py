@@ -133,12 +133,21 @@ def deformation_sigma(X: ArrayLike, pred: ArrayLike, cov: ArrayLike, tri: ArrayL
 
 
 def fuse(X: ArrayLike, cov: ArrayLike, pred: ArrayLike, tau: ArrayLike, mask: ArrayLike,
-         *, gate: float = 3.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+         *, gate: float = 3.0, gate_along: float = 6.0
+         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Combine each masked sample with the neighbours' prediction by their covariances.
 
     ``X + K (pred - X)`` with ``K = cov (cov + tau^2 I)^-1``; the covariance becomes
-    ``(I - K) cov``. A sample further than ``gate`` standard deviations (Mahalanobis,
-    over ``cov + tau^2 I``) from its prediction is left alone.
+    ``(I - K) cov``. A sample further than ``gate`` standard deviations from its
+    prediction across its worst direction (Mahalanobis over ``cov + tau^2 I`` in the
+    plane of the two other principal directions of ``cov``), or further than
+    ``gate_along`` along it, is left alone: a disagreement where the cameras fix the
+    sample is the prediction's failure (a deformation its neighbours do not share).
+    Along the worst direction (a one-caddy depth) the gate is wider: a large
+    disagreement there is what a poorly seen sample shows (the errors of its blobs,
+    thin or low-contrast ones above all, have heavier tails than the covariance), and
+    it is where the prediction is trusted most; only a deformation far beyond that
+    (a lip corner moving millimetres in depth on its own) is left as measured.
 
     Parameters
     ----------
@@ -148,7 +157,8 @@ def fuse(X: ArrayLike, cov: ArrayLike, pred: ArrayLike, tau: ArrayLike, mask: Ar
     tau : array_like, shape (P,)
         The prediction's per-axis deviation (mm).
     mask : array_like, shape (F, P)
-    gate : float
+    gate, gate_along : float
+        Standard deviations across and along each sample's worst direction.
 
     Returns
     -------
@@ -166,12 +176,20 @@ def fuse(X: ArrayLike, cov: ArrayLike, pred: ArrayLike, tau: ArrayLike, mask: Ar
     if fi.size == 0:
         return X, cov
     C = cov[fi, pi]
-    S = C + (tau[pi] ** 2)[:, None, None] * np.eye(3)
-    # where the two disagree beyond their covariances the prediction has failed (a
-    # deformation its neighbours do not share): the sample is left as it is
+    t2 = tau[pi] ** 2
+    S = C + t2[:, None, None] * np.eye(3)
+    # where the two disagree beyond their covariances the prediction has failed: the
+    # sample is left as it is. Along the worst direction the gate is wider: on the
+    # tuning takes of other renderers one gate of 3 over all directions kept the worst
+    # one-caddy samples (3-4 mm, 3-3.5 sigma off along their depth) from their
+    # neighbours' prediction (docs/benchmarks.md, eleventh session, t22d)
+    lam, V = np.linalg.eigh(C)  # ascending: V[..., 2] is the worst direction
     d = pred[fi, pi] - X[fi, pi]
-    d2 = np.einsum("ni,ni->n", d, np.linalg.solve(S, d[..., None])[..., 0])
-    keep = d2 <= gate ** 2
+    a = np.einsum("nij,ni->nj", V, d)  # (n, 3) along the principal directions
+    s2 = lam + t2[:, None]
+    across = np.sum(a[:, :2] ** 2 / s2[:, :2], axis=-1)
+    along = a[:, 2] ** 2 / s2[:, 2]
+    keep = (across <= gate ** 2) & (along <= gate_along ** 2)
     fi, pi, C, S = fi[keep], pi[keep], C[keep], S[keep]
     K = np.linalg.solve(S.transpose(0, 2, 1), C.transpose(0, 2, 1)).transpose(0, 2, 1)
     X[fi, pi] += np.einsum("nij,nj->ni", K, pred[fi, pi] - X[fi, pi])

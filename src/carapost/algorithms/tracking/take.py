@@ -43,6 +43,7 @@ from carapost.algorithms.tracking.time_checks import (
     detach_observations,
     place_single_sensor,
     reject_by_motion,
+    reject_merged_blobs,
     reject_wrong_samples,
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
@@ -427,7 +428,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
-    ``depth_window`` frames and estimate each sample's sigma.
+    ``depth_window`` frames and estimate each sample's sigma. First, with ``widths``,
+    the face observations on merged blobs are removed
+    (:func:`carapost.algorithms.tracking.time_checks.reject_merged_blobs`).
 
     With ``target_px`` > 0 (the per-frame tracker's target) the re-solve rejects
     outliers (one camera may be dropped from a sample seen by three or more, see
@@ -437,6 +440,10 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
     scales its 2D noise in the sigma."""
     face = kind != KIND_BRIM
+    if widths is not None:
+        # merged blobs first: their centres are pixels off in every camera alike, so
+        # neither the outlier rejection nor the motion checks below see them
+        reject_merged_blobs(o, widths, R, t, face, intr, fixed, single_sensor=single_sensor)
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():

@@ -1,8 +1,14 @@
 """After both passes: wrong observations rejected by the motion, single-sensor samples
 placed again from both sides.
 
-Two steps of :func:`carapost.algorithms.tracking.take.track_take`'s clean-up, run after
-the cameras are fitted over time and the face samples re-solved with them:
+Steps of :func:`carapost.algorithms.tracking.take.track_take`'s clean-up. The first runs
+before the cameras are fitted over time and the face samples re-solved with them:
+
+0. :func:`reject_merged_blobs`: an observation whose blob is much wider than the same
+   marker's blob in the same camera over the frames around it (merged with a neighbour
+   or a dark feature, its centre several pixels off the marker's) is removed.
+
+The others run after that re-solve:
 
 1. :func:`reject_by_motion`: an observation far from where the point's neighbours in
    time (moved with its neighbours on the face) put it, while the sample's other
@@ -54,8 +60,21 @@ from carapost.algorithms.temporal_check import (
 )
 from carapost.algorithms.uncertainty import retriangulate
 
-__all__ = ["detach_observations", "place_single_sensor", "reject_by_motion",
-           "reject_wrong_samples"]
+__all__ = ["MERGED_WIDTH_RATIO", "detach_observations", "merged_blobs", "place_single_sensor",
+           "reject_by_motion", "reject_merged_blobs", "reject_wrong_samples"]
+
+#: An observation's blob whose semi-minor axis is more than this many times the median
+#: of the same point's blobs in the same camera over the frames around it is taken for
+#: a merged blob. On the tuning takes of other renderers (110,000 observations) every
+#: one above 1.8 was 1-10 px off its marker (median 8 px); at 1.4-1.8 the median was
+#: 0.7 px (docs/benchmarks.md, "merged blobs").
+MERGED_WIDTH_RATIO = 1.8
+
+#: Half-window (frames) of the median width a blob is compared with.
+_WIDTH_HALF = 10
+
+#: Fewest widths in that window for a blob to be judged.
+_WIDTH_SUPPORT = 5
 
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
@@ -75,6 +94,108 @@ def detach_observations(o: dict[str, NDArray[Any]], drop: NDArray[np.bool_]) -> 
     """Remove the (F, P, C) ``drop`` observations from the arrays (not keyframes)."""
     for k in ("obs", "source", "detection", "quality"):
         o[k][drop] = POINT_FILLS[k]
+
+
+def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RATIO,
+                 half: int = _WIDTH_HALF, support: int = _WIDTH_SUPPORT,
+                 chunk: int = 512) -> NDArray[np.bool_]:
+    """Observations whose blob is much wider than the same marker's around it.
+
+    A marker's blob changes its width slowly, as the face turns it against the camera;
+    where it merges with a neighbour's blob or a dark feature for a few frames, the
+    blob doubles in width and its centre lies several pixels off the marker, in every
+    camera where the merge happens alike (so the rays still meet and no residual
+    shows it). Each observation's semi-minor axis is compared with the median of the
+    same point's in the same camera over ``half`` frames either side (itself
+    included: a run of merged frames shorter than ``half`` does not move the median).
+
+    Parameters
+    ----------
+    widths : ndarray, shape (F, P, C)
+        Semi-minor axis (px) of each observation's blob, NaN where none
+        (:func:`carapost.algorithms.tracking.take.attached_widths`).
+    ratio : float
+        Flagged above this multiple of the local median.
+    half : int
+        Half-window (frames).
+    support : int
+        Fewest widths in the window to judge an observation.
+    chunk : int
+        Frames per block (memory stays ``O(chunk * P * C * (2 half + 1))``, about 50 MB
+        for 150 points of four cameras).
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P, C)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> w = np.full((30, 1, 2), 2.0); w[10:13, 0, :] = 4.5
+    >>> np.argwhere(merged_blobs(w)[:, 0, 0]).ravel().tolist()
+    [10, 11, 12]
+    """
+    w = np.asarray(widths)
+    F = w.shape[0]
+    out = np.zeros(w.shape, bool)
+    if F == 0 or not np.isfinite(w).any():
+        return out
+    for a in range(0, F, chunk):
+        b = min(F, a + chunk)
+        # the block with `half` frames either side (NaN beyond the take)
+        lo, hi = max(0, a - half), min(F, b + half)
+        blk = np.full((b - a + 2 * half,) + w.shape[1:], np.nan)
+        blk[lo - (a - half):hi - (a - half)] = w[lo:hi]
+        win = np.lib.stride_tricks.sliding_window_view(blk, 2 * half + 1,
+                                                       axis=0)  # (b - a, P, C, 2h + 1)
+        n = np.isfinite(win).sum(-1)
+        judge = np.isfinite(w[a:b]) & (n >= support)
+        if not judge.any():
+            continue
+        med = np.full(w[a:b].shape, np.nan)
+        # the median over the window's widths only where there is one to judge
+        med[judge] = np.nanmedian(win[judge], axis=-1)
+        out[a:b] = judge & (w[a:b] > ratio * med)
+    return out
+
+
+def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating],
+                        R: NDArray, t: NDArray, face: NDArray[np.bool_],
+                        intr: CameraIntrinsics, fixed: NDArray[np.bool_], *,
+                        single_sensor: bool = True) -> NDArray[np.bool_]:
+    """Remove the face observations on merged blobs (:func:`merged_blobs`); solve
+    those samples again from the rest.
+
+    A sample left with two cameras or more is triangulated again with ``R, t``, one
+    left with a single camera becomes a single-sensor sample (placed later by
+    :func:`place_single_sensor`; a gap when ``single_sensor`` is off) and one with none
+    a gap. ``widths`` loses the removed observations' widths too.
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P, C)
+        The observations removed.
+    """
+    drop = merged_blobs(widths) & face[None, :, None] & ~fixed[:, None, None]
+    drop &= (o["recon"] == RECON_TRIANGULATED)[..., None] | \
+        (o["recon"] == RECON_SINGLE_SENSOR)[..., None]
+    if not drop.any():
+        return drop
+    detach_observations(o, drop)
+    widths[drop] = np.nan
+    obs = o["obs"].astype(np.float64)
+    redo = drop.any(-1)
+    left = np.isfinite(obs).all(-1).sum(-1)
+    Xn, res = retriangulate(obs, R, t, intr, redo & (left >= 2))
+    ok = redo & (left >= 2) & np.isfinite(Xn).all(-1)
+    o["positions"][ok] = Xn[ok].astype(o["positions"].dtype)
+    o["residual"][ok] = res[ok].astype(o["residual"].dtype)
+    o["recon"][ok] = RECON_TRIANGULATED
+    if single_sensor:
+        o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
+    lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
+    _make_gaps(o, lost)
+    return drop
 
 
 def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
