@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms import target_appearance, target_fade
+from carapost.algorithms import target_appearance, target_disc, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
@@ -634,6 +634,9 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
     key_contrast: dict[int, float] = {}   # per keyframe, for the appearance step
+    # per keyframe, its skin and disc apart (the disc step); the skin's last shift
+    disc_models: dict[int, target_disc.DiscModel | None] = {}
+    disc_shift = np.zeros(2)
     # keyframe pairs of different contrast: the fit's weights (None: not a fade)
     fades: dict[tuple[int, int], NDArray[np.float64] | None] = {}
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
@@ -708,6 +711,15 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 xy, score = target_appearance.appearance_step(
                     img, prev_img, pos, pos + velocity, tpl, params,
                     key_contrast[pp.frame], (xy, score))
+                if not score >= params.break_threshold:
+                    # the marker sliding over its skin: the disc alone, the skin apart
+                    if pp.frame not in disc_models:
+                        disc_models[pp.frame] = target_disc.disc_model(
+                            get_image(pp.frame), keys[pp.frame], params.pattern_size)
+                    xy_d, score_d, disc_shift = target_disc.disc_step(
+                        img, disc_models[pp.frame], pos + velocity, shift0=disc_shift)
+                    if score_d > score:
+                        xy, score = xy_d, score_d
             prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)

@@ -1,0 +1,373 @@
+"""Target tracking on the disc alone: the keyframe's skin subtracted, the marker fitted.
+
+Next to a blink an eyelid marker slides over its own skin: in the last one or two
+frames before it disappears (and the first after it reappears) it moves 2-4 px a frame
+onto the lid crease and the lash line, which move with the head, not with the marker.
+The disc is still whole, but most of the pattern box around it is skin that has moved
+relative to it since the keyframe, so the keyframe match (the whole box) and the
+appearance step (the previous frame's box) both fail there although the artist sees the
+marker.
+
+A painted marker darkens the skin under it by a factor (its ink's reflectance), so on
+log grey levels it *adds* a fixed signature to whatever skin is there:
+``log I(X) = log B(X) + S(X - p)``. :class:`DiscModel` takes the two apart at the
+keyframe: the skin ``B`` with the disc inpainted from its surroundings, and the disc's
+signature ``S`` (the keyframe's log image minus that skin, on the disc only). In a later
+frame the skin is the keyframe's moved with the head (a shift ``s``), and the marker is
+``S`` at its new place, so
+
+    ``log I_t(X) = log B_k(X + s) + c + r_x u + r_y v + a S(X - p)``
+
+is fitted by Gauss-Newton with Tukey weights (a neighbouring marker, which moves by its
+own motion, drops out): the crease and lash line cancel in the fit instead of pulling
+the position. ``a`` is how much of the keyframe's disc is there: near 1 while the disc
+is whole, near 0 once it is hidden. The score (:func:`disc_step`) is the correlation of
+the skin-subtracted image with the disc signature over the disc's support, so a hidden
+marker, whose frame shows skin only, scores low and the track stops.
+
+Coordinates are raw pixels with OpenCV's pixel-centre convention, as in
+:mod:`carapost.algorithms.target_track`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from carapost.algorithms.target_appearance import _biweight
+from carapost.algorithms.target_refine import shift_patch
+
+__all__ = ["DiscModel", "disc_model", "disc_step", "fit_disc"]
+
+#: Grey levels added before the log (the dark disc core's noise is not amplified).
+LOG_OFFSET = 16.0
+#: Half side of the fitted window around the predicted position (px).
+FIT_HALF = 12
+#: The disc is the part of the keyframe's black-hat above this fraction of its value at
+#: the centre, connected to it; grown by `DISC_GROW` px for the signature's blurred rim.
+DISC_LEVEL = 0.4
+DISC_GROW = 2
+#: Iterations of the fit at most; it stops on a step below `TOL_PX`.
+ITERATIONS = 15
+TOL_PX = 1e-3
+#: A disc step holds where the darkening the skin leaves correlates with the keyframe's
+#: disc at least this much ...
+MIN_NCC = 0.95
+#: ... and its amplitude (the ink relative to the keyframe's) is within this range.
+AMPLITUDE = (0.7, 1.4)
+
+
+@dataclass
+class DiscModel:
+    """A keyframe taken apart into skin and disc (log grey levels).
+
+    Attributes
+    ----------
+    skin : ndarray (h, w) float64
+        log(I + offset) of the keyframe around the marker, the disc inpainted.
+    disc : ndarray (h, w) float64
+        The disc's signature: the keyframe's log image minus ``skin`` (<= 0 for a dark
+        marker), 0 off the disc.
+    support : ndarray (h, w) bool
+        The disc's pixels (the signature's support).
+    origin : tuple of int
+        Raw pixel coordinates (x, y) of the crops' first pixel.
+    xy : ndarray, shape (2,)
+        The keyframe position (raw px).
+    energy : float
+        Sum of squares of ``disc`` (the disc's strength).
+    radius : float
+        The disc's support's reach from the keyframe position (px).
+    """
+
+    skin: NDArray[np.float64]
+    disc: NDArray[np.float64]
+    support: NDArray[np.bool_]
+    origin: tuple[int, int]
+    xy: NDArray[np.float64]
+    energy: float
+    radius: float
+
+
+def _log(image: NDArray[Any]) -> NDArray[np.float64]:
+    return np.log(np.asarray(image, dtype=np.float64) + LOG_OFFSET)
+
+
+def _fill(img: NDArray[np.float64], mask: NDArray[np.bool_], iterations: int = 200
+          ) -> NDArray[np.float64]:
+    """``img`` with the pixels under ``mask`` replaced by the harmonic fill of their
+    surroundings (Laplace's equation, Jacobi iterations started from the mean of the
+    mask's rim): the skin under a small disc, interpolated smoothly from around it."""
+    out = img.copy()
+    rim = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mask
+    out[mask] = float(img[rim].mean()) if rim.any() else float(img.mean())
+    ys, xs = np.nonzero(mask)
+    for _ in range(iterations):
+        out[ys, xs] = 0.25 * (out[ys - 1, xs] + out[ys + 1, xs] + out[ys, xs - 1]
+                              + out[ys, xs + 1])
+    return out
+
+
+def disc_model(image: NDArray[Any], xy: Any, pattern_size: int) -> DiscModel | None:
+    """Take a keyframe apart into the skin around the marker and the disc's signature.
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        The keyframe's grey image.
+    xy : array_like, shape (2,)
+        The keyframe position (raw px).
+    pattern_size : int
+        The Pattern Size (px): the disc is looked for within a quarter of it.
+
+    Returns
+    -------
+    DiscModel or None
+        None where there is no dark disc at the centre, or too near the border.
+    """
+    p = np.asarray(xy, dtype=np.float64).reshape(2)
+    half = FIT_HALF + pattern_size // 2 + 8
+    cx, cy = int(round(p[0])), int(round(p[1]))
+    H, W = image.shape[:2]
+    if not (half <= cx < W - half and half <= cy < H - half):
+        return None
+    x0, y0 = cx - half, cy - half
+    lg = _log(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1])
+    r = max(pattern_size // 4, 2)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    hat = cv2.morphologyEx(lg.astype(np.float32), cv2.MORPH_BLACKHAT, k).astype(np.float64)
+    c = half
+    peak = float(hat[c - 1:c + 2, c - 1:c + 2].max())
+    if not peak > 0.1:   # no dark blob at the centre (a tenth in log: 10 % darker)
+        return None
+    n, lab = cv2.connectedComponents((hat > DISC_LEVEL * peak).astype(np.uint8), 8)
+    ids = np.unique(lab[c - 1:c + 2, c - 1:c + 2])
+    ids = ids[ids > 0]
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1]
+    # the component at the centre, within the black-hat's reach (a crease it touches
+    # is not the disc)
+    blob = np.isin(lab, ids) & (np.hypot(xx, yy) <= r + 1)
+    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * DISC_GROW + 1,) * 2)
+    support = cv2.dilate(blob.astype(np.uint8), grow).astype(bool)
+    lin = np.asarray(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1], dtype=np.float64)
+    skin = _fill(lin, support)
+    # the ink: the fraction of the skin's light the disc takes (0 off it)
+    disc = np.where(support, np.clip(1.0 - lin / np.maximum(skin, 1.0), -0.5, 1.0), 0.0)
+    ys, xs = np.nonzero(blob)
+    radius = float(np.hypot(xs + x0 - p[0], ys + y0 - p[1]).max())
+    return DiscModel(skin, disc, support, (x0, y0), p, float((disc * disc).sum()), radius)
+
+
+def fit_disc(image: NDArray[Any], model: DiscModel, predicted: Any, *,
+             shift0: Any = (0.0, 0.0), max_move: float = 3.0
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """Fit the keyframe's skin (moved) times its disc (moved on its own) to a frame.
+
+    The model of the frame's window is ``I(X) = B(X + s) G(X) (1 - a K(X - p))``:
+    the keyframe's skin ``B`` shifted by ``s``, a gain ``G = g + r_x u + r_y v`` (the
+    light on the skin as the face turns), the disc's ink ``K`` at ``p`` with the
+    amplitude ``a``. Three stages: the skin's shift and gain with the disc's
+    neighbourhood left out; the disc's integer place in what the skin does not
+    explain (correlation with the ink within ``max_move`` of the prediction), refined
+    by a parabola; then all of them together. Both fits are robust Gauss-Newton
+    (Tukey weights: a neighbouring marker, which moves by its own motion, drops out)
+    with steps of at most half a pixel (the disc is 2-4 px across: a longer linearised
+    step overshoots).
+
+    Parameters
+    ----------
+    image : ndarray (H, W)
+        The frame's grey image.
+    model : DiscModel
+        The keyframe taken apart (:func:`disc_model`).
+    predicted : array_like, shape (2,)
+        Where the marker is expected (raw px): the window's centre and the start.
+    shift0 : array_like, shape (2,)
+        Start of the skin's shift (px; keyframe position of a frame's pixel minus the
+        pixel).
+    max_move : float
+        A position farther than this from ``predicted`` failed (px).
+
+    Returns
+    -------
+    xy : ndarray, shape (2,)
+        The disc's position (raw px), NaN where the fit failed.
+    shift : ndarray, shape (2,)
+        The skin's shift (px).
+    amplitude : float
+        The disc's ink relative to the keyframe's (1: as keyed, 0: gone).
+    ncc : float
+        Correlation of the darkening the skin does not explain and the fitted disc's
+        over the disc's support, in [-1, 1] (low where no disc is there).
+    """
+    nan = np.array([np.nan, np.nan])
+    pred = np.asarray(predicted, dtype=np.float64).reshape(2)
+    N = 2 * FIT_HALF + 1
+    H, W = image.shape[:2]
+    cx, cy = int(round(pred[0])), int(round(pred[1]))
+    m = FIT_HALF + 4
+    s = np.asarray(shift0, dtype=np.float64).reshape(2).copy()
+    if not (m <= cx < W - m and m <= cy < H - m):
+        return nan, s, 0.0, 0.0
+    # the frame's window (integer grid around the prediction)
+    wx0, wy0 = cx - FIT_HALF, cy - FIT_HALF
+    obs = np.asarray(image[wy0:wy0 + N, wx0:wx0 + N], dtype=np.float64).ravel()
+    g = np.arange(N) - FIT_HALF
+    gu, gv = np.tile(g / FIT_HALF, N), np.repeat(g / FIT_HALF, N)
+    ox, oy = model.origin
+    kx, ky = model.xy
+    lo, hi = N // 2 + 2, model.skin.shape[0] - N // 2 - 4
+    ones = np.ones(N * N)
+    scale = max(float(np.median(obs)), 1.0)   # grey levels of the skin, for the weights
+
+    def skin(sh: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        x, y = cx + sh[0] - ox, cy + sh[1] - oy
+        return shift_patch(model.skin, x, y, N) if lo <= x <= hi and lo <= y <= hi else None
+
+    def disc(pp: NDArray[np.float64], arr: NDArray[np.float64] | None = None
+             ) -> NDArray[np.float64] | None:
+        x, y = cx - pp[0] + kx - ox, cy - pp[1] + ky - oy
+        arr = model.disc if arr is None else arr
+        return shift_patch(arr, x, y, N) if lo <= x <= hi and lo <= y <= hi else None
+
+    # 1. the skin alone, away from where the disc may be
+    reach = max_move + model.radius + 2.0
+    away = (np.hypot(wx0 + np.tile(g + FIT_HALF, N) - pred[0],
+                     wy0 + np.repeat(g + FIT_HALF, N) - pred[1]) > reach).astype(float)
+    wt = away.copy()
+    gain = np.array([1.0, 0.0, 0.0])
+    for it in range(ITERATIONS):
+        b = skin(s)
+        if b is None:
+            return nan, s, 0.0, 0.0
+        bgy, bgx = np.gradient(b)
+        G = gain @ np.stack([ones, gu, gv])
+        bb = b.ravel()
+        J = np.stack([bgx.ravel() * G, bgy.ravel() * G, bb, bb * gu, bb * gv])
+        JW = J * wt
+        try:
+            sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(5),
+                                  JW @ (obs - bb * G + J[2:].T @ gain))
+        except np.linalg.LinAlgError:
+            return nan, s, 0.0, 0.0
+        step = _clip(sol[:2])
+        s, gain = s + step, sol[2:]
+        if it >= 1:
+            wt = _biweight(obs - (bb * G + step @ J[:2] + (gain - gain) @ J[2:]), wt, away,
+                           scale)
+        if np.hypot(*s) > 6.0 or wt.sum() < 0.2 * away.sum() or not gain[0] > 0:
+            return nan, s, 0.0, 0.0
+        if it >= 3 and float(step @ step) < TOL_PX ** 2:
+            break
+    b = skin(s)
+    if b is None:
+        return nan, s, 0.0, 0.0
+    bg = b.ravel() * (gain @ np.stack([ones, gu, gv]))
+    # 2. the disc's place: the ink correlated with the darkening the skin leaves
+    e = (bg - obs).reshape(N, N).astype(np.float32)
+    r = int(math.ceil(model.radius)) + 1
+    kc = model.disc.shape[0] // 2   # the disc crop's centre pixel
+    fx, fy = kx - ox - kc, ky - oy - kc   # the keyframe's sub-pixel offset from it
+    tpl = shift_patch(model.disc, kc + fx, kc + fy, 2 * r + 1).astype(np.float32)
+    res = cv2.matchTemplate(e, tpl, cv2.TM_CCORR)   # centres r .. N-1-r of the window
+    cen = np.arange(res.shape[0]) + r - FIT_HALF   # offsets from (cx, cy)
+    ux = cx + cen - pred[0]
+    uy = cy + cen - pred[1]
+    res[(uy[:, None] ** 2 + ux[None, :] ** 2) > max_move ** 2] = -np.inf
+    _, best, _, (bx, by) = cv2.minMaxLoc(res)
+    if not np.isfinite(best) or best <= 0:
+        return nan, s, 0.0, 0.0
+    p = np.array([cx + cen[bx], cy + cen[by]], dtype=np.float64)
+    if 0 < bx < res.shape[1] - 1 and 0 < by < res.shape[0] - 1:
+        for k, (lo_, mid, hi_) in enumerate(((res[by, bx - 1], best, res[by, bx + 1]),
+                                             (res[by - 1, bx], best, res[by + 1, bx]))):
+            den = lo_ - 2 * mid + hi_
+            if np.isfinite(den) and den < 0:
+                p[k] += float(np.clip(0.5 * (lo_ - hi_) / den, -0.5, 0.5))
+    # 3. skin and disc together: unknowns ds (2), dp (2), a, g, r_x, r_y
+    win = ones
+    wt = win.copy()
+    a = 1.0
+    for it in range(ITERATIONS):
+        b = skin(s)
+        d = disc(p)
+        if b is None or d is None:
+            return nan, s, 0.0, 0.0
+        bgy, bgx = np.gradient(b)
+        dgy, dgx = np.gradient(d)
+        bb, dd = b.ravel(), d.ravel()
+        G = gain @ np.stack([ones, gu, gv])
+        Q = 1.0 - a * dd
+        J = np.stack([bgx.ravel() * G * Q, bgy.ravel() * G * Q,
+                      bb * G * a * dgx.ravel(), bb * G * a * dgy.ravel(),
+                      -bb * G * dd, bb * Q, bb * Q * gu, bb * Q * gv])
+        model_now = bb * G * Q
+        lin = np.concatenate([[0.0, 0.0, 0.0, 0.0, a], gain])
+        JW = J * wt
+        try:
+            sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(8),
+                                  JW @ (obs - model_now + J[4:].T @ lin[4:]))
+        except np.linalg.LinAlgError:
+            return nan, s, 0.0, 0.0
+        ds, dp = _clip(sol[0:2]), _clip(sol[2:4])
+        s, p = s + ds, p + dp
+        res_ = obs - (J[4:].T @ sol[4:] + ds @ J[:2] + dp @ J[2:4]
+                      + model_now - J[4:].T @ lin[4:])
+        a, gain = float(sol[4]), sol[5:].copy()
+        if it >= 1:
+            wt = _biweight(res_, wt, win, scale)
+        if np.hypot(*(p - pred)) > max_move or not a > 0.05 or not gain[0] > 0:
+            return nan, s, max(a, 0.0), 0.0
+        if it >= 3 and float(dp @ dp) < TOL_PX ** 2:
+            break
+    b = skin(s)
+    d = disc(p)
+    sup = disc(p, model.support.astype(np.float64))
+    if b is None or d is None or sup is None:
+        return nan, s, 0.0, 0.0
+    bg = b.ravel() * (gain @ np.stack([ones, gu, gv]))
+    on = sup.ravel() > 0.5
+    ev = (bg - obs)[on]             # the darkening the skin does not explain
+    dv = (bg * d.ravel())[on]       # the keyframe's disc's darkening there
+    den = math.sqrt(float(dv @ dv) * float(ev @ ev))
+    ncc = float(dv @ ev) / den if den > 1e-12 else 0.0
+    amp = float(dv @ ev) / max(float(dv @ dv), 1e-12)
+    return p, s, amp, ncc
+
+
+def _clip(step: NDArray[np.float64], most: float = 0.5) -> NDArray[np.float64]:
+    n = float(np.hypot(*step))
+    return step * (most / n) if n > most else step
+
+
+def disc_step(image: NDArray[Any], model: DiscModel | None, predicted: Any, *,
+              shift0: Any = (0.0, 0.0), max_move: float = 3.0
+              ) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """One tracking step on the disc alone (:func:`fit_disc`), with its score.
+
+    The step holds where the darkening the skin leaves correlates with the keyframe's
+    disc at least `MIN_NCC` and its amplitude is within `AMPLITUDE` of the keyframe's:
+    the whole disc is there. Its score is that correlation.
+
+    Returns
+    -------
+    xy : ndarray, shape (2,)
+        Position (raw px), NaN when the step failed.
+    score : float
+        In [0, 1]; 0 when the step failed.
+    shift : ndarray, shape (2,)
+        The skin's shift (px), the start of the next step's.
+    """
+    nan = np.array([np.nan, np.nan])
+    if model is None:
+        return nan, 0.0, np.zeros(2)
+    xy, s, amp, ncc = fit_disc(image, model, predicted, shift0=shift0, max_move=max_move)
+    if not (np.all(np.isfinite(xy)) and ncc >= MIN_NCC
+            and AMPLITUDE[0] <= amp <= AMPLITUDE[1]):
+        return nan, 0.0, s
+    return xy, min(max(ncc, 0.0), 1.0), s
