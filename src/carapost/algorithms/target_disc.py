@@ -50,7 +50,9 @@ LOG_OFFSET = 16.0
 FIT_HALF = 12
 #: The disc is the part of the keyframe's black-hat above this fraction of its value at
 #: the centre, connected to it; grown by `DISC_GROW` px for the signature's blurred rim.
-DISC_LEVEL = 0.4
+DISC_LEVEL = 0.6
+#: Radius of the black-hat's disc as a fraction of the Pattern Size (px).
+DISC_KERNEL = 0.15
 DISC_GROW = 2
 #: Iterations of the fit at most; it stops on a step below `TOL_PX`.
 ITERATIONS = 15
@@ -138,7 +140,7 @@ def disc_model(image: NDArray[Any], xy: Any, pattern_size: int) -> DiscModel | N
         return None
     x0, y0 = cx - half, cy - half
     lg = _log(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1])
-    r = max(pattern_size // 4, 2)
+    r = max(int(round(pattern_size * DISC_KERNEL)), 2)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     hat = cv2.morphologyEx(lg.astype(np.float32), cv2.MORPH_BLACKHAT, k).astype(np.float64)
     c = half
@@ -171,13 +173,16 @@ def fit_disc(image: NDArray[Any], model: DiscModel, predicted: Any, *,
     The model of the frame's window is ``I(X) = B(X + s) G(X) (1 - a K(X - p))``:
     the keyframe's skin ``B`` shifted by ``s``, a gain ``G = g + r_x u + r_y v`` (the
     light on the skin as the face turns), the disc's ink ``K`` at ``p`` with the
-    amplitude ``a``. Three stages: the skin's shift and gain with the disc's
-    neighbourhood left out; the disc's integer place in what the skin does not
-    explain (correlation with the ink within ``max_move`` of the prediction), refined
-    by a parabola; then all of them together. Both fits are robust Gauss-Newton
-    (Tukey weights: a neighbouring marker, which moves by its own motion, drops out)
-    with steps of at most half a pixel (the disc is 2-4 px across: a longer linearised
-    step overshoots).
+    amplitude ``a``. Stages: the skin's shift and gain with the disc's neighbourhood
+    left out; the disc's integer place in what the skin does not explain (correlation
+    with the ink within ``max_move`` of the prediction), refined by a parabola; then
+    all of them together. Both fits are robust Gauss-Newton (Tukey weights: a
+    neighbouring marker, which moves by its own motion, drops out) with steps of at
+    most half a pixel (the disc is 2-4 px across: a longer linearised step
+    overshoots). Where the disc has left its keyframe place on the skin, the skin
+    under the keyframe's disc is seen in this frame: the keyframe is taken apart again
+    with it (its skin was interpolated, wrongly where the disc sat on a crease's edge)
+    and the joint fit repeated.
 
     Parameters
     ----------
@@ -214,130 +219,223 @@ def fit_disc(image: NDArray[Any], model: DiscModel, predicted: Any, *,
     s = np.asarray(shift0, dtype=np.float64).reshape(2).copy()
     if not (m <= cx < W - m and m <= cy < H - m):
         return nan, s, 0.0, 0.0
-    # the frame's window (integer grid around the prediction)
-    wx0, wy0 = cx - FIT_HALF, cy - FIT_HALF
-    obs = np.asarray(image[wy0:wy0 + N, wx0:wx0 + N], dtype=np.float64).ravel()
-    g = np.arange(N) - FIT_HALF
-    gu, gv = np.tile(g / FIT_HALF, N), np.repeat(g / FIT_HALF, N)
-    ox, oy = model.origin
-    kx, ky = model.xy
-    lo, hi = N // 2 + 2, model.skin.shape[0] - N // 2 - 4
-    ones = np.ones(N * N)
-    scale = max(float(np.median(obs)), 1.0)   # grey levels of the skin, for the weights
-
-    def skin(sh: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        x, y = cx + sh[0] - ox, cy + sh[1] - oy
-        return shift_patch(model.skin, x, y, N) if lo <= x <= hi and lo <= y <= hi else None
-
-    def disc(pp: NDArray[np.float64], arr: NDArray[np.float64] | None = None
-             ) -> NDArray[np.float64] | None:
-        x, y = cx - pp[0] + kx - ox, cy - pp[1] + ky - oy
-        arr = model.disc if arr is None else arr
-        return shift_patch(arr, x, y, N) if lo <= x <= hi and lo <= y <= hi else None
-
+    fit = _Fit(image, model, cx, cy)
     # 1. the skin alone, away from where the disc may be
     reach = max_move + model.radius + 2.0
-    away = (np.hypot(wx0 + np.tile(g + FIT_HALF, N) - pred[0],
-                     wy0 + np.repeat(g + FIT_HALF, N) - pred[1]) > reach).astype(float)
-    wt = away.copy()
-    gain = np.array([1.0, 0.0, 0.0])
-    for it in range(ITERATIONS):
-        b = skin(s)
-        if b is None:
-            return nan, s, 0.0, 0.0
-        bgy, bgx = np.gradient(b)
-        G = gain @ np.stack([ones, gu, gv])
-        bb = b.ravel()
-        J = np.stack([bgx.ravel() * G, bgy.ravel() * G, bb, bb * gu, bb * gv])
-        JW = J * wt
-        try:
-            sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(5),
-                                  JW @ (obs - bb * G + J[2:].T @ gain))
-        except np.linalg.LinAlgError:
-            return nan, s, 0.0, 0.0
-        step = _clip(sol[:2])
-        s, gain = s + step, sol[2:]
-        if it >= 1:
-            wt = _biweight(obs - (bb * G + step @ J[:2] + (gain - gain) @ J[2:]), wt, away,
-                           scale)
-        if np.hypot(*s) > 6.0 or wt.sum() < 0.2 * away.sum() or not gain[0] > 0:
-            return nan, s, 0.0, 0.0
-        if it >= 3 and float(step @ step) < TOL_PX ** 2:
-            break
-    b = skin(s)
-    if b is None:
+    away = (np.hypot(fit.X - pred[0], fit.Y - pred[1]) > reach).astype(float)
+    out = fit.skin_only(s, away)
+    if out is None:
         return nan, s, 0.0, 0.0
-    bg = b.ravel() * (gain @ np.stack([ones, gu, gv]))
+    s, gain = out
     # 2. the disc's place: the ink correlated with the darkening the skin leaves
-    e = (bg - obs).reshape(N, N).astype(np.float32)
-    r = int(math.ceil(model.radius)) + 1
-    kc = model.disc.shape[0] // 2   # the disc crop's centre pixel
-    fx, fy = kx - ox - kc, ky - oy - kc   # the keyframe's sub-pixel offset from it
-    tpl = shift_patch(model.disc, kc + fx, kc + fy, 2 * r + 1).astype(np.float32)
-    res = cv2.matchTemplate(e, tpl, cv2.TM_CCORR)   # centres r .. N-1-r of the window
-    cen = np.arange(res.shape[0]) + r - FIT_HALF   # offsets from (cx, cy)
-    ux = cx + cen - pred[0]
-    uy = cy + cen - pred[1]
-    res[(uy[:, None] ** 2 + ux[None, :] ** 2) > max_move ** 2] = -np.inf
-    _, best, _, (bx, by) = cv2.minMaxLoc(res)
-    if not np.isfinite(best) or best <= 0:
+    p = fit.place(model, s, gain, pred, max_move)
+    if p is None:
         return nan, s, 0.0, 0.0
-    p = np.array([cx + cen[bx], cy + cen[by]], dtype=np.float64)
-    if 0 < bx < res.shape[1] - 1 and 0 < by < res.shape[0] - 1:
-        for k, (lo_, mid, hi_) in enumerate(((res[by, bx - 1], best, res[by, bx + 1]),
-                                             (res[by - 1, bx], best, res[by + 1, bx]))):
-            den = lo_ - 2 * mid + hi_
-            if np.isfinite(den) and den < 0:
-                p[k] += float(np.clip(0.5 * (lo_ - hi_) / den, -0.5, 0.5))
-    # 3. skin and disc together: unknowns ds (2), dp (2), a, g, r_x, r_y
-    win = ones
-    wt = win.copy()
-    a = 1.0
-    for it in range(ITERATIONS):
-        b = skin(s)
-        d = disc(p)
-        if b is None or d is None:
-            return nan, s, 0.0, 0.0
-        bgy, bgx = np.gradient(b)
-        dgy, dgx = np.gradient(d)
-        bb, dd = b.ravel(), d.ravel()
-        G = gain @ np.stack([ones, gu, gv])
-        Q = 1.0 - a * dd
-        J = np.stack([bgx.ravel() * G * Q, bgy.ravel() * G * Q,
-                      bb * G * a * dgx.ravel(), bb * G * a * dgy.ravel(),
-                      -bb * G * dd, bb * Q, bb * Q * gu, bb * Q * gv])
-        model_now = bb * G * Q
-        lin = np.concatenate([[0.0, 0.0, 0.0, 0.0, a], gain])
-        JW = J * wt
-        try:
-            sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(8),
-                                  JW @ (obs - model_now + J[4:].T @ lin[4:]))
-        except np.linalg.LinAlgError:
-            return nan, s, 0.0, 0.0
-        ds, dp = _clip(sol[0:2]), _clip(sol[2:4])
-        s, p = s + ds, p + dp
-        res_ = obs - (J[4:].T @ sol[4:] + ds @ J[:2] + dp @ J[2:4]
-                      + model_now - J[4:].T @ lin[4:])
-        a, gain = float(sol[4]), sol[5:].copy()
-        if it >= 1:
-            wt = _biweight(res_, wt, win, scale)
-        if np.hypot(*(p - pred)) > max_move or not a > 0.05 or not gain[0] > 0:
-            return nan, s, max(a, 0.0), 0.0
-        if it >= 3 and float(dp @ dp) < TOL_PX ** 2:
-            break
-    b = skin(s)
-    d = disc(p)
-    sup = disc(p, model.support.astype(np.float64))
-    if b is None or d is None or sup is None:
+    # 3. skin and disc together
+    out = fit.joint(model, s, p, gain, pred, max_move)
+    if out is None:
         return nan, s, 0.0, 0.0
-    bg = b.ravel() * (gain @ np.stack([ones, gu, gv]))
-    on = sup.ravel() > 0.5
-    ev = (bg - obs)[on]             # the darkening the skin does not explain
-    dv = (bg * d.ravel())[on]       # the keyframe's disc's darkening there
-    den = math.sqrt(float(dv @ dv) * float(ev @ ev))
-    ncc = float(dv @ ev) / den if den > 1e-12 else 0.0
-    amp = float(dv @ ev) / max(float(dv @ dv), 1e-12)
+    p, s, a, gain, wt = out
+    kx, ky = model.xy
+    if np.hypot(p[0] + s[0] - kx, p[1] + s[1] - ky) > 2.0 * model.radius + 2.0:
+        again = rekey(model, image, s, gain, (cx, cy))
+        if again is not None:
+            out = fit.joint(again, s, p, gain, pred, max_move)
+            if out is not None:
+                model = again
+                p, s, a, gain, wt = out
+    amp, ncc = fit.evidence(model, s, p, gain)
     return p, s, amp, ncc
+
+
+def rekey(model: DiscModel, image: NDArray[Any], shift: NDArray[np.float64],
+          gain: NDArray[np.float64], centre: tuple[int, int]) -> DiscModel | None:
+    """The keyframe taken apart again with the skin under its disc as seen in ``image``.
+
+    ``image``'s pixel ``X`` shows the keyframe's skin at ``X + shift`` times the gain
+    (``gain`` over the fit window around ``centre``); the keyframe's disc support,
+    moved there, must be clear of the frame's own disc (the caller's check).
+    """
+    S = model.skin.shape[0]
+    ox, oy = model.origin
+    m = 6
+    fx0, fy0 = ox - m, oy - m
+    H, W = image.shape[:2]
+    if fx0 < 0 or fy0 < 0 or fx0 + S + 2 * m > W or fy0 + S + 2 * m > H:
+        return None
+    crop = np.asarray(image[fy0:fy0 + S + 2 * m, fx0:fx0 + S + 2 * m], dtype=np.float64)
+    h = S // 2
+    seen = shift_patch(crop, h + m - shift[0], h + m - shift[1], S)
+    # the gain at those pixels (its ramp is across the fit window around centre)
+    g = np.arange(S) - h
+    u = (ox + h - shift[0] + g - centre[0]) / FIT_HALF
+    v = (oy + h - shift[1] + g - centre[1]) / FIT_HALF
+    G = gain[0] + gain[1] * u[None, :] + gain[2] * v[:, None]
+    if not np.all(G > 0):
+        return None
+    skin_seen = seen / G
+    sup = model.support
+    skin = model.skin.copy()
+    skin[sup] = skin_seen[sup]
+    lin = model.skin * (1.0 - model.disc)   # the keyframe's own pixels (support and off)
+    disc = np.where(sup, np.clip(1.0 - lin / np.maximum(skin, 1.0), -0.5, 1.0), 0.0)
+    return DiscModel(skin, disc, sup, model.origin, model.xy,
+                     float((disc * disc).sum()), model.radius)
+
+
+class _Fit:
+    """The frame's window around ``(cx, cy)`` and the stages of :func:`fit_disc`."""
+
+    def __init__(self, image: NDArray[Any], model: DiscModel, cx: int, cy: int) -> None:
+        N = self.N = 2 * FIT_HALF + 1
+        self.model = model
+        self.cx, self.cy = cx, cy
+        wx0, wy0 = cx - FIT_HALF, cy - FIT_HALF
+        self.obs = np.asarray(image[wy0:wy0 + N, wx0:wx0 + N], dtype=np.float64).ravel()
+        g = np.arange(N) - FIT_HALF
+        self.X, self.Y = np.tile(g + cx, N).astype(float), np.repeat(g + cy, N).astype(float)
+        self.gu, self.gv = np.tile(g / FIT_HALF, N), np.repeat(g / FIT_HALF, N)
+        self.ones = np.ones(N * N)
+        self.lo, self.hi = N // 2 + 2, model.skin.shape[0] - N // 2 - 4
+        # grey levels of the skin, for the robust weights' floor
+        self.scale = max(float(np.median(self.obs)), 1.0)
+
+    def _at(self, arr: NDArray[np.float64], x: float, y: float
+            ) -> NDArray[np.float64] | None:
+        if not (self.lo <= x <= self.hi and self.lo <= y <= self.hi):
+            return None
+        return shift_patch(arr, x, y, self.N)
+
+    def skin(self, model: DiscModel, s: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        ox, oy = model.origin
+        return self._at(model.skin, self.cx + s[0] - ox, self.cy + s[1] - oy)
+
+    def disc(self, model: DiscModel, p: NDArray[np.float64],
+             arr: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
+        ox, oy = model.origin
+        kx, ky = model.xy
+        return self._at(model.disc if arr is None else arr,
+                        self.cx - p[0] + kx - ox, self.cy - p[1] + ky - oy)
+
+    def _gain(self, gain: NDArray[np.float64]) -> NDArray[np.float64]:
+        return gain[0] + gain[1] * self.gu + gain[2] * self.gv
+
+    def skin_only(self, s: NDArray[np.float64], away: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The skin's shift and gain (unknowns ds (2), g, r_x, r_y), ``away`` weighed."""
+        obs, wt = self.obs, away.copy()
+        gain = np.array([1.0, 0.0, 0.0])
+        for it in range(ITERATIONS):
+            b = self.skin(self.model, s)
+            if b is None:
+                return None
+            bgy, bgx = np.gradient(b)
+            G, bb = self._gain(gain), b.ravel()
+            J = np.stack([bgx.ravel() * G, bgy.ravel() * G, bb, bb * self.gu, bb * self.gv])
+            JW = J * wt
+            try:
+                sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(5), JW @ obs)
+            except np.linalg.LinAlgError:
+                return None
+            step = _clip(sol[:2])
+            s, gain = s + step, sol[2:]
+            if it >= 1:
+                wt = _biweight(obs - J.T @ np.concatenate([step, gain]), wt, away,
+                               self.scale)
+            if np.hypot(*s) > 6.0 or wt.sum() < 0.2 * away.sum() or not gain[0] > 0:
+                return None
+            if it >= 3 and float(step @ step) < TOL_PX ** 2:
+                break
+        return s, gain
+
+    def place(self, model: DiscModel, s: NDArray[np.float64], gain: NDArray[np.float64],
+              pred: NDArray[np.float64], max_move: float) -> NDArray[np.float64] | None:
+        """The disc's place in the darkening the skin leaves (integer peak, parabola)."""
+        b = self.skin(model, s)
+        if b is None:
+            return None
+        N = self.N
+        e = (b.ravel() * self._gain(gain) - self.obs).reshape(N, N).astype(np.float32)
+        r = int(math.ceil(model.radius)) + 1
+        ox, oy = model.origin
+        kc = model.disc.shape[0] // 2   # the disc crop's centre pixel
+        tpl = shift_patch(model.disc, model.xy[0] - ox, model.xy[1] - oy,
+                          2 * r + 1).astype(np.float32)
+        del kc
+        res = cv2.matchTemplate(e, tpl, cv2.TM_CCORR)   # centres r .. N-1-r
+        cen = np.arange(res.shape[0]) + r - FIT_HALF   # offsets from (cx, cy)
+        ux, uy = self.cx + cen - pred[0], self.cy + cen - pred[1]
+        res[(uy[:, None] ** 2 + ux[None, :] ** 2) > max_move ** 2] = -np.inf
+        _, best, _, (bx, by) = cv2.minMaxLoc(res)
+        if not np.isfinite(best) or best <= 0:
+            return None
+        p = np.array([self.cx + cen[bx], self.cy + cen[by]], dtype=np.float64)
+        if 0 < bx < res.shape[1] - 1 and 0 < by < res.shape[0] - 1:
+            for k, (lo, mid, hi) in enumerate(((res[by, bx - 1], best, res[by, bx + 1]),
+                                               (res[by - 1, bx], best, res[by + 1, bx]))):
+                den = lo - 2 * mid + hi
+                if np.isfinite(den) and den < 0:
+                    p[k] += float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5))
+        return p
+
+    def joint(self, model: DiscModel, s: NDArray[np.float64], p: NDArray[np.float64],
+              gain: NDArray[np.float64], pred: NDArray[np.float64], max_move: float
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], float,
+                         NDArray[np.float64], NDArray[np.float64]] | None:
+        """Skin and disc together: unknowns ds (2), dp (2), a, g, r_x, r_y."""
+        obs, win = self.obs, self.ones
+        wt = win.copy()
+        a = 1.0
+        for it in range(ITERATIONS):
+            b = self.skin(model, s)
+            d = self.disc(model, p)
+            if b is None or d is None:
+                return None
+            bgy, bgx = np.gradient(b)
+            dgy, dgx = np.gradient(d)
+            bb, dd = b.ravel(), d.ravel()
+            G = self._gain(gain)
+            Q = 1.0 - a * dd
+            BG = bb * G
+            # the disc's gradient at the last amplitude (a dp ~ a_last dp)
+            J = np.stack([bgx.ravel() * G * Q, bgy.ravel() * G * Q,
+                          BG * a * dgx.ravel(), BG * a * dgy.ravel(),
+                          -BG * dd, bb * Q, bb * Q * self.gu, bb * Q * self.gv])
+            # the model is linear in (a, g, r_x, r_y) given the positions: solved for
+            # them outright, for the positions' steps
+            base = BG * Q - J[4:].T @ np.concatenate([[a], gain])
+            JW = J * wt
+            try:
+                sol = np.linalg.solve(JW @ J.T + 1e-9 * np.eye(8), JW @ (obs - base))
+            except np.linalg.LinAlgError:
+                return None
+            ds, dp = _clip(sol[0:2]), _clip(sol[2:4])
+            s, p = s + ds, p + dp
+            fitted = base + J.T @ np.concatenate([ds, dp, sol[4:]])
+            a, gain = float(sol[4]), sol[5:].copy()
+            if it >= 1:
+                wt = _biweight(obs - fitted, wt, win, self.scale)
+            if np.hypot(*(p - pred)) > max_move or not a > 0.05 or not gain[0] > 0:
+                return None
+            if it >= 3 and float(dp @ dp) < TOL_PX ** 2:
+                break
+        return p, s, a, gain, wt
+
+    def evidence(self, model: DiscModel, s: NDArray[np.float64], p: NDArray[np.float64],
+                 gain: NDArray[np.float64]) -> tuple[float, float]:
+        """The disc's amplitude and correlation in the darkening the skin leaves."""
+        b = self.skin(model, s)
+        d = self.disc(model, p)
+        sup = self.disc(model, p, model.support.astype(np.float64))
+        if b is None or d is None or sup is None:
+            return 0.0, 0.0
+        bg = b.ravel() * self._gain(gain)
+        on = sup.ravel() > 0.5
+        ev = (bg - self.obs)[on]        # the darkening the skin does not explain
+        dv = (bg * d.ravel())[on]       # the keyframe's disc's darkening there
+        den = math.sqrt(float(dv @ dv) * float(ev @ ev))
+        ncc = float(dv @ ev) / den if den > 1e-12 else 0.0
+        return float(dv @ ev) / max(float(dv @ dv), 1e-12), ncc
 
 
 def _clip(step: NDArray[np.float64], most: float = 0.5) -> NDArray[np.float64]:
