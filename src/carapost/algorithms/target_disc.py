@@ -56,7 +56,7 @@ DISC_KERNEL = 0.15
 DISC_GROW = 2
 #: Iterations of the fit at most; it stops on a step below `TOL_PX`.
 ITERATIONS = 15
-TOL_PX = 1e-3
+TOL_PX = 5e-3
 #: A disc step holds where the darkening the skin leaves correlates with the keyframe's
 #: disc at least this much ...
 MIN_NCC = 0.95
@@ -65,6 +65,9 @@ AMPLITUDE = (0.7, 1.4)
 #: A keyframe match scoring below this is checked against the disc fit
 #: (:func:`disc_polish`) ...
 POLISH_BELOW = 0.985
+#: ... on a marker moving at least this fast in the image (px per frame: a lid closing;
+#: the fit costs some milliseconds, on slow markers it is not tried) ...
+POLISH_SPEED_PX = 0.4
 #: ... where the disc has slid this far over its skin since the keyframe (px) ...
 POLISH_SLID_PX = 1.0
 #: ... and replaced by it where they are this far apart (px) ...

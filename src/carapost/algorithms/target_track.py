@@ -710,7 +710,8 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
             if (params.follow_appearance and moving
                     and np.all(np.isfinite(xy))
-                    and params.break_threshold <= score < target_disc.POLISH_BELOW):
+                    and params.break_threshold <= score < target_disc.POLISH_BELOW
+                    and np.hypot(*velocity) >= target_disc.POLISH_SPEED_PX):
                 # the keyframe match holds, but the disc may have slid onto a crease
                 # that pulls it: the disc's own position where that differs
                 xy_d, disc_shift = target_disc.disc_polish(
