@@ -8,22 +8,23 @@ relative to it since the keyframe, so the keyframe match (the whole box) and the
 appearance step (the previous frame's box) both fail there although the artist sees the
 marker.
 
-A painted marker darkens the skin under it by a factor (its ink's reflectance), so on
-log grey levels it *adds* a fixed signature to whatever skin is there:
-``log I(X) = log B(X) + S(X - p)``. :class:`DiscModel` takes the two apart at the
-keyframe: the skin ``B`` with the disc inpainted from its surroundings, and the disc's
-signature ``S`` (the keyframe's log image minus that skin, on the disc only). In a later
-frame the skin is the keyframe's moved with the head (a shift ``s``), and the marker is
-``S`` at its new place, so
+A painted marker darkens the skin under it by a factor (its ink's reflectance):
+``I(X) = B(X) (1 - K(X - p))`` for the skin ``B`` and the disc's ink ``K``.
+:func:`disc_model` takes the two apart at the keyframe: the skin with the disc filled in
+from its surroundings, and the ink (``1 - I / B`` on the disc only). In a later frame
+the skin is the keyframe's moved with the head (a shift ``s``) under a gain ``G`` (with a
+ramp), and the marker is the ink at its new place, so
 
-    ``log I_t(X) = log B_k(X + s) + c + r_x u + r_y v + a S(X - p)``
+    ``I_t(X) = B_k(X + s) G(X) (1 - a K(X - p))``
 
-is fitted by Gauss-Newton with Tukey weights (a neighbouring marker, which moves by its
-own motion, drops out): the crease and lash line cancel in the fit instead of pulling
-the position. ``a`` is how much of the keyframe's disc is there: near 1 while the disc
-is whole, near 0 once it is hidden. The score (:func:`disc_step`) is the correlation of
-the skin-subtracted image with the disc signature over the disc's support, so a hidden
-marker, whose frame shows skin only, scores low and the track stops.
+is fitted by Gauss-Newton with Tukey weights (:func:`fit_disc`; a neighbouring marker,
+which moves by its own motion, drops out): the crease and lash line are explained by
+the skin instead of pulling the position. ``a`` is how much of the keyframe's ink is
+there: near 1 while the disc is whole, lower where part of it is covered, near 0 once it
+is hidden. The score (:func:`disc_step`) is the correlation of the darkening the skin
+does not explain with the disc's, over the disc's support, so a hidden marker, whose
+frame shows skin only, scores low and the track stops. :func:`disc_polish` uses the same
+fit where the keyframe match holds but the crease pulls it.
 
 Coordinates are raw pixels with OpenCV's pixel-centre convention, as in
 :mod:`carapost.algorithms.target_track`.
@@ -44,12 +45,13 @@ from carapost.algorithms.target_refine import shift_patch
 
 __all__ = ["DiscModel", "disc_model", "disc_polish", "disc_step", "fit_disc", "rekey"]
 
-#: Grey levels added before the log (the dark disc core's noise is not amplified).
+#: Grey levels added before the log of the black-hat that finds the keyframe's disc (the
+#: dark disc core's noise is not amplified).
 LOG_OFFSET = 16.0
 #: Half side of the fitted window around the predicted position (px).
 FIT_HALF = 12
 #: The disc is the part of the keyframe's black-hat above this fraction of its value at
-#: the centre, connected to it; grown by `DISC_GROW` px for the signature's blurred rim.
+#: the centre, connected to it; grown by `DISC_GROW` px for the ink's blurred rim.
 DISC_LEVEL = 0.6
 #: Radius of the black-hat's disc as a fraction of the Pattern Size (px).
 DISC_KERNEL = 0.15
@@ -86,17 +88,17 @@ POLISH_MOVE_PX = 1.5
 
 @dataclass
 class DiscModel:
-    """A keyframe taken apart into skin and disc (log grey levels).
+    """A keyframe taken apart into skin and disc.
 
     Attributes
     ----------
     skin : ndarray (h, w) float64
-        log(I + offset) of the keyframe around the marker, the disc inpainted.
+        The keyframe around the marker (grey levels), the disc filled in from around it.
     disc : ndarray (h, w) float64
-        The disc's signature: the keyframe's log image minus ``skin`` (<= 0 for a dark
-        marker), 0 off the disc.
+        The disc's ink: ``1 - I / skin`` on the disc (the fraction of the skin's light
+        it takes, about 0.84 at a painted marker's core), 0 off it.
     support : ndarray (h, w) bool
-        The disc's pixels (the signature's support).
+        The disc's pixels (the ink's support).
     origin : tuple of int
         Raw pixel coordinates (x, y) of the crops' first pixel.
     xy : ndarray, shape (2,)
@@ -136,7 +138,7 @@ def _fill(img: NDArray[np.float64], mask: NDArray[np.bool_], iterations: int = 2
 
 
 def disc_model(image: NDArray[Any], xy: Any, pattern_size: int) -> DiscModel | None:
-    """Take a keyframe apart into the skin around the marker and the disc's signature.
+    """Take a keyframe apart into the skin around the marker and the disc's ink.
 
     Parameters
     ----------
@@ -391,10 +393,8 @@ class _Fit:
         e = (b.ravel() * self._gain(gain) - self.obs).reshape(N, N).astype(np.float32)
         r = int(math.ceil(model.radius)) + 1
         ox, oy = model.origin
-        kc = model.disc.shape[0] // 2   # the disc crop's centre pixel
         tpl = shift_patch(model.disc, model.xy[0] - ox, model.xy[1] - oy,
                           2 * r + 1).astype(np.float32)
-        del kc
         res = cv2.matchTemplate(e, tpl, cv2.TM_CCORR)   # centres r .. N-1-r
         cen = np.arange(res.shape[0]) + r - FIT_HALF   # offsets from (cx, cy)
         ux, uy = self.cx + cen - pred[0], self.cy + cen - pred[1]
