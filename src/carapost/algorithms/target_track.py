@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms import target_appearance, target_fade
+from carapost.algorithms import target_appearance, target_disc, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
 from carapost.algorithms.target_identity import candidates
 from carapost.algorithms.target_identity import first_step as _assigned_step
@@ -634,6 +634,14 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     reason = STOP_END if total == abs(stop - start) else STOP_LIMIT
     refiners: dict[tuple[int, int | None, int], _Refiner] = {}
     key_contrast: dict[int, float] = {}   # per keyframe, for the appearance step
+    # per keyframe, its skin and disc apart (the disc step); the skin's last shift
+    disc_models: dict[int, target_disc.DiscModel | None] = {}
+    disc_shift = np.zeros(2)
+
+    def disc_model(k: int) -> target_disc.DiscModel | None:
+        if k not in disc_models:
+            disc_models[k] = target_disc.disc_model(get_image(k), keys[k], params.pattern_size)
+        return disc_models[k]
     # keyframe pairs of different contrast: the fit's weights (None: not a fade)
     fades: dict[tuple[int, int], NDArray[np.float64] | None] = {}
     back_params = replace(params, distance_penalty=0.0, ambiguity_margin=0.0, near_px=0)
@@ -700,6 +708,16 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                                                   fades)
             if polish is not None and np.all(np.isfinite(xy)):
                 xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
+            if (params.follow_appearance and moving
+                    and np.all(np.isfinite(xy))
+                    and params.break_threshold <= score < target_disc.POLISH_BELOW
+                    and np.hypot(*velocity) >= target_disc.POLISH_SPEED_PX):
+                # the keyframe match holds, but the disc may have slid onto a crease
+                # that pulls it: the disc's own position where that differs
+                xy_d, disc_shift = target_disc.disc_polish(
+                    img, disc_model(pp.frame), xy, shift0=disc_shift)
+                if xy_d is not None:
+                    xy = xy_d
             if params.follow_appearance and moving and not score >= params.break_threshold:
                 prev_img = get_image(prev_frame) if prev_img is None else prev_img
                 if pp.frame not in key_contrast:
@@ -708,6 +726,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 xy, score = target_appearance.appearance_step(
                     img, prev_img, pos, pos + velocity, tpl, params,
                     key_contrast[pp.frame], (xy, score))
+                if not score >= params.break_threshold:
+                    # the marker sliding over its skin: the disc alone, the skin apart
+                    xy_d, score_d, disc_shift = target_disc.disc_step(
+                        img, disc_model(pp.frame), pos + velocity, shift0=disc_shift)
+                    if score_d > score:
+                        xy, score = xy_d, score_d
             prev_frame, prev_img = f, img
             frames.append(f)
             is_key.append(False)
