@@ -358,7 +358,12 @@ def test_cameras_that_lost_the_marker_are_tracked_again_from_the_others_3d(take)
     assert (recon1[back.any(1)] == RECON_TRIANGULATED).all()
     rmse = [float(np.sqrt(np.nanmean(np.sum((X[1:] - scene.points3d[1:, m]) ** 2, -1))))
             for X in (X0, X1)]
-    assert rmse[1] < 0.85 * rmse[0]
+    assert rmse[1] < rmse[0]
+    # on the frames put back (one camera before, triangulated now) the 3D is better
+    moved = np.flatnonzero((n0 == 1) & (n1 >= 2)) + 1
+    rmse_moved = [float(np.sqrt(np.mean(np.sum((X[moved] - scene.points3d[moved, m]) ** 2, -1))))
+                  for X in (X0, X1)]
+    assert rmse_moved[1] < 0.85 * rmse_moved[0]
     assert "tracked again" in msg1 and "tracked again" not in msg0
     # what was tracked in the first pass is kept as it was
     kept = np.isfinite(obs0[..., 0])
