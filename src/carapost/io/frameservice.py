@@ -73,6 +73,16 @@ DECODER_NICE = 10
 #: thread for 2 cores. All-intra proxy frames (MJPEG) decode on one thread anyway.
 DECODER_THREADS = 1
 
+#: Decoders that decode at once (0: as many as the cores this process may use). A
+#: camera's thread beyond them waits for a slot before each frame instead of making a
+#: third, fourth... runnable thread: a decoder preempted while it holds the GIL (its
+#: Python between two frames) keeps the GUI thread waiting until it gets a core back,
+#: and with more decoders than cores it waits behind another decoder's time slice.
+#: A jump decodes all four cameras in two rounds on two cores, and playback from the
+#: originals decodes as many frames per second as before: the cores were the bound
+#: (docs/benchmarks.md, "GUI stalls behind the decoders", eleventh session).
+DECODE_SLOTS = 0
+
 #: Screen pixels per image pixel above which a view counts as zoomed in (playback then
 #: shows that camera's original instead of its proxy).
 ZOOMED_IN = 1.02
@@ -134,6 +144,7 @@ class FrameService(TakeFrames):
         self._unverified: set[int] = set()
         # while playing: the playback clock and the frames every camera decodes
         self._play = PlaySchedule(take.n_cameras)
+        self._slots = DecodeSlots(decode_slots())
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -624,7 +635,8 @@ class FrameService(TakeFrames):
                 frame, index = step
             f = i - offset
             try:
-                img = src.read(i)
+                with self._slots:
+                    img = src.read(i)
             except CaraFileError as exc:
                 self._frame_errors[(f, camera)] = str(exc)
                 # the target cannot be reached either (read-ahead must not retry it)
@@ -671,6 +683,58 @@ class FrameService(TakeFrames):
         for proxy in self._proxies.values():
             proxy.close()
         self._proxies.clear()
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity; `os.cpu_count` elsewhere)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)
+
+
+def decode_slots() -> int:
+    """How many decoders may decode at once: `DECODE_SLOTS`, by default the cores."""
+    return max(int(DECODE_SLOTS) or available_cores(), 1)
+
+
+class DecodeSlots:
+    """A counting gate around each frame's decode (`DECODE_SLOTS`).
+
+    Parameters
+    ----------
+    limit : int
+        Decodes running at once (at least 1).
+
+    Attributes
+    ----------
+    peak : int
+        Most decodes that ran at once so far (tests, benchmarks).
+    """
+
+    def __init__(self, limit: int) -> None:
+        self._cond = threading.Condition(threading.Lock())
+        self._limit = max(int(limit), 1)
+        self._busy = 0
+        self.peak = 0
+
+    @property
+    def limit(self) -> int:
+        """Decodes allowed at once."""
+        return self._limit
+
+    def __enter__(self) -> DecodeSlots:
+        with self._cond:
+            while self._busy >= self._limit:
+                self._cond.wait()
+            self._busy += 1
+            self.peak = max(self.peak, self._busy)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        with self._cond:
+            self._busy -= 1
+            self._cond.notify()
 
 
 #: Frames read ahead on each side of the current one before the rest (not playing).
