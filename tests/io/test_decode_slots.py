@@ -129,3 +129,34 @@ def test_slots_wait_and_count():
         t.join()
     assert peak[0] == slots.peak == 2
     assert DecodeSlots(0).limit == 1  # at least one decode at a time
+
+
+def test_a_slot_given_up_goes_to_the_waiters_urgent_first():
+    """A thread reading ahead that gives its slot up and asks again at once queues
+    behind the waiters (no barging), and urgent waiters go before read-ahead."""
+    slots = DecodeSlots(1)
+    order: list[str] = []
+    slots.acquire(urgent=False)  # a decoder reading ahead holds the only slot
+
+    def wait(name: str, urgent: bool) -> threading.Thread:
+        def run():
+            slots.acquire(urgent)
+            order.append(name)
+            slots.release()
+        t = threading.Thread(target=run)
+        t.start()
+        while len(slots._queues[0]) + len(slots._queues[1]) < wait.count + 1:
+            time.sleep(0.001)
+        wait.count += 1
+        return t
+
+    wait.count = 0
+    threads = [wait("ahead-1", False), wait("view-1", True), wait("view-2", True)]
+    slots.release()
+    slots.acquire(urgent=False)  # asks again at once: behind every waiter
+    order.append("again")
+    slots.release()
+    for t in threads:
+        t.join(timeout=5)
+    assert order == ["view-1", "view-2", "ahead-1", "again"]
+    assert slots._busy == 0 and slots.peak == 1

@@ -635,8 +635,7 @@ class FrameService(TakeFrames):
                 frame, index = step
             f = i - offset
             try:
-                with self._slots:
-                    img = src.read(i)
+                img = self._read(src, i, urgent=kind != "ahead")
             except CaraFileError as exc:
                 self._frame_errors[(f, camera)] = str(exc)
                 # the target cannot be reached either (read-ahead must not retry it)
@@ -649,6 +648,15 @@ class FrameService(TakeFrames):
                 self._landed(f, camera, None if kind == "ahead" else frame)
             i += 1
         return img
+
+    def _read(self, src: VideoSource, index: int, *, urgent: bool) -> NDArray[np.uint8]:
+        """One frame of ``src`` in a decode slot (`DecodeSlots`; read-ahead waits
+        behind the frames a view, a job or playback needs)."""
+        self._slots.acquire(urgent)
+        try:
+            return src.read(index)
+        finally:
+            self._slots.release()
 
     def _landed(self, frame: int, camera: int, target: int | None) -> None:
         """An image landed in the cache: tell the views if one may be waiting for it
@@ -699,7 +707,13 @@ def decode_slots() -> int:
 
 
 class DecodeSlots:
-    """A counting gate around each frame's decode (`DECODE_SLOTS`).
+    """A counting gate around each frame's decode (`DECODE_SLOTS`), first come first
+    served, urgent decodes (a view's or a job's frame, playback) before read-ahead.
+
+    A slot given up goes straight to the next waiter: a decoder reading ahead that
+    gives up its slot and asks again at once cannot take it back before a camera
+    whose frame the views wait for (with a plain semaphore it did, and a jump waited
+    behind read-ahead for seconds on a loaded machine).
 
     Parameters
     ----------
@@ -713,9 +727,11 @@ class DecodeSlots:
     """
 
     def __init__(self, limit: int) -> None:
-        self._cond = threading.Condition(threading.Lock())
+        self._lock = threading.Lock()
         self._limit = max(int(limit), 1)
         self._busy = 0
+        # waiters, each a lock held until a slot is handed to it: urgent, read-ahead
+        self._queues: tuple[deque[threading.Lock], deque[threading.Lock]] = (deque(), deque())
         self.peak = 0
 
     @property
@@ -723,18 +739,33 @@ class DecodeSlots:
         """Decodes allowed at once."""
         return self._limit
 
+    def acquire(self, urgent: bool = True) -> None:
+        """Wait for a slot (``urgent``: ahead of every read-ahead waiter)."""
+        with self._lock:
+            if self._busy < self._limit and not (self._queues[0] or self._queues[1]):
+                self._busy += 1
+                self.peak = max(self.peak, self._busy)
+                return
+            gate = threading.Lock()
+            gate.acquire()
+            self._queues[0 if urgent else 1].append(gate)
+        gate.acquire()  # released by `release`: the slot is this thread's now
+
+    def release(self) -> None:
+        """Give the slot up: to the first urgent waiter, else the first other one."""
+        with self._lock:
+            for queue in self._queues:
+                if queue:
+                    queue.popleft().release()  # still busy: the slot changes hands
+                    return
+            self._busy -= 1
+
     def __enter__(self) -> DecodeSlots:
-        with self._cond:
-            while self._busy >= self._limit:
-                self._cond.wait()
-            self._busy += 1
-            self.peak = max(self.peak, self._busy)
+        self.acquire()
         return self
 
     def __exit__(self, *exc: object) -> None:
-        with self._cond:
-            self._busy -= 1
-            self._cond.notify()
+        self.release()
 
 
 #: Frames read ahead on each side of the current one before the rest (not playing).
