@@ -14,7 +14,7 @@ import pytest
 
 from carapost.io import frameservice, video
 from carapost.io.encode import FFV1Writer
-from carapost.io.frameservice import DecodeSlots, FrameService, decode_slots
+from carapost.io.frameservice import DecodeSlots, FrameService, decode_slots, shared_slots
 from carapost.model.project import CameraChannel, Take
 
 W, H, N, CAMERAS = 64, 48, 60, 4
@@ -91,9 +91,21 @@ def test_jumps_steps_and_playback_never_decode_more_frames_at_once(
             time.sleep(0.008)
         # a job (Detect Blobs [Current Frame]) goes through the same slots
         img = fs.get(50, 2)
-        assert fs._slots.peak == slots
+        assert fs._slots.limit == slots
     assert counted_reads["peak"] == slots  # every slot was used, never more
     assert int(img[0, 0]) == 50 and int(img[10, 10]) == 80  # the video's own pixels
+
+
+def test_two_open_takes_share_the_slots(take, counted_reads, monkeypatch):
+    """While a take opens the previous one's decoders may still run: together they
+    stay within the slots."""
+    monkeypatch.setattr(frameservice, "DECODE_SLOTS", 2)
+    with FrameService(take) as old, FrameService(take) as new:
+        assert old._slots is new._slots is shared_slots()
+        old.request(20)
+        new.request(40)
+        assert _wait_all(old, 20) and _wait_all(new, 40)
+    assert counted_reads["peak"] == 2
 
 
 def test_closing_ends_decoders_waiting_for_a_slot(take, counted_reads, monkeypatch):

@@ -73,14 +73,16 @@ DECODER_NICE = 10
 #: thread for 2 cores. All-intra proxy frames (MJPEG) decode on one thread anyway.
 DECODER_THREADS = 1
 
-#: Decoders that decode at once (0: as many as the cores this process may use). A
-#: camera's thread beyond them waits for a slot before each frame instead of making a
-#: third, fourth... runnable thread: a decoder preempted while it holds the GIL (its
-#: Python between two frames) keeps the GUI thread waiting until it gets a core back,
-#: and with more decoders than cores it waits behind another decoder's time slice.
-#: A jump decodes all four cameras in two rounds on two cores, and playback from the
-#: originals decodes as many frames per second as before: the cores were the bound
-#: (docs/benchmarks.md, "GUI stalls behind the decoders", eleventh session).
+#: Frames that decode at once in the process, every frame service together (0: as
+#: many as the cores this process may use). A camera's thread beyond them waits for a
+#: slot before each frame instead of making a third, fourth... runnable thread: a
+#: decoder preempted while it holds the GIL (its Python between two frames) keeps the
+#: GUI thread waiting until it gets a core back, and with more decoders than cores it
+#: waits behind another decoder's time slice. A jump decodes all four cameras in two
+#: rounds on two cores, and playback from the originals decodes as many frames per
+#: second: the cores were the bound (docs/benchmarks.md, "GUI stalls behind the
+#: decoders", eleventh session). On a machine loaded by other programs the process
+#: gets a smaller share of the cores with fewer runnable threads.
 DECODE_SLOTS = 0
 
 #: Screen pixels per image pixel above which a view counts as zoomed in (playback then
@@ -144,7 +146,7 @@ class FrameService(TakeFrames):
         self._unverified: set[int] = set()
         # while playing: the playback clock and the frames every camera decodes
         self._play = PlaySchedule(take.n_cameras)
-        self._slots = DecodeSlots(decode_slots())
+        self._slots = shared_slots()
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -704,6 +706,22 @@ def available_cores() -> int:
 def decode_slots() -> int:
     """How many decoders may decode at once: `DECODE_SLOTS`, by default the cores."""
     return max(int(DECODE_SLOTS) or available_cores(), 1)
+
+
+_SHARED_SLOTS: dict[int, DecodeSlots] = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_slots() -> DecodeSlots:
+    """The process's decode slots (`decode_slots` of them), shared by every frame
+    service: while a take opens, the previous take's decoders finish their frames and
+    the new take's start, and together they stay within the cores."""
+    limit = decode_slots()
+    with _SHARED_LOCK:
+        slots = _SHARED_SLOTS.get(limit)
+        if slots is None:
+            slots = _SHARED_SLOTS[limit] = DecodeSlots(limit)
+        return slots
 
 
 class DecodeSlots:
