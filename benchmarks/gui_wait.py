@@ -20,7 +20,10 @@ outside the decode call of PyAV, which releases the GIL, divided by the frames).
 
 The run-queue share depends on the machine's load; the blocked share much less, so it
 is the figure to compare between builds (run them interleaved: the script only uses the
-service's public calls, so ``PYTHONPATH`` may point at any version).
+service's public calls, so ``PYTHONPATH`` may point at any version). Variants of one
+build: ``--set DECODE_SLOTS=1`` (a constant of `carapost.io.frameservice`),
+``--switch-interval 0.001`` (`sys.setswitchinterval`). ``--cache-mb 300`` makes every
+insert evict an image once the cache is full, as on a long take.
 """
 
 from __future__ import annotations
