@@ -73,6 +73,18 @@ DECODER_NICE = 10
 #: thread for 2 cores. All-intra proxy frames (MJPEG) decode on one thread anyway.
 DECODER_THREADS = 1
 
+#: Frames that decode at once in the process, every frame service together (0: as
+#: many as the cores this process may use). A camera's thread beyond them waits for a
+#: slot before each frame instead of making a third, fourth... runnable thread: a
+#: decoder preempted while it holds the GIL (its Python between two frames) keeps the
+#: GUI thread waiting until it gets a core back, and with more decoders than cores it
+#: waits behind another decoder's time slice. A jump decodes all four cameras in two
+#: rounds on two cores, and playback from the originals decodes as many frames per
+#: second: the cores were the bound (docs/benchmarks.md, "GUI stalls behind the
+#: decoders", eleventh session). On a machine loaded by other programs the process
+#: gets a smaller share of the cores with fewer runnable threads.
+DECODE_SLOTS = 0
+
 #: Screen pixels per image pixel above which a view counts as zoomed in (playback then
 #: shows that camera's original instead of its proxy).
 ZOOMED_IN = 1.02
@@ -134,6 +146,7 @@ class FrameService(TakeFrames):
         self._unverified: set[int] = set()
         # while playing: the playback clock and the frames every camera decodes
         self._play = PlaySchedule(take.n_cameras)
+        self._slots = shared_slots()
         self.dropped = 0
 
     # -- sources with their failure kept for the views --------------------------------
@@ -624,7 +637,7 @@ class FrameService(TakeFrames):
                 frame, index = step
             f = i - offset
             try:
-                img = src.read(i)
+                img = self._read(src, i, urgent=kind != "ahead")
             except CaraFileError as exc:
                 self._frame_errors[(f, camera)] = str(exc)
                 # the target cannot be reached either (read-ahead must not retry it)
@@ -637,6 +650,15 @@ class FrameService(TakeFrames):
                 self._landed(f, camera, None if kind == "ahead" else frame)
             i += 1
         return img
+
+    def _read(self, src: VideoSource, index: int, *, urgent: bool) -> NDArray[np.uint8]:
+        """One frame of ``src`` in a decode slot (`DecodeSlots`; read-ahead waits
+        behind the frames a view, a job or playback needs)."""
+        self._slots.acquire(urgent)
+        try:
+            return src.read(index)
+        finally:
+            self._slots.release()
 
     def _landed(self, frame: int, camera: int, target: int | None) -> None:
         """An image landed in the cache: tell the views if one may be waiting for it
@@ -671,6 +693,97 @@ class FrameService(TakeFrames):
         for proxy in self._proxies.values():
             proxy.close()
         self._proxies.clear()
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity; `os.cpu_count` elsewhere)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)
+
+
+def decode_slots() -> int:
+    """How many decoders may decode at once: `DECODE_SLOTS`, by default the cores."""
+    return max(int(DECODE_SLOTS) or available_cores(), 1)
+
+
+_SHARED_SLOTS: dict[int, DecodeSlots] = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_slots() -> DecodeSlots:
+    """The process's decode slots (`decode_slots` of them), shared by every frame
+    service: while a take opens, the previous take's decoders finish their frames and
+    the new take's start, and together they stay within the cores."""
+    limit = decode_slots()
+    with _SHARED_LOCK:
+        slots = _SHARED_SLOTS.get(limit)
+        if slots is None:
+            slots = _SHARED_SLOTS[limit] = DecodeSlots(limit)
+        return slots
+
+
+class DecodeSlots:
+    """A counting gate around each frame's decode (`DECODE_SLOTS`), first come first
+    served, urgent decodes (a view's or a job's frame, playback) before read-ahead.
+
+    A slot given up goes straight to the next waiter: a decoder reading ahead that
+    gives up its slot and asks again at once cannot take it back before a camera
+    whose frame the views wait for (with a plain semaphore it did, and a jump waited
+    behind read-ahead for seconds on a loaded machine).
+
+    Parameters
+    ----------
+    limit : int
+        Decodes running at once (at least 1).
+
+    Attributes
+    ----------
+    peak : int
+        Most decodes that ran at once so far (tests, benchmarks).
+    """
+
+    def __init__(self, limit: int) -> None:
+        self._lock = threading.Lock()
+        self._limit = max(int(limit), 1)
+        self._busy = 0
+        # waiters, each a lock held until a slot is handed to it: urgent, read-ahead
+        self._queues: tuple[deque[threading.Lock], deque[threading.Lock]] = (deque(), deque())
+        self.peak = 0
+
+    @property
+    def limit(self) -> int:
+        """Decodes allowed at once."""
+        return self._limit
+
+    def acquire(self, urgent: bool = True) -> None:
+        """Wait for a slot (``urgent``: ahead of every read-ahead waiter)."""
+        with self._lock:
+            if self._busy < self._limit and not (self._queues[0] or self._queues[1]):
+                self._busy += 1
+                self.peak = max(self.peak, self._busy)
+                return
+            gate = threading.Lock()
+            gate.acquire()
+            self._queues[0 if urgent else 1].append(gate)
+        gate.acquire()  # released by `release`: the slot is this thread's now
+
+    def release(self) -> None:
+        """Give the slot up: to the first urgent waiter, else the first other one."""
+        with self._lock:
+            for queue in self._queues:
+                if queue:
+                    queue.popleft().release()  # still busy: the slot changes hands
+                    return
+            self._busy -= 1
+
+    def __enter__(self) -> DecodeSlots:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 #: Frames read ahead on each side of the current one before the rest (not playing).

@@ -562,10 +562,12 @@ class TakeFrames:
 
     def _cache_put(self, key: tuple[int, int], img: NDArray[np.uint8]) -> None:
         img.flags.writeable = False
+        evicted = []  # freed after the lock is released: the GUI's lookups never wait
         with self._cache_lock:
             old = self._cache.pop(key, None)
             if old is not None:
                 self._cache_used -= old.nbytes
+                evicted.append(old)
             if img.nbytes > self.cache_bytes:
                 return
             self._cache[key] = img
@@ -573,6 +575,8 @@ class TakeFrames:
             while self._cache_used > self.cache_bytes:
                 _, dropped = self._cache.popitem(last=False)
                 self._cache_used -= dropped.nbytes
+                evicted.append(dropped)
+        del evicted
 
     @property
     def cache_used_bytes(self) -> int:
