@@ -23,6 +23,7 @@ from carapost.model.project import (
     SOURCE_BLOB,
     new_project,
 )
+from tests.ufbx_child import call_in_child
 
 F, M, C = 40, 6, 3
 IMG = (200, 150)
@@ -182,25 +183,27 @@ def test_export_c3d_maps_model_to_file(tmp_path, truth):
     assert with_brim.labels[-1] == "Brim01" and with_brim.positions.shape[0] == F
 
 
+def _node_names(ufbx, path) -> list[str]:
+    """The node names of an FBX file, read with ufbx (in a child process:
+    `tests.ufbx_child`)."""
+    scene = ufbx.load_file(str(path), strict=True)
+    nodes = list(scene.nodes)
+    return [str(n.name) for n in nodes]
+
+
 def test_export_fbx_and_xcp(tmp_path, truth):
     ufbx = pytest.importorskip("ufbx")
     p = project_from_truth(truth)
     out = api.export_fbx(p, tmp_path / "a.fbx", up_axis="z", include_cameras=True)
-    scene = ufbx.load_file(str(out), strict=True)
-    nodes = list(scene.nodes)
-    names = {n.name for n in nodes}
+    names = set(call_in_child(_node_names, ufbx, out))
     assert {f"M{i}" for i in range(M)} <= names
     assert not any("-" in n for n in names)  # no sticks unless asked
-    del nodes, scene
     from carapost.model.project import Stick
 
     ids = p.points.ids
     p.sticks = [Stick(int(ids[0]), int(ids[1])), Stick(int(ids[1]), 10**6)]  # 2nd: no such point
     out = api.export_fbx(p, tmp_path / "s.fbx", include_sticks=True)
-    scene = ufbx.load_file(str(out), strict=True)
-    nodes = list(scene.nodes)
-    assert [n.name for n in nodes if n.name == "M0-M1"] == ["M0-M1"]
-    del nodes, scene
+    assert [n for n in call_in_child(_node_names, ufbx, out) if n == "M0-M1"] == ["M0-M1"]
     p.set_current_frame(7)
     x = read_xcp(api.export_xcp(p, tmp_path / "a.xcp"))
     assert x.n_cameras == C

@@ -18,6 +18,7 @@ import pytest
 from carapost.io.cara import load_project
 from carapost.model.project import KIND_BRIM, KIND_FACE
 from tests.small_takes import copy_take, render_take
+from tests.ufbx_child import call_in_child
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 SCRIPTS = sorted(p.stem for p in EXAMPLES.glob("*.py"))
@@ -130,14 +131,23 @@ def test_fbx_export_with_face_points_under_other_nodes(projects, tmp_path):
     n_mouth = sum(s.startswith("Point 2") or "Lip" in s for s in labels)
     n_nose = sum(s.startswith("Point 3") and "Lip" not in s for s in labels)
     assert n_mouth and n_nose and n_mouth + n_nose < len(labels)
-    scene = ufbx.load_file(str(out), strict=True)
-    nodes = list(scene.nodes)
-    by_name = {n.name: n for n in nodes}
-    kids = {name: [c.name for c in by_name[name].children] for name in ("mouth", "nose")}
-    assert by_name["mouth"].parent.name == "face" and by_name["nose"].parent.name == "face"
+    parents, kids = call_in_child(_groups, ufbx, out)
+    assert parents == {"mouth": "face", "nose": "face"}
     assert len(kids["mouth"]) == n_mouth and len(kids["nose"]) == n_nose
     assert f"/face/mouth: {n_mouth} points" in text
-    del kids, by_name, nodes, scene  # wrappers before the scene (ufbx)
+
+
+def _groups(ufbx, path) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """The mouth and nose nodes' parents and children, read with ufbx (in a child
+    process: `tests.ufbx_child`)."""
+    scene = ufbx.load_file(str(path), strict=True)
+    nodes = list(scene.nodes)
+    by_name = {n.name: n for n in nodes}
+    groups = ("mouth", "nose")
+    parents = [by_name[name].parent for name in groups]
+    children = [list(by_name[name].children) for name in groups]
+    return ({name: str(p.name) for name, p in zip(groups, parents, strict=True)},
+            {name: [str(c.name) for c in cs] for name, cs in zip(groups, children, strict=True)})
 
 
 def test_properties_listing_and_setting(projects, tmp_path):

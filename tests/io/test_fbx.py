@@ -1,8 +1,10 @@
-"""FBX export: load what we write with ufbx (and assimp / Blender when installed)."""
+"""FBX export: load what we write with ufbx (and assimp / Blender when installed).
+
+The tests that read with ufbx run in a forked child (`tests.ufbx_child`): the binding
+can crash while it frees its wrappers."""
 
 from __future__ import annotations
 
-import gc
 import importlib.util
 import shutil
 import struct
@@ -16,27 +18,22 @@ import ufbx
 
 from carapost.io.errors import CaraFileError
 from carapost.io.fbx import KTIME_PER_SECOND, fbx_time_mode, write_fbx
+from tests.ufbx_child import in_child
 
 Y_UP = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # our Z-up -> file Y-up
 
 
 class Loaded:
-    """A ufbx scene plus every wrapper we touch (the binding segfaults on freed wrappers)."""
-
-    opened = []  # closed after each test, so a failed test's traceback holds no wrappers
+    """A ufbx scene plus every wrapper we touch, kept alive (the binding segfaults on a
+    wrapper freed before another); only made in a test's child (`in_child`), which
+    leaves without freeing them."""
 
     def __init__(self, path):
-        Loaded.opened.append(self)
         self.scene = ufbx.load_file(str(path), strict=True)
         self.nodes = list(self.scene.nodes)
         self.by_name = {n.name: n for n in self.nodes}
         self.meshes = list(self.scene.meshes)
         self.keep = []
-
-    def close(self):
-        """Drop the wrappers first, then the scene (a fixed, safe order)."""
-        for attr in ("keep", "meshes", "by_name", "nodes", "scene"):
-            self.__dict__.pop(attr, None)
 
     def position(self, name, frame, rate):
         tr = ufbx.evaluate_transform(self.scene.anim, self.by_name[name], frame / rate)
@@ -88,19 +85,12 @@ class Loaded:
         return parent.name
 
 
-@pytest.fixture(autouse=True)
-def _close_scenes():
-    yield
-    while Loaded.opened:
-        Loaded.opened.pop().close()
-    gc.collect()
-
-
 def make_points(rng, n_frames=130, n_points=5):
     steps = rng.normal(0.0, 0.5, (n_frames, n_points, 3))
     return np.cumsum(steps, axis=0) + rng.normal(0.0, 60.0, (1, n_points, 3))
 
 
+@in_child
 def test_nodes_positions_units_y_up(tmp_path, rng):
     pos = make_points(rng)
     labels = ["nose", "lip_l", "lip_r", "brim_a", "brim_b"]
@@ -122,6 +112,7 @@ def test_nodes_positions_units_y_up(tmp_path, rng):
             np.testing.assert_allclose(s.position(name, frame, 60), Y_UP @ pos[frame, p], atol=1e-4)
 
 
+@in_child
 def test_z_up_custom_rate(tmp_path, rng):
     pos = make_points(rng, n_frames=90, n_points=3)
     rate = 47.3  # not an FBX standard rate: custom time mode
@@ -144,6 +135,7 @@ def test_standard_rates_use_the_enum():
     assert fbx_time_mode(30000 / 1001) == 9 and fbx_time_mode(29.97) == 14
 
 
+@in_child
 def test_gaps_hold_still_and_hide(tmp_path, rng):
     pos = make_points(rng, n_frames=40, n_points=3)
     pos[10:15, 1] = np.nan  # a gap
@@ -165,6 +157,7 @@ def test_gaps_hold_still_and_hide(tmp_path, rng):
     np.testing.assert_allclose(s.position("c", 7, 24), pos[7, 2], atol=1e-4)
 
 
+@in_child
 def test_point_without_data(tmp_path, rng):
     pos = make_points(rng, n_frames=10, n_points=2)
     pos[:, 1] = np.nan
@@ -187,6 +180,7 @@ def look_at(centre, target, up=(0.0, 0.0, 1.0)):
 
 
 @pytest.mark.parametrize("up_axis", ["y", "z"])
+@in_child
 def test_cameras(tmp_path, rng, up_axis):
     n_frames, rate = 50, 60
     pos = make_points(rng, n_frames=n_frames, n_points=2)
@@ -329,6 +323,7 @@ def stick_take(rng):
 
 
 @pytest.mark.parametrize("up_axis", ["y", "z"])
+@in_child
 def test_sticks_follow_markers(tmp_path, rng, up_axis):
     pos = stick_take(rng)
     labels = ["a", "b", "c", "d", "e"]
@@ -351,6 +346,7 @@ def test_sticks_follow_markers(tmp_path, rng, up_axis):
             assert s.visible(name, f, 50) == ok[f]
 
 
+@in_child
 def test_stick_never_valid(tmp_path, rng):
     pos = make_points(rng, n_frames=8, n_points=3)
     pos[:, 2] = np.nan

@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import gc
 import threading
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from carapost.commands.stack import CommandError
 from carapost.model.project import KIND_BRIM
 from carapost.ui.app import open_path
 from tests.test_session import _video, export_project, project_state, read_back, snapshot
+from tests.ufbx_child import call_in_child
 
 
 def _idle(qtbot, w, timeout=60_000) -> None:
@@ -95,19 +95,21 @@ def test_gui_export_c3d_honours_export_range_and_include_brim(make_window, qtbot
 
 
 def _fbx_facts(path: Path) -> tuple[bool, list[str], list[str]]:
-    """(up axis is +Z, camera names, node names) of an FBX file, read with ufbx."""
-    ufbx = pytest.importorskip("ufbx")
+    """(up axis is +Z, camera names, node names) of an FBX file, read with ufbx (in a
+    child process: `tests.ufbx_child`)."""
+    pytest.importorskip("ufbx")
+    return call_in_child(_read_fbx_facts, path)
+
+
+def _read_fbx_facts(path: Path) -> tuple[bool, list[str], list[str]]:
+    import ufbx
+
     scene = ufbx.load_file(str(path), strict=True)
     axes = scene.settings.axes
     z_up = bool(axes.up == ufbx.CoordinateAxis.POSITIVE_Z)
     cams = list(scene.cameras)
-    cam_names = sorted(str(c.name) for c in cams)
     nodes = list(scene.nodes)
-    node_names = [str(n.name) for n in nodes]
-    del cams, nodes, axes  # the wrappers go before the scene (the binding needs it)
-    del scene
-    gc.collect()
-    return z_up, cam_names, node_names
+    return z_up, sorted(str(c.name) for c in cams), [str(n.name) for n in nodes]
 
 
 def test_gui_export_fbx_honours_up_axis_and_cameras(make_window, qtbot, tmp_path,
