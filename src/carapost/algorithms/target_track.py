@@ -708,7 +708,12 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                                                   fades)
             if polish is not None and np.all(np.isfinite(xy)):
                 xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
-            if (params.follow_appearance and moving
+            # a first step taken with the motion unknown is confirmed by the keyframe
+            # match alone over the next frames: the disc fallbacks would carry on a
+            # track whose first step found the wrong place (a fast lip marker)
+            confirming = (first_step is not None
+                          and len(frames) - first_step <= params.confirm_frames)
+            if (params.follow_appearance and moving and not confirming
                     and np.all(np.isfinite(xy))
                     and params.break_threshold <= score < target_disc.POLISH_BELOW
                     and np.hypot(*velocity) >= target_disc.POLISH_SPEED_PX):
@@ -726,7 +731,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                 xy, score = target_appearance.appearance_step(
                     img, prev_img, pos, pos + velocity, tpl, params,
                     key_contrast[pp.frame], (xy, score))
-                if not score >= params.break_threshold:
+                if not score >= params.break_threshold and not confirming:
                     # the marker sliding over its skin: the disc alone, the skin apart
                     xy_d, score_d, disc_shift = target_disc.disc_step(
                         img, disc_model(pp.frame), pos + velocity, shift0=disc_shift)
