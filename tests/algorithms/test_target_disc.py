@@ -103,3 +103,36 @@ def test_no_disc_at_the_keyframe_gives_no_model():
     assert disc_model(flat, (56.0, 48.0), 21) is None
     # too near the border for the fit's window
     assert disc_model(flat, (5.0, 48.0), 21) is None
+
+
+def test_the_disc_step_does_not_confirm_a_first_step(lid, monkeypatch):
+    """A first step taken with the motion unknown is confirmed by the keyframe match
+    alone: where the disc step would be needed inside the confirmation frames, the run
+    loses the marker there and is cut back to its keyframe (the first step may have
+    found the wrong place); once the first step is confirmed, the disc step carries the
+    track on as before."""
+    imgs, xs, ys, hide = lid
+    monkeypatch.setattr(target_appearance, "appearance_step",
+                        lambda *a, **k: a[7] if len(a) > 7 else k["failed"])
+    used = []
+    disc_step_ = target_disc.disc_step
+
+    def recording(img, *a, **k):
+        used.append(next(i for i, im in enumerate(imgs) if im is img))
+        return disc_step_(img, *a, **k)
+
+    monkeypatch.setattr(target_disc, "disc_step", recording)
+
+    def run(confirm_frames):
+        used.clear()
+        # Confirm Score 1: the first step (frame 1) always needs confirming
+        params = TargetTrackerParameters(search_size=41, confirm_score=1.0,
+                                         confirm_frames=confirm_frames)
+        return track_target(lambda f: imgs[f], {0: (xs[0], ys[0])}, start=0,
+                            stop=len(ys) - 1, direction=1, params=params)
+
+    # the keyframe match fails at frame 6 (the disc slid onto the crease)
+    confirmed = run(confirm_frames=3)       # frames 2-4 confirmed the first step
+    assert confirmed.tracked[1:hide].all() and min(used) == 6
+    unconfirmed = run(confirm_frames=5)     # frame 6 is still confirming it
+    assert not unconfirmed.tracked.any() and used == []
