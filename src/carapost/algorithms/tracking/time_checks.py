@@ -183,8 +183,17 @@ def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating]
         return drop
     detach_observations(o, drop)
     widths[drop] = np.nan
-    obs = o["obs"].astype(np.float64)
-    redo = drop.any(-1)
+    _solve_again(o, o["obs"].astype(np.float64), drop.any(-1), R, t, intr, single_sensor)
+    return drop
+
+
+def _solve_again(o: dict[str, NDArray[Any]], obs: NDArray[np.float64],
+                 redo: NDArray[np.bool_], R: NDArray, t: NDArray, intr: CameraIntrinsics,
+                 single_sensor: bool) -> None:
+    """Solve the samples ``redo`` (F, P) again from the observations left in ``obs``
+    (F, P, C, 2; NaN where removed): triangulated from two cameras or more, a
+    single-sensor sample with one (placed later by :func:`place_single_sensor`; a gap
+    when ``single_sensor`` is off), a gap with none or where the triangulation fails."""
     left = np.isfinite(obs).all(-1).sum(-1)
     Xn, res = retriangulate(obs, R, t, intr, redo & (left >= 2))
     ok = redo & (left >= 2) & np.isfinite(Xn).all(-1)
@@ -195,7 +204,6 @@ def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating]
         o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
     lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
     _make_gaps(o, lost)
-    return drop
 
 
 def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
@@ -247,17 +255,7 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         return 0
     detach_observations(o, flag)
     obs[flag] = np.nan
-    redo = flag.any(-1)
-    left = np.isfinite(obs).all(-1).sum(-1)
-    Xn, res = retriangulate(obs, R, t, intr, redo & (left >= 2))
-    ok = redo & (left >= 2) & np.isfinite(Xn).all(-1)
-    o["positions"][ok] = Xn[ok].astype(o["positions"].dtype)
-    o["residual"][ok] = res[ok].astype(o["residual"].dtype)
-    # one camera left: placed on its ray by `place_single_sensor` (or a gap)
-    if single_sensor:
-        o["recon"][redo & (left == 1)] = RECON_SINGLE_SENSOR
-    lost = redo & ((left == 0) | ((left >= 2) & ~ok) | ((left == 1) & (not single_sensor)))
-    _make_gaps(o, lost)
+    _solve_again(o, obs, flag.any(-1), R, t, intr, single_sensor)
     return n
 
 
