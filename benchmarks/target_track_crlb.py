@@ -235,6 +235,23 @@ def _predicted_var(img: np.ndarray, xy: np.ndarray) -> float:
     return float(s * s * gain * (L * L).sum() / 2.0 / max(float(raw.std()) ** 2, 1e-12))
 
 
+def _tracks(imgs, uv: np.ndarray, markers: np.ndarray, n_cameras: int,
+            frames: int) -> np.ndarray:
+    """The benchmark's runs: each marker in each camera (marker-major) keyed at frame 0
+    from the truth, Break Threshold 0; (tracks, frames, 2) positions, NaN where not
+    tracked."""
+    params = T.TargetTrackerParameters(break_threshold=0.0)
+    out = []
+    for m in markers:
+        for c in range(n_cameras):
+            r = T.track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0,
+                               stop=frames - 1, direction=1, params=params)
+            xy = np.full((frames, 2), np.nan)
+            xy[:len(r.frames)] = r.xy
+            out.append(xy)
+    return np.array(out)
+
+
 def bench_temporal(case: str, frames: int) -> np.ndarray:
     """Ideal and constant-velocity smoothing of the case's tracks (see the module).
 
@@ -242,28 +259,24 @@ def bench_temporal(case: str, frames: int) -> np.ndarray:
     scene, imgs = tt.render(SynthConfig(frames=frames, size=(1280, 720), **tt.CASES[case]))
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    params = T.TargetTrackerParameters(break_threshold=0.0)
+    XY = _tracks(imgs, uv, markers, scene.n_cameras, frames)
     err, smooth = [], []
-    for m in markers:
-        for c in range(scene.n_cameras):
-            r = T.track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0,
-                               stop=frames - 1, direction=1, params=params)
-            xy = np.full((frames, 2), np.nan)
-            xy[:len(r.frames)] = r.xy
-            err.append(xy[1:] - uv[1:, m, c])
-            z = xy[1:]
-            if not np.all(np.isfinite(z)):
-                smooth.append(np.full_like(z, np.nan))
-                continue
-            rv = _predicted_var(imgs[0, c], uv[0, m, c])
-            out = np.empty_like(z)
-            for ax in range(2):
-                d2 = np.zeros(len(z))
-                d2[1:-1] = np.diff(z[:, ax], 2) ** 2
-                # the acceleration seen nearby, less what the measurement noise explains
-                loc = np.max([np.roll(d2, s) for s in (-2, -1, 0, 1, 2)], axis=0)
-                out[:, ax] = _rts(z[:, ax], rv, np.maximum(loc - 6.0 * rv, 1e-3 * rv))
-            smooth.append(out - uv[1:, m, c])
+    pairs = [(m, c) for m in markers for c in range(scene.n_cameras)]
+    for xy, (m, c) in zip(XY, pairs, strict=True):
+        err.append(xy[1:] - uv[1:, m, c])
+        z = xy[1:]
+        if not np.all(np.isfinite(z)):
+            smooth.append(np.full_like(z, np.nan))
+            continue
+        rv = _predicted_var(imgs[0, c], uv[0, m, c])
+        out = np.empty_like(z)
+        for ax in range(2):
+            d2 = np.zeros(len(z))
+            d2[1:-1] = np.diff(z[:, ax], 2) ** 2
+            # the acceleration seen nearby, less what the measurement noise explains
+            loc = np.max([np.roll(d2, s) for s in (-2, -1, 0, 1, 2)], axis=0)
+            out[:, ax] = _rts(z[:, ax], rv, np.maximum(loc - 6.0 * rv, 1e-3 * rv))
+        smooth.append(out - uv[1:, m, c])
     E = np.array(err)
 
     def stats(e: np.ndarray) -> tuple[float, float]:
@@ -300,18 +313,9 @@ def bench_decompose(frames: int, scratch: str | None) -> None:
     tt.CACHE_DIR = cache
     uv, vis = scene.uv, scene.visible
     markers = np.flatnonzero(vis.all(axis=(0, 2)))
-    params = T.TargetTrackerParameters(break_threshold=0.0)
 
     def run(imgs) -> np.ndarray:   # (tracks, frames, 2) positions, NaN where not tracked
-        out = []
-        for m in markers:
-            for c in range(scene.n_cameras):
-                r = T.track_target(lambda f, c=c: imgs[f, c], {0: uv[0, m, c]}, start=0,
-                                   stop=frames - 1, direction=1, params=params)
-                xy = np.full((frames, 2), np.nan)
-                xy[:len(r.frames)] = r.xy
-                out.append(xy)
-        return np.array(out)
+        return _tracks(imgs, uv, markers, scene.n_cameras, frames)
 
     runs = {"noisy frames, noisy key (the benchmark)": (noisy, lambda c: noisy[0, c]),
             "noisy frames, noiseless key": (noisy, lambda c: clean[0, c]),
