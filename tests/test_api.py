@@ -23,7 +23,7 @@ from carapost.model.project import (
     SOURCE_BLOB,
     new_project,
 )
-from tests.ufbx_child import call_in_child
+from tests.ufbx_child import fbx_node_names
 
 F, M, C = 40, 6, 3
 IMG = (200, 150)
@@ -183,19 +183,11 @@ def test_export_c3d_maps_model_to_file(tmp_path, truth):
     assert with_brim.labels[-1] == "Brim01" and with_brim.positions.shape[0] == F
 
 
-def _node_names(ufbx, path) -> list[str]:
-    """The node names of an FBX file, read with ufbx (in a child process:
-    `tests.ufbx_child`)."""
-    scene = ufbx.load_file(str(path), strict=True)
-    nodes = list(scene.nodes)
-    return [str(n.name) for n in nodes]
-
-
 def test_export_fbx_and_xcp(tmp_path, truth):
-    ufbx = pytest.importorskip("ufbx")
+    pytest.importorskip("ufbx")
     p = project_from_truth(truth)
     out = api.export_fbx(p, tmp_path / "a.fbx", up_axis="z", include_cameras=True)
-    names = set(call_in_child(_node_names, ufbx, out))
+    names = set(fbx_node_names(out))
     assert {f"M{i}" for i in range(M)} <= names
     assert not any("-" in n for n in names)  # no sticks unless asked
     from carapost.model.project import Stick
@@ -203,7 +195,7 @@ def test_export_fbx_and_xcp(tmp_path, truth):
     ids = p.points.ids
     p.sticks = [Stick(int(ids[0]), int(ids[1])), Stick(int(ids[1]), 10**6)]  # 2nd: no such point
     out = api.export_fbx(p, tmp_path / "s.fbx", include_sticks=True)
-    assert [n for n in call_in_child(_node_names, ufbx, out) if n == "M0-M1"] == ["M0-M1"]
+    assert [n for n in fbx_node_names(out) if n == "M0-M1"] == ["M0-M1"]
     p.set_current_frame(7)
     x = read_xcp(api.export_xcp(p, tmp_path / "a.xcp"))
     assert x.n_cameras == C

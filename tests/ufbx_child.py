@@ -64,3 +64,16 @@ def in_child(test: Callable[..., None]) -> Callable[..., None]:
         call_in_child(test, *args, **kwargs)
 
     return wrapper
+
+
+def fbx_node_names(path: Any) -> list[str]:
+    """The names of every node of an FBX file, read with ufbx in a child."""
+    return call_in_child(_node_names, path)
+
+
+def _node_names(path: Any) -> list[str]:
+    import ufbx
+
+    scene = ufbx.load_file(str(path), strict=True)
+    nodes = list(scene.nodes)
+    return [str(n.name) for n in nodes]
