@@ -378,3 +378,36 @@ def first_step(img: NDArray[Any], prev_img: NDArray[Any], tpl: NDArray[np.float3
     if not (np.all(np.isfinite(xy2)) and np.hypot(*(xy2 - hit)) < params.max_refine_px):
         return nan, 0.0
     return xy2, score2
+
+
+def consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
+                         pos: NDArray, params: Any, strict: bool = False) -> bool:
+    """Whether the patch found at ``xy`` leads back to ``pos`` in the previous image.
+
+    A long step may have landed on a neighbouring marker: searched back in the previous
+    image (around ``xy``, with no motion prior), the neighbour's patch finds the
+    neighbour, not the tracked marker. Only long steps are checked (the caller), so
+    this costs little on slow markers.
+
+    ``strict`` (the first step of a run, when the motion is unknown): every candidate in
+    the search region is scored by the NCC weighted to the marker, and the check fails
+    unless the best of them is ``pos`` and no other comes within the Ambiguity Margin.
+    A neighbour that moved into the place the tracked marker left matches the pattern
+    there (same background, a similar disc), but its own patch leads back to where it
+    came from, whose disc is the very same one. ``params`` is the run's
+    `~carapost.algorithms.target_track.TargetTrackerParameters`.
+    """
+    from carapost.algorithms.target_track import _normalise, _Refiner, match_patch, sample_patch
+
+    tpl = _normalise(sample_patch(img, xy, params.pattern_size))
+    if tpl is None:
+        return False
+    if not strict:
+        back, _ = match_patch(prev_img, tpl, xy, params)
+        return bool(np.all(np.isfinite(back))
+                    and np.hypot(*(back - pos)) < params.max_refine_px)
+    refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
+    cands = candidates(prev_img, tpl, xy, params, refiner)
+    if not cands:
+        return False
+    return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from carapost.algorithms import target_appearance, target_disc, target_fade
 from carapost.algorithms.params import TARGET_TRACKER, param, validate
-from carapost.algorithms.target_identity import candidates
+from carapost.algorithms.target_identity import consistent_backwards as _consistent_backwards
 from carapost.algorithms.target_identity import first_step as _assigned_step
 from carapost.algorithms.target_polish import LogPolish
 from carapost.algorithms.target_refine import (
@@ -770,37 +770,6 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
     return TargetTrackResult(np.array(frames, dtype=np.int64), np.array(xys, dtype=np.float64),
                              np.array(scores, dtype=np.float64), np.array(is_key, dtype=bool),
                              reason)
-
-
-def _consistent_backwards(img: NDArray[Any], prev_img: NDArray[Any], xy: NDArray,
-                          pos: NDArray, params: TargetTrackerParameters,
-                          strict: bool = False) -> bool:
-    """Whether the patch found at ``xy`` leads back to ``pos`` in the previous image.
-
-    A long step may have landed on a neighbouring marker: searched back in the previous
-    image (around ``xy``, with no motion prior), the neighbour's patch finds the
-    neighbour, not the tracked marker. Only long steps are checked (the caller), so
-    this costs little on slow markers.
-
-    ``strict`` (the first step of a run, when the motion is unknown): every candidate in
-    the search region is scored by the NCC weighted to the marker, and the check fails
-    unless the best of them is ``pos`` and no other comes within the Ambiguity Margin.
-    A neighbour that moved into the place the tracked marker left matches the pattern
-    there (same background, a similar disc), but its own patch leads back to where it
-    came from, whose disc is the very same one.
-    """
-    tpl = _normalise(sample_patch(img, xy, params.pattern_size))
-    if tpl is None:
-        return False
-    if not strict:
-        back, _ = match_patch(prev_img, tpl, xy, params)
-        return bool(np.all(np.isfinite(back))
-                    and np.hypot(*(back - pos)) < params.max_refine_px)
-    refiner = _Refiner(tpl, params.weight_fraction * params.pattern_size)
-    cands = candidates(prev_img, tpl, xy, params, refiner)
-    if not cands:
-        return False
-    return bool(np.hypot(*(cands[0][0] - pos)) < params.max_refine_px)
 
 
 def _check_sizes(shape: tuple[int, ...], params: TargetTrackerParameters) -> None:
