@@ -65,11 +65,23 @@ def test_each_view_and_pane_is_drawn_in_a_turn_of_its_own(shown, tmp_path, qtbot
     # nothing of the new take is drawn in the call itself: it is all waiting for turns
     assert opening.pending >= len(views) + 2
     assert all(v.image_frame != 11 for v in views)
+    # a view whose image lands runs its slice out of turn, in the delivery's own event
+    # (on a loaded machine that event and the slices' timer can be in one
+    # processEvents call): counted apart
+    out_of_turn = []
+    run_now = opening.run
+
+    def run(key):
+        done = run_now(key)
+        out_of_turn.append(done)
+        return done
+
+    opening.run = run
     runs = []
     while opening.pending:
-        before = len(opening.ran)
+        before, early = len(opening.ran), sum(out_of_turn)
         QApplication.processEvents()
-        runs.append(len(opening.ran) - before)
+        runs.append(len(opening.ran) - before - (sum(out_of_turn) - early))
         assert len(runs) < 500, "the opening never finished"
     assert max(runs) == 1  # one slice per event-loop turn, never two
     assert all(len(keys) == 1 for keys in opening.ran)
