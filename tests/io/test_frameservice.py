@@ -217,6 +217,24 @@ def test_keyframe_index_is_cached_and_invalidated(tmp_path, rng):
     assert AVReader(path).n_frames == 20
 
 
+def test_a_stored_index_that_fails_to_parse_is_rebuilt(tmp_path, rng, monkeypatch):
+    """CPython 3.11 can raise a spurious SystemError while threads parse at once
+    (python/cpython#106905), inside np.load's header parse: the stored index then
+    counts as missing and is rebuilt from the file, never a decoder thread's death."""
+    from carapost.io import decode
+
+    path = _write(tmp_path / "p_cam0.mkv", _frames(rng, 30, 0))
+    assert decode.AVReader(path).n_frames == 30  # stores the index
+    assert KeyframeIndex.load(path) is not None
+
+    def spurious(*args, **kwargs):
+        raise SystemError("AST constructor recursion depth mismatch (before=51, after=48)")
+
+    monkeypatch.setattr(decode.np, "load", spurious)
+    assert KeyframeIndex.load(path) is None
+    assert decode.AVReader(path).n_frames == 30
+
+
 def test_opening_decodes_only_the_frame_wanted(tmp_path, rng):
     """A jump right after opening decodes from the keyframe before the target only: no
     probe of frame 0, and the check that the last frame decodes is done once per file

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,8 @@ __all__ = ["AVReader", "KeyframeIndex", "av_available", "cache_dir"]
 
 # Format of the stored index (bump when its meaning changes: old files are rebuilt).
 _INDEX_VERSION = 1
+#: one KeyframeIndex.load at a time (see there)
+_LOAD_LOCK = threading.Lock()
 
 
 def av_available() -> bool:
@@ -137,7 +140,12 @@ class KeyframeIndex:
         file = cls._cache_file(path)
         try:
             st = path.stat()
-            with np.load(file) as z:
+            # np.load parses each array's header with ast.literal_eval, and CPython
+            # 3.11 can raise a spurious "AST constructor recursion depth mismatch"
+            # SystemError when threads parse at once (python/cpython#106905): the
+            # decoder threads of a take open their indexes together. One reader at a
+            # time here; a parse that fails anyway only costs a rebuilt index.
+            with _LOAD_LOCK, np.load(file) as z:
                 stamp = z["stamp"]
                 if (int(stamp[0]) != _INDEX_VERSION or int(stamp[1]) != st.st_size
                         or int(stamp[2]) != st.st_mtime_ns):
@@ -145,7 +153,7 @@ class KeyframeIndex:
                 # "decodable" is optional: indexes stored before it was kept lack it
                 decodable = int(z["decodable"]) if "decodable" in z.files else None
                 return cls(z["pts"], z["keyframe"], decodable)
-        except (OSError, KeyError, ValueError):
+        except (OSError, KeyError, ValueError, SystemError):
             return None
 
     def save(self, path: Path) -> None:
