@@ -17,8 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from carapost.algorithms.camera import project as project_points
-from carapost.algorithms.codes import SOURCE_TARGET
-from carapost.algorithms.target_track import STOP_END, STOP_THRESHOLD, track_target
+from carapost.algorithms.target_track import STOP_THRESHOLD, track_target
 from carapost.commands.recipe import Progress
 
 if TYPE_CHECKING:
@@ -121,34 +120,28 @@ def reacquire(job: TargetTrackJob, block: dict[str, NDArray], touched: NDArray,
         # kept while another camera sees the point (the frame is triangulated, not
         # a new one-camera stretch), the track stays on that 3D, and this camera
         # has no data there
-        others = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).any(1)
-        far = ~(np.linalg.norm(xy - uv[fr], axis=-1) <= REACQUIRE_PX)
+        n_others = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).sum(1)
+        dist = np.linalg.norm(xy - uv[fr], axis=-1)
+        far = ~(dist <= REACQUIRE_PX)
         busy = np.isfinite(block["obs"][fr, i, c, 0])
-        cut = np.flatnonzero(far | busy | ~others)
+        cut = np.flatnonzero(far | busy | (n_others == 0))
         keep = cut[0] if len(cut) else len(fr)
         fr, xy, sc = fr[:keep], xy[:keep], res.score[ok][:keep]
         # where two other cameras or more triangulate the point its projection is
         # good to a few tenths of a pixel: a frame farther off is this camera's
         # mismatch (a lip's look changed since the keyframe), left out
-        tri = np.isfinite(np.delete(block["obs"][fr, i, :, 0], c, axis=1)).sum(1) >= 2
-        off = tri & (np.linalg.norm(xy - uv[fr], axis=-1) > REACQUIRE_TRI_PX)
+        off = (n_others[:keep] >= 2) & (dist[:keep] > REACQUIRE_TRI_PX)
         fr, xy, sc = fr[~off], xy[~off], sc[~off]
         if not len(fr):
             nxt[j] = g + REACQUIRE_SKIP * d
             continue
-        block["obs"][fr, i, c] = xy.astype(np.float32)
-        block["source"][fr, i, c] = SOURCE_TARGET
-        block["detection"][fr, i, c] = -1
-        block["quality"][fr, i, c] = sc.astype(np.float16)
-        block["keyframe"][fr, i, c] = False
-        touched[fr] = True
+        job.write_tracked(block, touched, fr, i, c, xy, sc)
         added += len(fr)
         X.pop(i, None)
         job.live.extend((tr.point, c, int(f) + job.first, float(q))
                          for f, q in zip(fr, sc, strict=True))
         job.live_xy[(tr.point, c)] = (int(fr[-1]) + job.first, float(xy[-1, 0]),
                                        float(xy[-1, 1]))
-        reasons[(tr.point, c)] = (tr.limit if res.reason == STOP_END and tr.limit
-                                  else res.reason)
+        reasons[(tr.point, c)] = job.stop_reason(tr, res)
         nxt[j] = int(fr[-1]) + d
     return added, False

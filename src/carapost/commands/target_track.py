@@ -22,7 +22,6 @@ again from the others' 3D (:mod:`carapost.commands.target_reacquire`).
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,6 +47,7 @@ from carapost.algorithms.target_track import (
     TargetTrackerParameters,
     check_keyframe,
 )
+from carapost.commands import target_depth
 from carapost.commands.recipe import Job, Progress, Result
 from carapost.commands.stack import Command, CommandError, Journal
 from carapost.commands.target_reacquire import reacquire
@@ -503,9 +503,7 @@ class TargetTrackJob(Job):
         for tr, res in zip(self.tracks, results, strict=True):
             if res is None:
                 continue
-            # reaching a stop set by a keyframe or data ahead is that, not the take's end
-            reasons[(tr.point, tr.camera)] = (tr.limit if res.reason == STOP_END
-                                              and tr.limit else res.reason)
+            reasons[(tr.point, tr.camera)] = self.stop_reason(tr, res)
             cancelled = cancelled or res.reason == STOP_CANCELLED
             i = index[tr.point]
             # the start frame carries the 2D point the run began from (a keyframe, a
@@ -514,12 +512,8 @@ class TargetTrackJob(Job):
             ok = res.tracked & (res.frames != res.frames[0])
             fr = res.frames[ok] - self.first
             if len(fr):
-                block["obs"][fr, i, tr.camera] = res.xy[ok].astype(np.float32)
-                block["source"][fr, i, tr.camera] = SOURCE_TARGET
-                block["detection"][fr, i, tr.camera] = -1
-                block["quality"][fr, i, tr.camera] = res.score[ok].astype(np.float16)
-                block["keyframe"][fr, i, tr.camera] = False
-                touched[fr] = True
+                self.write_tracked(block, touched, fr, i, tr.camera, res.xy[ok],
+                                   res.score[ok])
                 tracked += len(fr)
         added = 0
         if (P.allow_single_sensor_tracking and self.reacquire and not cancelled
@@ -546,107 +540,44 @@ class TargetTrackJob(Job):
                                  message, cancelled, tracked + len(self.auto_keys), reasons,
                                  last)
 
+    @staticmethod
+    def stop_reason(tr: _Track, res: Any) -> str:
+        """Why the run ``res`` of ``tr`` stopped: reaching a stop set by a keyframe or
+        data ahead is that (``tr.limit``), not the take's end."""
+        return tr.limit if res.reason == STOP_END and tr.limit else res.reason
+
+    @staticmethod
+    def write_tracked(block: dict[str, NDArray], touched: NDArray, fr: NDArray, i: int,
+                      c: int, xy: NDArray, score: NDArray) -> None:
+        """Write tracked frames ``fr`` (block rows) of point ``i`` in camera ``c`` into
+        ``block``: the positions ``xy`` (len(fr), 2) raw px as target-tracked
+        observations scored ``score``, no detection, no keyframe; ``touched`` marks
+        the frames to re-solve."""
+        block["obs"][fr, i, c] = xy.astype(np.float32)
+        block["source"][fr, i, c] = SOURCE_TARGET
+        block["detection"][fr, i, c] = -1
+        block["quality"][fr, i, c] = score.astype(np.float16)
+        block["keyframe"][fr, i, c] = False
+        touched[fr] = True
+
     def solve(self, block: dict[str, NDArray], touched: NDArray, i: int
               ) -> tuple[NDArray[np.float32], NDArray[np.int8], NDArray[np.float32]]:
         """3D of point ``i`` over the re-solved frames ``np.flatnonzero(touched)`` from
         the block's observations (:func:`resolve_3d`, depth from
-        :meth:`_depth_reference`): positions (m, 3) mm, recon (m,), residual (m,)."""
+        :func:`~carapost.commands.target_depth.depth_reference`): positions (m, 3) mm,
+        recon (m,), residual (m,)."""
         P = self.params
         rows = np.flatnonzero(touched)
         obs = block["obs"][rows, i].astype(np.float64)
         positions = self.block["positions"][:, i].astype(np.float64)   # before the run
         ref = _nearest_reference(np.where(touched[:, None], np.nan, positions), rows)
         if P.allow_single_sensor_tracking and self.neighbour_xyz is not None:
-            ref = self._depth_reference(i, rows, obs, positions, touched, ref)
+            ref = target_depth.depth_reference(self, i, rows, obs, positions, touched, ref)
         p, r, e = resolve_3d(obs, self.R[rows], self.t[rows], self.intr, ref,
                              P.allow_single_sensor_tracking)
         bad = ~self.solved[rows]
         p[bad], r[bad], e[bad] = np.nan, RECON_NONE, np.nan
         return p, r, e
-
-    def _depth_reference(self, i: int, rows: NDArray, obs: NDArray, positions: NDArray,
-                         touched: NDArray, nearest: NDArray) -> NDArray[np.float64]:
-        """Where point ``i``'s one-camera frames of this run are placed on their ray.
-
-        The point's trusted 3D (triangulated before the run, outside the frames it
-        re-solves, or from two or more of this run's cameras) nearest before and after
-        each frame, each moved by how its neighbours moved since (the face's motion
-        over the stretch: a lip marker seen by one camera moves in depth with the
-        lips, not with the frame it was keyed on), blended by distance in time
-        (:func:`carapost.algorithms.single_sensor.neighbour_prediction`). Where no
-        neighbour covers a frame, ``nearest`` (the nearest 3D the point had).
-
-        Parameters
-        ----------
-        i : int
-            The point's index in the run.
-        rows : ndarray of int, shape (m,)
-            Re-solved frames (indices into the run's block).
-        obs : ndarray, shape (m, C, 2)
-            Their observations (raw px), NaN where none.
-        positions : ndarray, shape (n, 3)
-            The point's 3D over the block before the run (mm).
-        touched : ndarray of bool, shape (n,)
-            Frames the run re-solves.
-        nearest : ndarray, shape (m, 3)
-            The fallback reference (mm).
-
-        Returns
-        -------
-        ndarray, shape (m, 3)
-            The reference per re-solved frame (mm).
-        """
-        from carapost.algorithms.single_sensor import neighbour_prediction
-
-        assert self.neighbour_xyz is not None
-        nbx = self.neighbour_xyz[i]
-        k = nbx.shape[1]
-        if k == 0:
-            return nearest
-        recon = self.block["recon"][:, i]
-        own = np.where((np.isfinite(positions).all(-1) & (recon == RECON_TRIANGULATED)
-                        & ~touched)[:, None], positions, np.nan)
-        # the run's own anchors from three cameras or more: a pair of cameras on one
-        # side of the face fixes the depth poorly (a lower-lid marker of seed 4: 1.1 mm
-        # off from two cameras 0.1 px off each, just before a third loses it), and the
-        # frames after it would inherit that depth
-        multi = np.isfinite(obs).all(-1).sum(1) >= 3
-        if multi.any() and self.intr is not None:
-            p, _, _ = resolve_3d(obs[multi], self.R[rows[multi]], self.t[rows[multi]],
-                                 self.intr, np.full((int(multi.sum()), 3), np.nan), False)
-            own[rows[multi]] = p
-        X = np.concatenate([own[:, None], nbx], axis=1)
-        nb = np.full((k + 1, k), -1, np.intp)
-        nb[0] = np.arange(1, k + 1)
-        pred, _ = neighbour_prediction(X, np.isfinite(X).all(-1), nb=nb)
-        ref = pred[rows, 0]
-        return np.where(np.isfinite(ref).all(-1)[:, None], ref, nearest)
-
-
-def _neighbour_xyz(project: Project, cols: NDArray, lo: int, hi: int,
-                   k: int = 6, max_frames: int = 40) -> list[NDArray]:
-    """Per column of ``cols``: the triangulated 3D over frames lo..hi (n, k, 3) mm of its
-    ``k`` nearest points (median distance over up to ``max_frames`` frames of the take
-    where both are triangulated), NaN where a neighbour is not triangulated."""
-    pts = project.points
-    F, P = pts.positions.shape[:2]
-    tri = (pts.recon == RECON_TRIANGULATED) & np.isfinite(pts.positions).all(-1)
-    sample = np.unique(np.linspace(0, F - 1, min(F, max_frames)).astype(np.intp))
-    Xs = np.where(tri[sample][..., None], pts.positions[sample], np.nan)
-    out = []
-    for col in cols:
-        d = np.full(P, np.nan)
-        if np.isfinite(Xs[:, col]).any():
-            with warnings.catch_warnings():   # points never triangulated: NaN, skipped
-                warnings.simplefilter("ignore", RuntimeWarning)
-                d = np.nanmedian(np.linalg.norm(Xs[:, None, col] - Xs, axis=-1), axis=0)
-        d[col] = np.nan
-        d[np.isin(np.arange(P), cols)] = np.nan   # points tracked in this run move too
-        order = np.argsort(np.where(np.isfinite(d), d, np.inf))[:k]
-        order = order[np.isfinite(d[order])]
-        X = pts.positions[lo:hi + 1][:, order].astype(np.float64)
-        out.append(np.where(tri[lo:hi + 1][:, order][..., None], X, np.nan))
-    return out
 
 
 def _match_text(score: float) -> str:
@@ -796,5 +727,5 @@ def prepare_target_track(project: Project, get_image: ImageFn, direction: int, *
                           cal.R[lo:hi + 1].copy(), cal.t[lo:hi + 1].copy(),
                           cal.solved[lo:hi + 1].copy(), intr, auto,
                           f"{name} [frame {s}, {len(ids)} point{'s' if len(ids) > 1 else ''}]",
-                          neighbour_xyz=(_neighbour_xyz(project, cols, lo, hi)
+                          neighbour_xyz=(target_depth.neighbour_xyz(project, cols, lo, hi)
                                          if params.allow_single_sensor_tracking else None))
