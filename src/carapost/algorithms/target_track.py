@@ -708,9 +708,10 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
                                                   fades)
             if polish is not None and np.all(np.isfinite(xy)):
                 xy = polish(img, xy, score, pp.frame, None if pn is None else pn.frame, f)
-            # a first step taken with the motion unknown is confirmed by the keyframe
-            # match alone over the next frames: the disc fallbacks would carry on a
-            # track whose first step found the wrong place (a fast lip marker)
+            # this frame is one of those that confirm a first step taken with the
+            # motion unknown: by the keyframe match alone (the disc fallbacks would
+            # carry on a track whose first step found the wrong place, a fast lip
+            # marker), and a loss here unmakes the whole run
             confirming = (first_step is not None
                           and len(frames) - first_step <= params.confirm_frames)
             if (params.follow_appearance and moving and not confirming
@@ -744,8 +745,7 @@ def track_target(get_image: Callable[[int], NDArray[Any]],
             if not np.all(np.isfinite(xy)) or score < params.break_threshold:
                 xys.append(np.array([np.nan, np.nan]))
                 reason = STOP_THRESHOLD
-                if (first_step is not None
-                        and len(frames) - 1 - first_step <= params.confirm_frames):
+                if confirming:
                     # the track failed soon after its first step, taken with the motion
                     # unknown: that step is not confirmed. A neighbour that moved into
                     # the marker's place (or that a fast marker's first step found
