@@ -161,7 +161,8 @@ def disc_model(image: NDArray[Any], xy: Any, pattern_size: int) -> DiscModel | N
     if not (half <= cx < W - half and half <= cy < H - half):
         return None
     x0, y0 = cx - half, cy - half
-    lg = _log(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1])
+    lin = np.asarray(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1], dtype=np.float64)
+    lg = _log(lin)
     r = max(int(round(pattern_size * DISC_KERNEL)), 2)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     hat = cv2.morphologyEx(lg.astype(np.float32), cv2.MORPH_BLACKHAT, k).astype(np.float64)
@@ -178,7 +179,6 @@ def disc_model(image: NDArray[Any], xy: Any, pattern_size: int) -> DiscModel | N
     blob = np.isin(lab, ids) & (np.hypot(xx, yy) <= r + 1)
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * DISC_GROW + 1,) * 2)
     support = cv2.dilate(blob.astype(np.uint8), grow).astype(bool)
-    lin = np.asarray(image[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1], dtype=np.float64)
     skin = _fill(lin, support)
     # the ink: the fraction of the skin's light the disc takes (0 off it)
     disc = np.where(support, np.clip(1.0 - lin / np.maximum(skin, 1.0), -0.5, 1.0), 0.0)
@@ -476,6 +476,13 @@ def _clip(step: NDArray[np.float64], most: float = 0.5) -> NDArray[np.float64]:
     return step * (most / n) if n > most else step
 
 
+def _holds(xy: NDArray[np.float64], amp: float, ncc: float) -> bool:
+    """Whether a disc fit found the whole disc: a position, the darkening correlated
+    with the keyframe's disc by `MIN_NCC` or more, its amplitude within `AMPLITUDE`."""
+    return bool(np.all(np.isfinite(xy)) and ncc >= MIN_NCC
+                and AMPLITUDE[0] <= amp <= AMPLITUDE[1])
+
+
 def disc_polish(image: NDArray[Any], model: DiscModel | None, xy: Any, *,
                 shift0: Any = (0.0, 0.0)) -> tuple[NDArray[np.float64] | None,
                                                     NDArray[np.float64]]:
@@ -496,8 +503,7 @@ def disc_polish(image: NDArray[Any], model: DiscModel | None, xy: Any, *,
     if model is None:
         return None, np.zeros(2)
     p, s, amp, ncc, there = _fit_disc(image, model, xy, shift0, POLISH_MOVE_PX, compare=xy)
-    if not (np.all(np.isfinite(p)) and ncc >= MIN_NCC and ncc - there >= POLISH_GAIN
-            and AMPLITUDE[0] <= amp <= AMPLITUDE[1]):
+    if not (_holds(p, amp, ncc) and ncc - there >= POLISH_GAIN):
         return None, s
     slid = np.hypot(p[0] + s[0] - model.xy[0], p[1] + s[1] - model.xy[1])
     if slid < POLISH_SLID_PX or np.hypot(*(p - np.asarray(xy, float))) < POLISH_PX:
@@ -527,7 +533,6 @@ def disc_step(image: NDArray[Any], model: DiscModel | None, predicted: Any, *,
     if model is None:
         return nan, 0.0, np.zeros(2)
     xy, s, amp, ncc = fit_disc(image, model, predicted, shift0=shift0, max_move=max_move)
-    if not (np.all(np.isfinite(xy)) and ncc >= MIN_NCC
-            and AMPLITUDE[0] <= amp <= AMPLITUDE[1]):
+    if not _holds(xy, amp, ncc):
         return nan, 0.0, s
     return xy, min(max(ncc, 0.0), 1.0), s
