@@ -15,7 +15,11 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   ``target_track_wrong_marker`` (tracks with any sample nearer another marker's truth
   than its own), ``target_track_tracked_fraction`` (the samples those figures are over,
   of every frame of every track: a run whose first step is refused stops even at Break
-  Threshold 0; ``tracks_with_none``: runs that tracked no frame), and with the default
+  Threshold 0; ``tracks_with_none``: runs that tracked no frame), the truth's own motion
+  between frames (``truth_step_px_first``: median over tracks from frame 0 to 1, with
+  ``max_px``; ``truth_step_px_median`` over every step, with ``p99_px`` and ``max_px``:
+  the speech preset's syllables are near-square waves, so frame 0 to 1 is a 13-33 px
+  jump where later steps are about 1 px), and with the default
   Break Threshold (0.9)
   ``target_track_complete_fraction`` and ``target_track_wrong_marker_default``;
   the same markers by ``cv2.calcOpticalFlowPyrLK`` (frame to frame, the best window we
@@ -231,6 +235,13 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
     # (ambiguous, or failed its checks) stops even at Break Threshold 0
     emit("target_track_tracked_fraction", round(float(np.isfinite(E).mean()), 3), "fraction",
          **common, tracks_with_none=int((~np.isfinite(E)).all(axis=1).sum()))
+    # how far the truth moves per frame: a first step refused on a jump far above the
+    # take's usual motion says as much about the take's motion as about the tracker
+    step = truth_steps(uv, markers)
+    emit("truth_step_px_first", round(float(np.median(step[0])), 2), "px", **common,
+         max_px=round(float(step[0].max()), 1))
+    emit("truth_step_px_median", round(float(np.median(step)), 2), "px", **common,
+         p99_px=round(float(np.percentile(step, 99)), 1), max_px=round(float(step.max()), 1))
     E9, wrong9, complete9 = ours(imgs, uv, markers, TargetTrackerParameters(**overrides))
     emit("target_track_complete_fraction", round(complete9 / E.shape[0], 3), "fraction",
          **common, break_threshold=0.9,
@@ -255,6 +266,15 @@ def bench_case(name: str, frames: int, size: tuple[int, int],
          ratio_ours=round(med / mmed, 3))
     emit("matchtemplate_p95_px", round(mp95, 4), "px", **common,
          ratio_ours=round(p95 / mp95, 3))
+
+
+def truth_steps(uv: np.ndarray, markers: np.ndarray) -> np.ndarray:
+    """Truth motion between consecutive frames (px), shape (F - 1, len(markers) * C).
+
+    ``uv`` is the scene's (F, M, C, 2) truth projections; ``markers`` the tracked ones.
+    """
+    d = np.linalg.norm(np.diff(uv[:, markers], axis=0), axis=-1)  # (F - 1, M', C)
+    return d.reshape(d.shape[0], -1)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
