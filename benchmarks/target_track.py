@@ -18,8 +18,8 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   Threshold 0; ``tracks_with_none``: runs that tracked no frame), the truth's own motion
   between frames (``truth_step_px_first``: median over tracks from frame 0 to 1, with
   ``max_px``; ``truth_step_px_median`` over every step, with ``p99_px`` and ``max_px``:
-  the speech preset's syllables are near-square waves, so frame 0 to 1 is a 13-33 px
-  jump where later steps are about 1 px), and with the default
+  the speech and fast presets' syllables are near-square waves whose edges move lip
+  markers 15-50 px in one frame; speech seed 0 starts on one), and with the default
   Break Threshold (0.9)
   ``target_track_complete_fraction`` and ``target_track_wrong_marker_default``;
   the same markers by ``cv2.calcOpticalFlowPyrLK`` (frame to frame, the best window we
