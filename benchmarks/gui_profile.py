@@ -15,9 +15,11 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
+import sys
 import threading
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
+from collections.abc import Callable
 
 #: Method names wrapped wherever a carapost.ui class defines them.
 UI_METHODS = ("refresh", "paintEvent", "_changed", "_frame_ready", "_tick", "flush",
@@ -47,6 +49,55 @@ class GuiProfiler:
         self.intervals: list[tuple[float, float, float, str, int]] = []
         self.depth = 0
         self.stalls: list[dict] = []
+        # Python stacks of the GUI thread sampled while a timer tick is overdue, as
+        # (time, stack): what the thread ran in a burst that no wrapped method covers
+        # (a lazy import, a first use, C++ reached from an unwrapped slot)
+        self.samples: list[tuple[float, tuple[str, ...]]] = []
+        self._sampling = False
+
+    # -- sampling -------------------------------------------------------------------------
+    def start_sampler(self, last_tick: Callable[[], float], interval: float = 0.003,
+                      after: float = 0.015) -> None:
+        """Sample the GUI thread's stack every ``interval`` s once ``after`` s have passed
+        since the last tick (``last_tick()``, perf_counter). Costs nothing between
+        stalls but a short wake-up; the sampler needs the GIL, so a stall spent in
+        Python is sampled at the interpreter's switch interval (5 ms)."""
+        self._sampling = True
+
+        def loop() -> None:
+            frames = sys._current_frames
+            while self._sampling:
+                time.sleep(interval)
+                now = time.perf_counter()
+                if now - last_tick() < after:
+                    continue
+                frame = frames().get(self.main)
+                stack = []
+                while frame is not None and len(stack) < 14:
+                    code = frame.f_code
+                    path = code.co_filename
+                    short = path.rsplit("/site-packages/", 1)[-1].rsplit("/src/", 1)[-1]
+                    stack.append(f"{short}:{frame.f_lineno} {code.co_name}")
+                    frame = frame.f_back
+                self.samples.append((now, tuple(stack)))
+
+        threading.Thread(target=loop, name="gui-stack-sampler", daemon=True).start()
+
+    def stop_sampler(self) -> None:
+        self._sampling = False
+
+    def _stacks_in(self, t0: float, t1: float, top: int = 3) -> dict:
+        """The stacks sampled in [t0, t1]: the most common whole stacks, and every
+        function (file and name, no line) with the number of samples it was on the
+        stack in (inclusive counts)."""
+        stacks = [st for t, st in self.samples if t0 <= t <= t1]
+        counts = Counter(stacks)
+        inclusive: Counter[str] = Counter()
+        for st in stacks:
+            inclusive.update({f"{fr.split(':', 1)[0]} {fr.split(' ', 1)[1]}" for fr in st})
+        return {"samples": len(stacks),
+                "top": [{"n": n, "stack": list(st)} for st, n in counts.most_common(top)],
+                "functions": dict(inclusive.most_common(25))}
 
     # -- wrapping -------------------------------------------------------------------------
     def _wrap(self, owner: type, name: str) -> None:
@@ -111,12 +162,15 @@ class GuiProfiler:
         top = sorted(parts.items(), key=lambda kv: -kv[1])[:5]
         self.stalls.append({"phase": phase, "gap_ms": round((t1 - t0) * 1e3, 1),
                             "gui_cpu_ms": round(cpu * 1e3, 1), "gc_ms": round(gc_ms, 1),
-                            "in": {k: round(v * 1e3, 1) for k, v in top}})
+                            "in": {k: round(v * 1e3, 1) for k, v in top},
+                            "stacks": self._stacks_in(t0, t1)})
 
     def prune(self, before: float) -> None:
         """Forget intervals that ended before ``before`` (keeps memory bounded)."""
         if len(self.intervals) > 20000:
             self.intervals = [iv for iv in self.intervals if iv[1] >= before]
+        if len(self.samples) > 20000:
+            self.samples = [sm for sm in self.samples if sm[0] >= before]
 
     def report(self, top: int = 25) -> dict:
         """Totals by method (calls, wall ms, CPU ms, max ms) and the longest stalls."""

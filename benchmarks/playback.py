@@ -574,6 +574,8 @@ def main() -> None:
                     help="comma-separated phases: opens,jumps,steps,display,playback,detect,"
                          "scrub,proxies")
     ap.add_argument("--opens", type=int, default=5, help="openings measured (opens phase)")
+    ap.add_argument("--switch-interval", type=float, default=0.0,
+                    help="sys.setswitchinterval in seconds (0: the application's own)")
     args = ap.parse_args()
     from carapost.ui.app import application
 
@@ -582,6 +584,8 @@ def main() -> None:
     def run(phase: str) -> bool:
         return not only or phase in only
 
+    if args.switch_interval > 0:
+        sys.setswitchinterval(args.switch_interval)
     tmp = tempfile.TemporaryDirectory()
     take = Path(args.take) if args.take else render_take(Path(tmp.name), 300)
     if args.codecs:
@@ -595,6 +599,8 @@ def main() -> None:
         profiler.install()
     app = application()
     b = Bench(app, take, profiler)
+    if profiler is not None:
+        profiler.start_sampler(lambda: getattr(b.stalls, "last", time.perf_counter()))
     cpu0 = time.process_time()
     b.open_and_first_jump()
     if run("opens"):

@@ -12,6 +12,14 @@ from PySide6.QtWidgets import QApplication
 
 log = logging.getLogger("carapost.ui")
 
+#: The interpreter's thread switch interval in the window process, in seconds (Python's
+#: default is 0.005). Every return of the GUI thread from Qt into a Python slot takes
+#: the GIL back; while a decoder, the import's video checks or a job runs Python, each
+#: such return can wait up to one interval, and a turn of the event loop makes many.
+#: At 1 ms the longest tick gaps fell from 45-54 to 38-43 ms on the demo take with no
+#: loss of decoding or playback rate (docs/benchmarks.md, thirteenth session).
+GUI_SWITCH_INTERVAL_S = 0.001
+
 
 def dark_palette() -> QPalette:
     """The dark Fusion palette the views' colours are designed for."""
@@ -39,6 +47,7 @@ def application(argv: list[str] | None = None) -> QApplication:
     """The QApplication (created once, styled)."""
     app = QApplication.instance()
     if app is None:
+        sys.setswitchinterval(GUI_SWITCH_INTERVAL_S)
         app = QApplication(argv if argv is not None else sys.argv[:1])
         app.setOrganizationName("carapost")
         app.setApplicationName("carapost")
