@@ -56,7 +56,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays"]
+__all__ = ["IDLE_SHUTDOWN_S", "POOL_NICE_ENV", "ProcessPool", "lifeline", "map_arrays"]
 
 K = TypeVar("K", bound=Hashable)
 log = logging.getLogger("carapost.parallel")
@@ -110,12 +110,25 @@ def lifeline(parent: int | None = None, every_s: float = 0.5, *,
 # signal there: the forkserver may be started from a worker thread, and the kernel
 # sends that signal when the starting *thread* ends.)
 _PARENT_ENV = PARENT_PID_ENV = "CARAPOST_PARENT_PID"
+#: A nice increment for the pool processes (the forkserver takes it when it starts, and
+#: every worker forked from it inherits it). The window sets it (`carapost.ui.app`):
+#: there the detector processes are background work beside the GUI thread and the
+#: decoders, and their start-up (imports and compiled kernels, ~1 s of a core) would
+#: otherwise take the cores from the frames the artist is waiting for. Unset (batch, the
+#: command line, scripts) they run at the program's own priority.
+POOL_NICE_ENV = "CARAPOST_POOL_NICE"
 #: True in the forkserver of the program's pools (and in a spawned worker where there is
 #: no forkserver), and so also in every worker forked from it, which inherits the
 #: module's state: a preload module may prepare there what every worker inherits.
 IN_POOL_SERVER = os.environ.get(_PARENT_ENV) == str(os.getppid())
 if IN_POOL_SERVER:
     lifeline(os.getppid(), pdeathsig=False)
+    try:
+        _nice = int(os.environ.get(POOL_NICE_ENV, "0"))
+        if _nice > 0:
+            os.nice(_nice)
+    except (ValueError, OSError):  # a bad setting, or no nice here: full priority
+        pass
 
 
 def _init_worker(initializer: Callable[[], None] | None) -> None:
@@ -214,17 +227,45 @@ class ProcessPool:
                 self._executor.shutdown(wait=False, cancel_futures=True)
                 self._executor = None
             if self._executor is None:
-                os.environ[_PARENT_ENV] = str(os.getpid())
-                if "forkserver" in mp.get_all_start_methods():
-                    ctx = mp.get_context("forkserver")
-                    ctx.set_forkserver_preload(["carapost.parallel", *self._preload])
-                else:
-                    ctx = mp.get_context("spawn")
+                ctx = self._context()
                 self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                                      initializer=_init_worker,
                                                      initargs=(self._initializer,))
                 self._workers = workers
             return self._executor
+
+    def _context(self) -> Any:
+        """The multiprocessing context of the workers: the forkserver with this pool's
+        preload (Linux), else spawn."""
+        os.environ[_PARENT_ENV] = str(os.getpid())
+        if "forkserver" in mp.get_all_start_methods():
+            ctx = mp.get_context("forkserver")
+            ctx.set_forkserver_preload(["carapost.parallel", *self._preload])
+            return ctx
+        return mp.get_context("spawn")
+
+    def start_server(self) -> bool:
+        """Start the forkserver, which then imports the ``preload`` modules in its own
+        process (returns once it is launched; False where workers are spawned, not
+        forked, or it could not be launched).
+
+        The forkserver's imports are most of a worker's start-up (for the blob detector
+        ~1.3 s of a core: numpy, OpenCV, numba and its compiled kernels) and are paid
+        once per program; workers forked from it later start in milliseconds. A program
+        calls this when it starts, before there is work the start-up would slow down.
+        """
+        if "forkserver" not in mp.get_all_start_methods():
+            return False
+        try:
+            from multiprocessing import forkserver
+
+            with self._lock:
+                self._context()
+            forkserver.ensure_running()
+        except Exception:  # the first batch starts it, and reports what fails
+            log.debug("starting the forkserver failed", exc_info=True)
+            return False
+        return True
 
     def start(self, workers: int) -> threading.Thread:
         """Start ``workers`` processes in the background (a warm start), so that the

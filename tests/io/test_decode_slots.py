@@ -172,3 +172,65 @@ def test_a_slot_given_up_goes_to_the_waiters_urgent_first():
         t.join(timeout=5)
     assert order == ["view-1", "view-2", "ahead-1", "again"]
     assert slots._busy == 0 and slots.peak == 1
+
+
+def test_a_cancelled_read_ahead_wait_returns_without_a_slot():
+    """A read-ahead waiting for a slot is called off (its camera's frame was asked for):
+    it returns at once without a slot, and the slot still goes to the next waiter."""
+    from carapost.io.decode_slots import SlotWait
+
+    slots = DecodeSlots(1)
+    slots.acquire()  # a view's decode holds the only slot
+    wait, got = SlotWait(), []
+    t = threading.Thread(target=lambda: got.append(slots.acquire(False, wait)))
+    t.start()
+    while not slots._queues[1]:
+        time.sleep(0.001)
+    slots.cancel(wait)
+    t.join(timeout=5)
+    assert got == [False] and not slots._queues[1]
+    slots.release()
+    assert slots.acquire(True) is True  # the slot was free again, not lost
+    slots.release()
+    # cancelled before it queued: the acquire sees it and never waits
+    early = SlotWait()
+    slots.cancel(early)
+    assert slots.acquire(False, early) is False
+    # handed the slot already: cancelling changes nothing, it releases as usual
+    late = SlotWait()
+    assert slots.acquire(False, late) is True
+    slots.cancel(late)
+    slots.release()
+    assert slots._busy == 0
+
+
+def test_a_jump_does_not_wait_for_read_ahead_queued_for_a_slot(take, monkeypatch):
+    """With one slot and every camera reading ahead, a jump's four frames are the next
+    four decodes: no camera decodes a stale read-ahead frame first."""
+    monkeypatch.setattr(frameservice, "DECODE_SLOTS", 1)
+    decoded: list[tuple[int, int]] = []
+    original = video.VideoSource.read
+    lock = threading.Lock()
+
+    def read(self, index):
+        time.sleep(0.01)
+        img = original(self, index)
+        with lock:
+            decoded.append((int(img[0, 0]), int(img[10, 10]) // 40))
+        return img
+
+    monkeypatch.setattr(video.VideoSource, "read", read)
+    with FrameService(take) as fs:
+        fs.set_read_ahead(24)
+        fs.request(5, direction=1)
+        assert _wait_all(fs, 5)
+        time.sleep(0.03)  # every camera reads ahead now, three of them queued for the slot
+        with lock:
+            before = len(decoded)
+        fs.request(45, direction=1)
+        assert _wait_all(fs, 45)
+        with lock:
+            after = decoded[before:]
+    # at most the one read-ahead frame in hand finishes before the jump's frames
+    first = [i for i, (frame, _) in enumerate(after) if frame == 45]
+    assert len(first) == CAMERAS and first[-1] <= CAMERAS, after[:8]

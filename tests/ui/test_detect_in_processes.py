@@ -68,3 +68,38 @@ def test_detect_current_frame_runs_in_the_warm_processes(
     # the History script records what was done, not how it was computed
     (step,) = w.context.session._script()["entries"][-1]
     assert step["call"] == "detect_blobs" and step["kwargs"] == {"frames": "current"}
+
+
+def test_the_window_launches_the_forkserver_when_it_starts(make_window, monkeypatch):
+    """The detector processes' forkserver (their ~1.3 s of imports, once per program) is
+    launched when the window is created, before a take is open, when the user wants
+    the detector started; never beside a take's first images."""
+    import carapost.ui.context as context
+
+    launched: list[int] = []
+    monkeypatch.setattr(context, "start_detector_server", lambda: launched.append(1))
+    make_window(new_project(5, 2))
+    assert launched == []  # the preference is off in the test settings
+    set_preference(make_settings(), "start_detector_after_import", True)
+    make_window(new_project(5, 2))
+    assert launched == [1]
+
+
+def test_the_window_process_runs_its_pool_processes_at_a_lower_priority():
+    """`application()`, which creates the window's QApplication, sets the pool
+    processes' nice increment and the thread switch interval (a fresh program: here
+    pytest-qt made the QApplication)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os, sys; from carapost.ui.app import application; application(); "
+            "print(os.environ['CARAPOST_POOL_NICE'], sys.getswitchinterval())")
+    env = {k: v for k, v in os.environ.items() if k != "CARAPOST_POOL_NICE"}
+    env["QT_QPA_PLATFORM"] = "offscreen"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=120, check=True).stdout.split()
+    from carapost.ui.app import GUI_POOL_NICE, GUI_SWITCH_INTERVAL_S
+
+    assert int(out[0]) == GUI_POOL_NICE > 0
+    assert float(out[1]) == pytest.approx(GUI_SWITCH_INTERVAL_S)

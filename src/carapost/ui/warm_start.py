@@ -1,4 +1,5 @@
-"""Background start of the blob detector's worker processes when a take opens.
+"""Background start of the blob detector's worker processes: their forkserver when the
+window starts, the processes when a take opens.
 
 Detect Blobs runs in the detector processes of :mod:`carapost.algorithms.blobs` (on
 threads the detector would hold the GIL and stall the window's drawing). Starting them
@@ -7,6 +8,11 @@ kernels once; on the first run after installation it compiles them), so the wind
 starts them while the artist looks at the take, not when Detect Blobs [Current Frame]
 is first chosen. They stop after the pool's idle time like any batch's processes; the
 next Detect Blobs starts them again from the forkserver in milliseconds.
+
+The forkserver's start is the expensive part and is paid once per program, so the
+window launches it when it is created, before a take is open: launched with the first
+take instead, its second of imports took a core from the take's first jumps (150-420
+ms instead of ~90; docs/benchmarks.md, fourteenth session).
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import threading
 
 log = logging.getLogger("carapost.ui")
 
-__all__ = ["start_detector_processes"]
+__all__ = ["start_detector_processes", "start_detector_server"]
 
 
 def start_detector_processes(workers: int = 2) -> threading.Thread:
@@ -34,5 +40,21 @@ def start_detector_processes(workers: int = 2) -> threading.Thread:
             log.debug("starting the blob detector processes failed", exc_info=True)
 
     thread = threading.Thread(target=work, name="carapost-detector-start", daemon=True)
+    thread.start()
+    return thread
+
+
+def start_detector_server() -> threading.Thread:
+    """Import the detector and launch its processes' forkserver on a daemon thread
+    (returns at once; the thread, for tests)."""
+    def work() -> None:
+        try:
+            from carapost.algorithms.blobs import start_server
+
+            start_server()
+        except Exception:  # the detector reports real problems when it is used
+            log.debug("starting the blob detector's forkserver failed", exc_info=True)
+
+    thread = threading.Thread(target=work, name="carapost-detector-server", daemon=True)
     thread.start()
     return thread

@@ -61,7 +61,7 @@ The package is split by stage; this module re-exports the public API:
 - :mod:`.candidates` -- all candidates of one colour (steps 1-4 for one image);
 - :mod:`.detect` -- :func:`detect_blobs`, :func:`preview_blobs`,
   :func:`detect_blobs_batch` (worker processes of :mod:`carapost.parallel`),
-  :func:`warm_up`, :func:`start_workers`, :func:`shutdown_workers`.
+  :func:`warm_up`, :func:`start_workers`, :func:`start_server`, :func:`shutdown_workers`.
 
 Examples
 --------
@@ -95,7 +95,7 @@ _LAZY = {
     "blob_candidates": "candidates",
     "PROCESS_CHUNK": "detect", "PROCESS_MIN_IMAGES": "detect", "detect_blobs": "detect",
     "detect_blobs_batch": "detect", "preview_blobs": "detect", "shutdown_workers": "detect",
-    "warm_up": "detect", "start_workers": "detect",
+    "warm_up": "detect", "start_workers": "detect", "start_server": "detect",
     "MODEL_HIDDEN": "score", "MODEL_INPUTS": "score", "MODEL_KINDS": "score",
     "ScoreNet": "score", "blob_probability": "score", "net_logit": "score",
 }
@@ -109,6 +109,7 @@ if TYPE_CHECKING:
         detect_blobs_batch,
         preview_blobs,
         shutdown_workers,
+        start_server,
         start_workers,
         warm_up,
     )
@@ -145,5 +146,6 @@ __all__ = [
     "PROCESS_CHUNK",
     "warm_up",
     "start_workers",
+    "start_server",
     "shutdown_workers",
 ]
