@@ -64,6 +64,18 @@ class GuiProfiler:
         Python is sampled at the interpreter's switch interval (5 ms)."""
         self._sampling = True
 
+        def where(frame, depth: int) -> tuple[str, ...]:
+            stack = []
+            while frame is not None and len(stack) < depth:
+                code = frame.f_code
+                path = code.co_filename
+                short = path.rsplit("/site-packages/", 1)[-1].rsplit("/src/", 1)[-1]
+                stack.append(f"{short}:{frame.f_lineno} {code.co_name}")
+                frame = frame.f_back
+            return tuple(stack)
+
+        me = threading.get_ident()
+
         def loop() -> None:
             frames = sys._current_frames
             while self._sampling:
@@ -71,15 +83,15 @@ class GuiProfiler:
                 now = time.perf_counter()
                 if now - last_tick() < after:
                     continue
-                frame = frames().get(self.main)
-                stack = []
-                while frame is not None and len(stack) < 14:
-                    code = frame.f_code
-                    path = code.co_filename
-                    short = path.rsplit("/site-packages/", 1)[-1].rsplit("/src/", 1)[-1]
-                    stack.append(f"{short}:{frame.f_lineno} {code.co_name}")
-                    frame = frame.f_back
-                self.samples.append((now, tuple(stack)))
+                current = frames()
+                names = {t.ident: t.name for t in threading.enumerate()}
+                # the other threads' innermost frames: where each one was when it last
+                # gave up the GIL (a thread in a C call shows the call's line), which
+                # tells what may have held it while the GUI thread waited
+                others = tuple(f"{names.get(ident, ident)}: {' < '.join(where(fr, 2))}"
+                               for ident, fr in current.items()
+                               if ident not in (self.main, me))
+                self.samples.append((now, where(current.get(self.main), 14), others))
 
         threading.Thread(target=loop, name="gui-stack-sampler", daemon=True).start()
 
@@ -90,14 +102,19 @@ class GuiProfiler:
         """The stacks sampled in [t0, t1]: the most common whole stacks, and every
         function (file and name, no line) with the number of samples it was on the
         stack in (inclusive counts)."""
-        stacks = [st for t, st in self.samples if t0 <= t <= t1]
+        stacks = [st for t, st, _ in self.samples if t0 <= t <= t1]
         counts = Counter(stacks)
         inclusive: Counter[str] = Counter()
         for st in stacks:
             inclusive.update({f"{fr.split(':', 1)[0]} {fr.split(' ', 1)[1]}" for fr in st})
+        others: Counter[str] = Counter()
+        for t, _, other in self.samples:
+            if t0 <= t <= t1:
+                others.update(other)
         return {"samples": len(stacks),
                 "top": [{"n": n, "stack": list(st)} for st, n in counts.most_common(top)],
-                "functions": dict(inclusive.most_common(25))}
+                "functions": dict(inclusive.most_common(25)),
+                "other_threads": dict(others.most_common(12))}
 
     # -- wrapping -------------------------------------------------------------------------
     def _wrap(self, owner: type, name: str) -> None:
