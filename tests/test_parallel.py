@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -153,31 +149,34 @@ def test_start_warms_the_processes_in_the_background_and_the_idle_shutdown_follo
         pool.shutdown()
 
 
-_NICE_CHILD = """
-import os, sys
-os.environ["CARAPOST_POOL_NICE"] = sys.argv[1]
+
+_SERVER_CHILD = """
+import multiprocessing.forkserver as fs
+import os
 from carapost import parallel
 if __name__ == "__main__":
     pool = parallel.ProcessPool(preload=["numpy"], idle_s=None)
+    assert fs._forkserver._forkserver_pid is None
     assert pool.start_server() is True
-    ex = pool.executor(1)
-    print(os.nice(0), ex.submit(os.nice, 0).result())
+    server = fs._forkserver._forkserver_pid
+    os.kill(server, 0)  # launched, and alive
+    # the workers come from that forkserver: their parent is it
+    print(server, pool.executor(1).submit(os.getppid).result())
     pool.shutdown()
 """
 
 
-@pytest.mark.skipif(not hasattr(os, "nice") or "forkserver" not in
-                    __import__("multiprocessing").get_all_start_methods(),
-                    reason="the forkserver and nice are Linux's")
-@pytest.mark.parametrize("nice", ["0", "7"])
-def test_pool_processes_take_the_programs_nice_increment(tmp_path, nice):
-    """The window runs its pool processes at a lower priority (`POOL_NICE_ENV`): the
-    forkserver launched by `start_server` takes the increment and its workers inherit
-    it; unset or 0 they run at the program's own priority (a fresh program: the
-    forkserver is one per program)."""
+@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(),
+                    reason="the forkserver is Linux's")
+def test_start_server_launches_the_forkserver_the_workers_come_from(tmp_path):
+    """`ProcessPool.start_server` launches the forkserver before any batch (a fresh
+    program: the forkserver is one per program), and the pool's workers are forked
+    from it."""
+    import subprocess
+    import sys
+
     script = tmp_path / "child.py"
-    script.write_text(_NICE_CHILD)
-    out = subprocess.run([sys.executable, str(script), nice], capture_output=True,
-                         text=True, timeout=120, check=True).stdout.split()
-    own, worker = int(out[0]), int(out[1])
-    assert worker == min(own + int(nice), 19)
+    script.write_text(_SERVER_CHILD)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=120, check=True).stdout.split()
+    assert out[0] == out[1]

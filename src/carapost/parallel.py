@@ -56,7 +56,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["IDLE_SHUTDOWN_S", "POOL_NICE_ENV", "ProcessPool", "lifeline", "map_arrays"]
+__all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays"]
 
 K = TypeVar("K", bound=Hashable)
 log = logging.getLogger("carapost.parallel")
@@ -110,25 +110,12 @@ def lifeline(parent: int | None = None, every_s: float = 0.5, *,
 # signal there: the forkserver may be started from a worker thread, and the kernel
 # sends that signal when the starting *thread* ends.)
 _PARENT_ENV = PARENT_PID_ENV = "CARAPOST_PARENT_PID"
-#: A nice increment for the pool processes (the forkserver takes it when it starts, and
-#: every worker forked from it inherits it). The window sets it (`carapost.ui.app`):
-#: there the detector processes are background work beside the GUI thread and the
-#: decoders, and their start-up (imports and compiled kernels, ~1 s of a core) would
-#: otherwise take the cores from the frames the artist is waiting for. Unset (batch, the
-#: command line, scripts) they run at the program's own priority.
-POOL_NICE_ENV = "CARAPOST_POOL_NICE"
 #: True in the forkserver of the program's pools (and in a spawned worker where there is
 #: no forkserver), and so also in every worker forked from it, which inherits the
 #: module's state: a preload module may prepare there what every worker inherits.
 IN_POOL_SERVER = os.environ.get(_PARENT_ENV) == str(os.getppid())
 if IN_POOL_SERVER:
     lifeline(os.getppid(), pdeathsig=False)
-    try:
-        _nice = int(os.environ.get(POOL_NICE_ENV, "0"))
-        if _nice > 0:
-            os.nice(_nice)
-    except (ValueError, OSError):  # a bad setting, or no nice here: full priority
-        pass
 
 
 def _init_worker(initializer: Callable[[], None] | None) -> None:

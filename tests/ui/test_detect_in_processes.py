@@ -84,22 +84,3 @@ def test_the_window_launches_the_forkserver_when_it_starts(make_window, monkeypa
     make_window(new_project(5, 2))
     assert launched == [1]
 
-
-def test_the_window_process_runs_its_pool_processes_at_a_lower_priority():
-    """`application()`, which creates the window's QApplication, sets the pool
-    processes' nice increment and the thread switch interval (a fresh program: here
-    pytest-qt made the QApplication)."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import os, sys; from carapost.ui.app import application; application(); "
-            "print(os.environ['CARAPOST_POOL_NICE'], sys.getswitchinterval())")
-    env = {k: v for k, v in os.environ.items() if k != "CARAPOST_POOL_NICE"}
-    env["QT_QPA_PLATFORM"] = "offscreen"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, timeout=120, check=True).stdout.split()
-    from carapost.ui.app import GUI_POOL_NICE, GUI_SWITCH_INTERVAL_S
-
-    assert int(out[0]) == GUI_POOL_NICE > 0
-    assert float(out[1]) == pytest.approx(GUI_SWITCH_INTERVAL_S)

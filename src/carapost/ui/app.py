@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import threading
 from pathlib import Path
 
 from PySide6.QtGui import QColor, QPalette
 from PySide6.QtWidgets import QApplication
-
-from carapost.parallel import POOL_NICE_ENV
 
 log = logging.getLogger("carapost.ui")
 
@@ -22,13 +19,6 @@ log = logging.getLogger("carapost.ui")
 #: At 1 ms the longest tick gaps fell from 45-54 to 38-43 ms on the demo take with no
 #: loss of decoding or playback rate (docs/benchmarks.md, thirteenth session).
 GUI_SWITCH_INTERVAL_S = 0.001
-
-#: Nice increment of the window's worker processes (the blob detector's; see
-#: `carapost.parallel.POOL_NICE_ENV`), as the decoder threads' (`DECODER_NICE`). Their
-#: start-up a second after a take opens (`DETECTOR_START_DELAY_MS`) took the cores at
-#: the GUI's priority, nine times a decoder's weight: jumps in that second took 150-420
-#: ms instead of ~90 (docs/benchmarks.md, fourteenth session).
-GUI_POOL_NICE = 10
 
 
 def dark_palette() -> QPalette:
@@ -58,7 +48,6 @@ def application(argv: list[str] | None = None) -> QApplication:
     app = QApplication.instance()
     if app is None:
         sys.setswitchinterval(GUI_SWITCH_INTERVAL_S)
-        os.environ.setdefault(POOL_NICE_ENV, str(GUI_POOL_NICE))
         app = QApplication(argv if argv is not None else sys.argv[:1])
         app.setOrganizationName("carapost")
         app.setApplicationName("carapost")
