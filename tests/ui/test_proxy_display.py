@@ -85,3 +85,38 @@ def test_a_proxy_is_drawn_over_the_originals_pixels_until_zoomed_in(make_window,
         np.testing.assert_array_equal(view.image.image, frames[30])
     finally:
         frames_src.set_playing(None)
+
+
+def test_stopping_playback_shows_the_original_and_redraws_only_proxy_views(
+        make_window, take, qtbot, monkeypatch):
+    """View > Play, then stop: a view left on a proxy frame turns to the original; a
+    view that already shows the original at the current frame is not drawn again."""
+    p, frames = take
+    w = make_window(p)
+    w.show()
+    w.resize(900, 700)
+    frames_src = w.context.frames
+    qtbot.waitUntil(lambda: frames_src.stats()["proxies"] == 1, timeout=30000)
+    view = next(v for v in w.context.shell.all_views() if v.kind == "sensor")
+    view.fit()
+    if view.image_scale() > 0.5:
+        view.vb.setRange(QRectF(-0.5, -0.5, 3 * W, 3 * H), padding=0)
+    playback = w.context.playback
+    playback.toggle(True)
+    playback.timer.stop()  # playing, held on one frame (the clip is 0.7 s long)
+    try:
+        w.set_frame(30)
+        qtbot.waitUntil(lambda: view.image_frame == 30 and view.showing_proxy, timeout=10000)
+    finally:
+        playback.toggle(False)
+    # the original of the frame on screen replaces the proxy once it is decoded
+    frame = w.context.project.current_frame
+    qtbot.waitUntil(lambda: view.image_frame == frame and not view.showing_proxy,
+                    timeout=10000)
+    np.testing.assert_array_equal(view.image.image, frames[frame])
+    # on the original already: stopping again draws nothing
+    drawn: list[int] = []
+    monkeypatch.setattr(view, "refresh", lambda change: drawn.append(1))
+    playback.toggle(True)
+    playback.toggle(False)
+    assert drawn == []
