@@ -56,7 +56,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays"]
+__all__ = ["IDLE_SHUTDOWN_S", "ProcessPool", "lifeline", "map_arrays", "start_forkserver"]
 
 K = TypeVar("K", bound=Hashable)
 log = logging.getLogger("carapost.parallel")
@@ -224,35 +224,11 @@ class ProcessPool:
     def _context(self) -> Any:
         """The multiprocessing context of the workers: the forkserver with this pool's
         preload (Linux), else spawn."""
-        os.environ[_PARENT_ENV] = str(os.getpid())
-        if "forkserver" in mp.get_all_start_methods():
-            ctx = mp.get_context("forkserver")
-            ctx.set_forkserver_preload(["carapost.parallel", *self._preload])
-            return ctx
-        return mp.get_context("spawn")
+        return _context(self._preload)
 
     def start_server(self) -> bool:
-        """Start the forkserver, which then imports the ``preload`` modules in its own
-        process (returns once it is launched; False where workers are spawned, not
-        forked, or it could not be launched).
-
-        The forkserver's imports are most of a worker's start-up (for the blob detector
-        ~1.3 s of a core: numpy, OpenCV, numba and its compiled kernels) and are paid
-        once per program; workers forked from it later start in milliseconds. A program
-        calls this when it starts, before there is work the start-up would slow down.
-        """
-        if "forkserver" not in mp.get_all_start_methods():
-            return False
-        try:
-            from multiprocessing import forkserver
-
-            with self._lock:
-                self._context()
-            forkserver.ensure_running()
-        except Exception:  # the first batch starts it, and reports what fails
-            log.debug("starting the forkserver failed", exc_info=True)
-            return False
-        return True
+        """`start_forkserver` with this pool's ``preload``."""
+        return start_forkserver(self._preload)
 
     def start(self, workers: int) -> threading.Thread:
         """Start ``workers`` processes in the background (a warm start), so that the
@@ -291,6 +267,42 @@ class ProcessPool:
             if self._executor is not None:
                 self._executor.shutdown(wait=True, cancel_futures=True)
                 self._executor = None
+
+
+def _context(preload: Sequence[str]) -> Any:
+    """The multiprocessing context of pool processes: the forkserver, importing
+    ``preload`` (Linux), else spawn."""
+    os.environ[_PARENT_ENV] = str(os.getpid())
+    if "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["carapost.parallel", *preload])
+        return ctx
+    return mp.get_context("spawn")
+
+
+def start_forkserver(preload: Sequence[str]) -> bool:
+    """Launch the program's forkserver, which then imports the ``preload`` modules in
+    its own process (returns once it is launched; False where pool processes are
+    spawned, not forked, or it could not be launched).
+
+    The forkserver's imports are most of a worker's start-up (for the blob detector
+    ~1.3 s of a core: numpy, OpenCV, numba and its compiled kernels) and are paid once
+    per program; workers forked from it later start in milliseconds. A program calls
+    this when it starts, before there is work the start-up would slow down. The
+    forkserver is one per program: the ``preload`` of the first launch wins, so it
+    must be the one of the pool that will use it. Nothing is imported here.
+    """
+    if "forkserver" not in mp.get_all_start_methods():
+        return False
+    try:
+        from multiprocessing import forkserver
+
+        _context(preload)
+        forkserver.ensure_running()
+    except Exception:  # the first batch starts it, and reports what fails
+        log.debug("starting the forkserver failed", exc_info=True)
+        return False
+    return True
 
 
 #: Shared-memory blocks this worker process has attached (name -> SharedMemory).

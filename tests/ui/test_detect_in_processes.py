@@ -84,3 +84,42 @@ def test_the_window_launches_the_forkserver_when_it_starts(make_window, monkeypa
     make_window(new_project(5, 2))
     assert launched == [1]
 
+
+
+_SERVER_CHILD = """
+import sys
+from carapost.algorithms.blobs import start_server
+
+
+def kernels_loaded():
+    # in the worker: the detector imported and its compiled kernels loaded (a numba
+    # dispatcher lists the signatures it holds; the inlined helpers have none)
+    from carapost.algorithms.blobs import _refine_jit
+    return ("carapost.algorithms.blobs.detect" in sys.modules
+            and len(_refine_jit.refine_sums.signatures) > 0)
+
+
+if __name__ == "__main__":
+    assert start_server() is True
+    # the window's process imported nothing of the detector (it would hold the GIL)
+    print("numba" in sys.modules, "carapost.algorithms.blobs.detect" in sys.modules)
+    from carapost.algorithms.blobs import detect
+    ex = detect._POOL.executor(1)
+    # a worker forked from that forkserver has the detector and its kernels loaded
+    print(ex.submit(kernels_loaded).result())
+    detect.shutdown_workers()
+"""
+
+
+def test_the_forkserver_launch_imports_nothing_and_its_workers_are_ready(tmp_path):
+    import multiprocessing
+    import subprocess
+    import sys
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        pytest.skip("the forkserver is Linux's")
+    script = tmp_path / "child.py"
+    script.write_text(_SERVER_CHILD)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=180, check=True).stdout.split()
+    assert out == ["False", "False", "True"]

@@ -45,8 +45,9 @@ def start_detector_processes(workers: int = 2) -> threading.Thread:
 
 
 def start_detector_server() -> threading.Thread:
-    """Import the detector and launch its processes' forkserver on a daemon thread
-    (returns at once; the thread, for tests)."""
+    """Launch the detector processes' forkserver on a daemon thread (returns at once;
+    the thread, for tests). Nothing of the detector is imported into the window's
+    process: the forkserver imports it in its own."""
     def work() -> None:
         try:
             from carapost.algorithms.blobs import start_server

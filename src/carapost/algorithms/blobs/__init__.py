@@ -61,7 +61,8 @@ The package is split by stage; this module re-exports the public API:
 - :mod:`.candidates` -- all candidates of one colour (steps 1-4 for one image);
 - :mod:`.detect` -- :func:`detect_blobs`, :func:`preview_blobs`,
   :func:`detect_blobs_batch` (worker processes of :mod:`carapost.parallel`),
-  :func:`warm_up`, :func:`start_workers`, :func:`start_server`, :func:`shutdown_workers`.
+  :func:`warm_up`, :func:`start_workers`, :func:`shutdown_workers`; :mod:`._pool` --
+  :func:`start_server` (the forkserver, without importing the detector).
 
 Examples
 --------
@@ -95,12 +96,13 @@ _LAZY = {
     "blob_candidates": "candidates",
     "PROCESS_CHUNK": "detect", "PROCESS_MIN_IMAGES": "detect", "detect_blobs": "detect",
     "detect_blobs_batch": "detect", "preview_blobs": "detect", "shutdown_workers": "detect",
-    "warm_up": "detect", "start_workers": "detect", "start_server": "detect",
+    "warm_up": "detect", "start_workers": "detect", "start_server": "_pool",
     "MODEL_HIDDEN": "score", "MODEL_INPUTS": "score", "MODEL_KINDS": "score",
     "ScoreNet": "score", "blob_probability": "score", "net_logit": "score",
 }
 
 if TYPE_CHECKING:
+    from carapost.algorithms.blobs._pool import start_server
     from carapost.algorithms.blobs.candidates import blob_candidates
     from carapost.algorithms.blobs.detect import (
         PROCESS_CHUNK,
@@ -109,7 +111,6 @@ if TYPE_CHECKING:
         detect_blobs_batch,
         preview_blobs,
         shutdown_workers,
-        start_server,
         start_workers,
         warm_up,
     )

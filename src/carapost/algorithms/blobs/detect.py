@@ -22,14 +22,14 @@ import numpy as np
 
 from carapost import parallel
 from carapost._runtime import keep_freed_memory
+from carapost.algorithms.blobs._pool import PRELOAD
 from carapost.algorithms.blobs.candidates import blob_candidates
 from carapost.algorithms.blobs.detections import BLACK, WHITE, BlobDetections
 from carapost.algorithms.blobs.image import as_uint8, check_mask, noise_sigma
 from carapost.algorithms.blobs.params import BlobParameters
 
 __all__ = ["PROCESS_MIN_IMAGES", "PROCESS_CHUNK", "detect_blobs", "preview_blobs",
-           "detect_blobs_batch", "warm_up", "start_workers", "start_server",
-           "shutdown_workers"]
+           "detect_blobs_batch", "warm_up", "start_workers", "shutdown_workers"]
 
 
 def _detect8(image8: np.ndarray, params: BlobParameters, mask: np.ndarray | None
@@ -150,8 +150,7 @@ def warm_up() -> None:
 
 #: The detector processes, started on the first large batch and kept for the next ones;
 #: the forkserver imports this module once, so a new process starts in ~10 ms.
-_POOL = parallel.ProcessPool(initializer=_worker_init,
-                             preload=[__name__, "carapost.algorithms.blobs._preload"])
+_POOL = parallel.ProcessPool(initializer=_worker_init, preload=PRELOAD)
 
 
 def start_workers(workers: int = 2) -> threading.Thread:
@@ -167,20 +166,6 @@ def start_workers(workers: int = 2) -> threading.Thread:
     >>> shutdown_workers()
     """
     return _POOL.start(workers)
-
-
-def start_server() -> bool:
-    """Launch the detector processes' forkserver, which loads the detector (~1.3 s of a
-    core) in its own process, so that :func:`start_workers` later forks ready processes
-    in milliseconds. A window calls this when it starts, before a take is open; False
-    where processes are spawned instead (not Linux).
-
-    Examples
-    --------
-    >>> isinstance(start_server(), bool)
-    True
-    """
-    return _POOL.start_server()
 
 
 def shutdown_workers() -> None:
