@@ -28,6 +28,8 @@ cameras drawn in their views):
   [Current Frame] until its result is in the History.
 * ``rss_mb_max`` / ``cache_mb_max``: resident memory and image cache over a scrub
   session of ``--scrub-s`` seconds (random jumps and steps).
+* ``steal_s``: CPU time the hypervisor took for other tenants during the run (a
+  virtual machine's steal time; the stalls it causes look "blocked" from inside).
 
 The script only uses what every version of the window has (``set_frame``, the camera
 views, the actions), so the same file measures the code before the frame service.
@@ -65,6 +67,18 @@ def emit(metric: str, value: float, unit: str, **extra: object) -> None:
 
 def p95(values: list[float]) -> float:
     return float(np.percentile(values, 95)) if values else float("nan")
+
+
+def steal_s() -> float:
+    """Seconds of CPU the hypervisor took from this machine's CPUs so far (the steal
+    column of ``/proc/stat``; 0 where there is none): the other tenants' share, which
+    the GUI thread's stalls show as "blocked" time."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
 
 
 def rss_mb() -> float:
@@ -614,7 +628,7 @@ def main() -> None:
     b = Bench(app, take, profiler)
     if profiler is not None:
         profiler.start_sampler(lambda: getattr(b.stalls, "last", time.perf_counter()))
-    cpu0 = time.process_time()
+    cpu0, steal0 = time.process_time(), steal_s()
     b.open_and_first_jump()
     if run("opens"):
         b.opens(take, args.opens)
@@ -645,6 +659,8 @@ def main() -> None:
     if profiler is not None:
         print(json.dumps({"profile": profiler.report()}, indent=1), flush=True)
     emit("cpu_s", time.process_time() - cpu0, "s")
+    emit("steal_s", steal_s() - steal0, "s",
+         note="CPU time the hypervisor gave other tenants during the run, all CPUs")
     b.w.context.stack.mark_clean()  # no "save changes?" box for the detections made
     b.p.modified = False
     b.w.context.shutdown()
