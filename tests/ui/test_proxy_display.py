@@ -30,18 +30,25 @@ def take(tmp_path):
     return p, frames
 
 
-def test_a_proxy_is_drawn_over_the_originals_pixels_until_zoomed_in(make_window, take, qtbot):
-    p, frames = take
+def _window_with_proxy(make_window, p, qtbot):
+    """The window on the take once its proxy is written, its camera view showing the
+    image at most at half size (so playback draws the proxy)."""
     w = make_window(p)
     w.show()
     w.resize(900, 700)
-    frames_src = w.context.frames
-    qtbot.waitUntil(lambda: frames_src.stats()["proxies"] == 1, timeout=30000)
+    qtbot.waitUntil(lambda: w.context.frames.stats()["proxies"] == 1, timeout=30000)
     view = next(v for v in w.context.shell.all_views() if v.kind == "sensor")
     view.fit()
-    if view.image_scale() > 0.5:  # make the view show the image at most at half size
+    if view.image_scale() > 0.5:
         view.vb.setRange(QRectF(-0.5, -0.5, 3 * W, 3 * H), padding=0)
     assert view.image_scale() <= 0.5
+    return w, view
+
+
+def test_a_proxy_is_drawn_over_the_originals_pixels_until_zoomed_in(make_window, take, qtbot):
+    p, frames = take
+    w, view = _window_with_proxy(make_window, p, qtbot)
+    frames_src = w.context.frames
     frames_src.set_playing(60.0)  # what View > Play does first
     # (frames beyond the originals read ahead at opening: a cached original is shown
     # rather than its proxy)
@@ -92,15 +99,7 @@ def test_stopping_playback_shows_the_original_and_redraws_only_proxy_views(
     """View > Play, then stop: a view left on a proxy frame turns to the original; a
     view that already shows the original at the current frame is not drawn again."""
     p, frames = take
-    w = make_window(p)
-    w.show()
-    w.resize(900, 700)
-    frames_src = w.context.frames
-    qtbot.waitUntil(lambda: frames_src.stats()["proxies"] == 1, timeout=30000)
-    view = next(v for v in w.context.shell.all_views() if v.kind == "sensor")
-    view.fit()
-    if view.image_scale() > 0.5:
-        view.vb.setRange(QRectF(-0.5, -0.5, 3 * W, 3 * H), padding=0)
+    w, view = _window_with_proxy(make_window, p, qtbot)
     playback = w.context.playback
     playback.toggle(True)
     playback.timer.stop()  # playing, held on one frame (the clip is 0.7 s long)
