@@ -663,11 +663,9 @@ class FrameService(TakeFrames):
         behind the frames a view, a job or playback needs).
 
         Returns None, without decoding, when a read-ahead frame was superseded before
-        it got its slot (a view request or a job for ``camera`` came meanwhile, which
-        calls the wait off): a jump would otherwise wait for the slot and then a stale
-        frame's decode, ~20 ms of a core at 1280x720, before the camera turned to it
-        (headless jumps with read-ahead: 120 ms median against 51 ms without
-        read-ahead; in the window up to 150 ms more in the slot queue)."""
+        it got its slot (a view request or a job for ``camera`` calls the wait off): a
+        jump would otherwise wait for the slot, then for a stale frame's decode (~20 ms
+        of a core at 1280x720), before the camera turned to it (docs/benchmarks.md)."""
         state = self._cams[camera]
         wait = None
         if not urgent:
