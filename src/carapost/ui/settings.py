@@ -110,9 +110,10 @@ FRAME_PREFERENCES: tuple[Preference, ...] = (
                "Playback Proxies writes them on request). Display only; deleting them "
                "loses nothing."),
     Preference("start_detector_after_import", "Start Blob Detector When a Take Opens", True,
-               "Start the blob detector's two worker processes in the background when a "
-               "take with images opens, so the first Detect Blobs does not wait for them "
-               "(about 250 MB while they run; they stop after two minutes without work)."),
+               "Load the blob detector when the window opens and start its two worker "
+               "processes in the background when a take with images opens, so the first "
+               "Detect Blobs does not wait for them (about 250 MB while they run; they "
+               "stop after two minutes without work)."),
 )
 _PREFERENCE_BY_KEY = {p.key: p for p in PREFERENCES + FRAME_PREFERENCES}
 
