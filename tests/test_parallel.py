@@ -157,7 +157,7 @@ from carapost import parallel
 if __name__ == "__main__":
     pool = parallel.ProcessPool(preload=["numpy"], idle_s=None)
     assert fs._forkserver._forkserver_pid is None
-    assert pool.start_server() is True
+    assert parallel.start_forkserver(["numpy"]) is True
     server = fs._forkserver._forkserver_pid
     os.kill(server, 0)  # launched, and alive
     # the workers come from that forkserver: their parent is it
@@ -169,8 +169,8 @@ if __name__ == "__main__":
 @pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(),
                     reason="the forkserver is Linux's")
 def test_start_server_launches_the_forkserver_the_workers_come_from(tmp_path):
-    """`ProcessPool.start_server` launches the forkserver before any batch (a fresh
-    program: the forkserver is one per program), and the pool's workers are forked
+    """`start_forkserver` launches the forkserver before any batch (a fresh program:
+    the forkserver is one per program), and a pool with that preload forks its workers
     from it."""
     import subprocess
     import sys

@@ -214,21 +214,12 @@ class ProcessPool:
                 self._executor.shutdown(wait=False, cancel_futures=True)
                 self._executor = None
             if self._executor is None:
-                ctx = self._context()
+                ctx = _context(self._preload)
                 self._executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                                      initializer=_init_worker,
                                                      initargs=(self._initializer,))
                 self._workers = workers
             return self._executor
-
-    def _context(self) -> Any:
-        """The multiprocessing context of the workers: the forkserver with this pool's
-        preload (Linux), else spawn."""
-        return _context(self._preload)
-
-    def start_server(self) -> bool:
-        """`start_forkserver` with this pool's ``preload``."""
-        return start_forkserver(self._preload)
 
     def start(self, workers: int) -> threading.Thread:
         """Start ``workers`` processes in the background (a warm start), so that the
