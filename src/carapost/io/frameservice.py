@@ -107,6 +107,11 @@ class _Camera:
         self.thread: threading.Thread | None = None
         self.slot_wait: SlotWait | None = None  # its read-ahead's wait for a slot
 
+    @property
+    def asked(self) -> bool:
+        """A view request or a job waits: read-ahead gives way to it."""
+        return self.wanted is not None or bool(self.jobs)
+
 
 class FrameService(TakeFrames):
     """Images of every camera of a take for a window and its jobs.
@@ -560,7 +565,7 @@ class FrameService(TakeFrames):
             if kind == "job":
                 return "go"
             if kind == "ahead":
-                return "stop" if state.wanted is not None or state.jobs else "go"
+                return "stop" if state.asked else "go"
             if kind == "play":
                 return "stop" if state.jobs else "go"
             wanted = state.wanted
@@ -659,21 +664,17 @@ class FrameService(TakeFrames):
 
     def _read(self, src: VideoSource, index: int, camera: int, *,
               urgent: bool) -> NDArray[np.uint8] | None:
-        """One frame of ``src`` in a decode slot (`DecodeSlots`; read-ahead waits
-        behind the frames a view, a job or playback needs).
-
-        Returns None, without decoding, when a read-ahead frame was superseded before
-        it got its slot (a view request or a job for ``camera`` calls the wait off): a
-        jump would otherwise wait for the slot, then for a stale frame's decode (~20 ms
-        of a core at 1280x720), before the camera turned to it (docs/benchmarks.md)."""
+        """One frame of ``src`` in a decode slot (`DecodeSlots`: read-ahead waits behind
+        a view's, a job's or playback's frames); None, without decoding, for read-ahead
+        superseded before it got its slot (`request` and `get` call its wait off), which
+        a jump would otherwise wait for (docs/benchmarks.md, fourteenth session)."""
         state = self._cams[camera]
         wait = None
         if not urgent:
-            wait = state.slot_wait = SlotWait()
-            with self._cond:
-                if self._closed or state.wanted is not None or state.jobs:
-                    state.slot_wait = None
+            with self._cond:  # where `request` and `get` look for the wait to call off
+                if self._closed or state.asked:
                     return None
+                wait = state.slot_wait = SlotWait()
         try:
             if not self._slots.acquire(urgent, wait):
                 return None
@@ -682,7 +683,7 @@ class FrameService(TakeFrames):
         try:
             if wait is not None:
                 with self._cond:
-                    if self._closed or state.wanted is not None or state.jobs:
+                    if self._closed or state.asked:
                         return None
             return src.read(index)
         finally:
