@@ -25,6 +25,20 @@ log = logging.getLogger("carapost.ui")
 __all__ = ["start_detector_processes", "start_detector_server"]
 
 
+def _in_background(name: str, what: str, work) -> threading.Thread:
+    """Run ``work()`` on a daemon thread named ``name`` (returns the thread at once); a
+    failure is only logged: the detector reports real problems when it is used."""
+    def run() -> None:
+        try:
+            work()
+        except Exception:
+            log.debug("%s failed", what, exc_info=True)
+
+    thread = threading.Thread(target=run, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
 def start_detector_processes(workers: int = 2) -> threading.Thread:
     """Import the detector and start its ``workers`` processes on a daemon thread.
 
@@ -32,16 +46,12 @@ def start_detector_processes(workers: int = 2) -> threading.Thread:
     Python work that would otherwise stall the GUI thread.
     """
     def work() -> None:
-        try:
-            from carapost.algorithms.blobs import start_workers
+        from carapost.algorithms.blobs import start_workers
 
-            start_workers(workers)
-        except Exception:  # the detector reports real problems when it is used
-            log.debug("starting the blob detector processes failed", exc_info=True)
+        start_workers(workers)
 
-    thread = threading.Thread(target=work, name="carapost-detector-start", daemon=True)
-    thread.start()
-    return thread
+    return _in_background("carapost-detector-start",
+                          "starting the blob detector processes", work)
 
 
 def start_detector_server() -> threading.Thread:
@@ -49,13 +59,9 @@ def start_detector_server() -> threading.Thread:
     the thread, for tests). Nothing of the detector is imported into the window's
     process: the forkserver imports it in its own."""
     def work() -> None:
-        try:
-            from carapost.algorithms.blobs import start_server
+        from carapost.algorithms.blobs import start_server
 
-            start_server()
-        except Exception:  # the detector reports real problems when it is used
-            log.debug("starting the blob detector's forkserver failed", exc_info=True)
+        start_server()
 
-    thread = threading.Thread(target=work, name="carapost-detector-server", daemon=True)
-    thread.start()
-    return thread
+    return _in_background("carapost-detector-server",
+                          "starting the blob detector's forkserver", work)
