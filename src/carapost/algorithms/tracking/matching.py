@@ -44,6 +44,9 @@ from carapost.algorithms.triangulation import TriangulationParameters, triangula
 #: motion are left out of a point's 3D prediction (wrong blobs, not deformation: on the
 #: fast preset's truth the largest deviation is 0.6 spacing, the 99.9th percentile 0.4).
 _OUTLIER_SHARE = 0.75
+#: Judged neighbours a point needs for its own neighbourhood's prediction error to gate
+#: its single-sensor depth; with fewer, the frame's median is used.
+_LOCAL_TYPICAL_MIN = 3
 
 #: Candidate detections per point in the wide region vote (:meth:`FrameMatcher._wide_vote`).
 _WIDE_CANDIDATES = 12
@@ -663,6 +666,17 @@ class FrameMatcher:
         # how well neighbours predict points in this frame (mm); single-sensor depth is
         # only as good as that
         typical = float(np.median(err3[judged])) if judged.any() else np.inf
+        # ... and around each point: while the jaw moves, the mouth's points are predicted
+        # worse than the brow's or the cheeks', so a frame-wide figure would refuse (or
+        # admit) every single-sensor point of the frame alike
+        near = np.full(Pf_all + 1, np.nan)
+        near[fi[judged]] = err3[judged]
+        around = near[self.nb[fi]]  # (n, k)
+        n_around = np.isfinite(around).sum(1)
+        with np.errstate(all="ignore"):
+            local = np.where(n_around >= _LOCAL_TYPICAL_MIN,
+                             np.nanmedian(np.where(n_around[:, None] > 0, around, 0.0), 1),
+                             typical)
         if p.remove_bad_3d_points:
             # A point whose observation in one camera is much further from the elastic
             # prediction than is usual in this frame probably matched a wrong blob along
@@ -762,7 +776,7 @@ class FrameMatcher:
                 dist = np.linalg.norm(Xs - target, axis=-1)
                 keep = (sup[rows] >= need[rows]) & \
                     (dist <= p.single_sensor_tracking_threshold) & (s > 0) & \
-                    (typical <= p.single_sensor_tracking_threshold)
+                    (local[rows] <= p.single_sensor_tracking_threshold)
                 positions[f[rows[keep]]] = Xs[keep]
                 recon[f[rows[keep]]] = RECON_SINGLE_SENSOR
                 residual[f[rows[keep]]] = dist[keep]
