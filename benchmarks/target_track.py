@@ -7,7 +7,11 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
 
 - per case (a rendered synthetic take: ``speech``; ``fast``; ``noisy`` = speech with
   noise 5 and motion blur; ``heldout`` = the rom preset on rig variant 7, never used for
-  tuning): every face marker visible in all cameras throughout, one keyframe from the
+  tuning; ``heldout_speech`` = speech seed 11, also held out; ``speech_skin`` and
+  ``heldout_speech_skin``: the same two speech takes with the skin moving with the
+  markers, ``SynthConfig.skin_motion``, as painted markers' skin does; by default the
+  synthetic skin follows the head only): every face marker visible in all cameras
+  throughout, one keyframe from the
   truth at frame 0, tracked forwards over the take in each camera.
   ``target_track_median_px``, ``target_track_p95_px`` (over every tracked sample of every
   track, Break Threshold 0 so that no track stops on its score), ``target_track_end_drift_px``
@@ -18,8 +22,8 @@ Prints JSON lines (``{"metric", "value", "unit", ...}``):
   Threshold 0; ``tracks_with_none``: runs that tracked no frame), the truth's own motion
   between frames (``truth_step_px_first``: median over tracks from frame 0 to 1, with
   ``max_px``; ``truth_step_px_median`` over every step, with ``p99_px`` and ``max_px``:
-  the speech and fast presets' syllables are near-square waves whose edges move lip
-  markers 15-50 px in one frame; speech seed 0 starts on one), and with the default
+  lip markers move up to 14 px in one frame on the speech preset and up to 38 px on the
+  fast one), and with the default
   Break Threshold (0.9)
   ``target_track_complete_fraction`` and ``target_track_wrong_marker_default``;
   the same markers by ``cv2.calcOpticalFlowPyrLK`` (frame to frame, the best window we
@@ -95,6 +99,10 @@ CASES = {
     # a second held-out take: speech on another seed, never looked at while tuning the
     # matcher (its thresholds were tuned on speech seed 0, fast and blink)
     "heldout_speech": {"preset": "speech", "seed": 11},
+    # the skin under the markers moves with them, as painted markers do (by default the
+    # synthetic skin follows the head only, so a lip marker slides over its skin)
+    "speech_skin": {"preset": "speech", "skin_motion": True},
+    "heldout_speech_skin": {"preset": "speech", "seed": 11, "skin_motion": True},
 }
 
 
