@@ -669,14 +669,16 @@ class FrameMatcher:
         # ... and around each point: while the jaw moves, the mouth's points are predicted
         # worse than the brow's or the cheeks', so a frame-wide figure would refuse (or
         # admit) every single-sensor point of the frame alike
-        near = np.full(Pf_all + 1, np.nan)
+        near = np.full(Pf_all + 1, np.inf)
         near[fi[judged]] = err3[judged]
-        around = near[self.nb[fi]]  # (n, k)
+        around = np.sort(near[self.nb[fi]], axis=1)  # (n, k), the unjudged (inf) last
         n_around = np.isfinite(around).sum(1)
-        with np.errstate(all="ignore"):
-            local = np.where(n_around >= _LOCAL_TYPICAL_MIN,
-                             np.nanmedian(np.where(n_around[:, None] > 0, around, 0.0), 1),
-                             typical)
+        # the median of each row's judged neighbours (np.nanmedian costs ten times more,
+        # and this runs for every frame's solve)
+        rows_n = np.arange(len(fi))
+        mid = 0.5 * (around[rows_n, np.maximum((n_around - 1) // 2, 0)]
+                     + around[rows_n, np.maximum(n_around // 2, 0)])
+        local = np.where(n_around >= _LOCAL_TYPICAL_MIN, mid, typical)
         if p.remove_bad_3d_points:
             # A point whose observation in one camera is much further from the elastic
             # prediction than is usual in this frame probably matched a wrong blob along
