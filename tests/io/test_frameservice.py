@@ -313,3 +313,25 @@ def test_idle_decoders_do_not_spin_on_missing_or_short_videos(videos, tmp_path):
         t0 = time.process_time()
         time.sleep(1.0)
         assert time.process_time() - t0 < 0.05  # the decoder threads wait, not spin
+
+
+def test_decoder_threads_started_by_the_launcher_serve_and_close(videos):
+    """The first request of a take hands its decoder threads to the launcher thread
+    (`carapost.io.launcher`; the GUI thread does not wait for them to run): the frame
+    still arrives exact, and a service closed at once after its first request, its
+    threads perhaps not started yet, leaves none behind."""
+    from carapost.io import launcher
+
+    with FrameService(_take(videos, N)) as fs:
+        fs.request(7)
+        threads = [c.thread for c in fs._cams]
+        assert all(t is not None for t in threads)
+        np.testing.assert_array_equal(_wait_for(fs, 7, 0), _sequential(videos[0])[7])
+    assert not any(t.is_alive() for t in threads)
+    for _ in range(20):
+        fs = FrameService(_take(videos, N))
+        fs.request(3)
+        fs.close()
+        assert not any(c.thread.is_alive() for c in fs._cams if c.thread is not None)
+    # a thread never handed to the launcher is reported, not waited for forever
+    assert not launcher.started(threading.Thread(target=lambda: None), timeout=0.05)

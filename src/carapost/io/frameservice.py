@@ -28,10 +28,8 @@ decoded images, bounded in megabytes) with what a window and its jobs need:
   Tracker, patch tracking) queues the frame on that camera's thread and waits for it;
   the other cameras of the same frame are queued too, so a frame of four cameras
   decodes on all cores. A cached image is returned at once.
-- **Clear failures**: a camera whose video is missing, unreadable or shorter than the
-  take yields blank images and `message(frame, camera)` says why (the views show it).
-
-Nothing here imports Qt; `carapost.ui.frames` adapts ``on_ready`` to a queued signal.
+- **Clear failures**: a missing, unreadable or short video yields blank images and
+  `message(frame, camera)` says why. No Qt here: `carapost.ui.frames` adapts ``on_ready``.
 """
 
 from __future__ import annotations
@@ -49,6 +47,7 @@ from numpy.typing import NDArray
 
 from carapost.io.decode_slots import DecodeSlots, SlotWait
 from carapost.io.errors import CaraFileError
+from carapost.io.launcher import launch, started
 from carapost.io.lockstep import PlaySchedule
 from carapost.io.video import ReadyCallback, TakeFrames, VideoSource
 
@@ -419,7 +418,7 @@ class FrameService(TakeFrames):
             name = f"carapost-decode-{self.take.cameras[camera].name}"
             state.thread = threading.Thread(target=self._run, args=(camera,), name=name,
                                             daemon=True)
-            state.thread.start()
+            launch(state.thread)  # Thread.start would wait for it to run (4-5 ms when busy)
 
     def _ahead_frame(self, camera: int) -> int | None:
         """Next frame to read ahead for ``camera`` (condition held), None when done."""
@@ -718,7 +717,8 @@ class FrameService(TakeFrames):
                 self._slots.cancel(state.slot_wait)
         for state in self._cams:
             if state.thread is not None and state.thread is not threading.current_thread():
-                state.thread.join(timeout=5.0)
+                if started(state.thread):  # launched: join refuses one not yet started
+                    state.thread.join(timeout=5.0)
         self._closed = False  # let TakeFrames.close run its own shutdown
         super().close()
         for proxy in self._proxies.values():

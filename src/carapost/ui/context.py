@@ -29,6 +29,7 @@ from PySide6.QtCore import QObject, QSettings, Qt, QTimer, Signal
 from carapost.commands.recipe import Result
 from carapost.commands.stack import CommandError, CommandStack
 from carapost.io.errors import CaraFileError
+from carapost.io.launcher import start_launcher
 from carapost.model.events import Change
 from carapost.model.project import Project, Selection, new_project
 from carapost.session import Session
@@ -400,6 +401,7 @@ class ActionContext(QObject):
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
         self.proxies = ProxyBuilder(self)
+        start_launcher()  # every take's decoder threads start from it, not from here
         if start_detector(settings):
             # the detector processes' forkserver loads the detector once per program
             # (~1.3 s of a core): now, while no take is open, not beside a take's

@@ -20,6 +20,8 @@ from __future__ import annotations
 import logging
 import threading
 
+from carapost.io.launcher import launch
+
 log = logging.getLogger("carapost.ui")
 
 __all__ = ["start_detector_processes", "start_detector_server"]
@@ -35,7 +37,7 @@ def _in_background(name: str, what: str, work) -> threading.Thread:
             log.debug("%s failed", what, exc_info=True)
 
     thread = threading.Thread(target=run, name=name, daemon=True)
-    thread.start()
+    launch(thread)  # a take's opening does not wait for the thread to run
     return thread
 
 
