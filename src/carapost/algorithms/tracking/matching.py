@@ -44,9 +44,25 @@ from carapost.algorithms.triangulation import TriangulationParameters, triangula
 #: motion are left out of a point's 3D prediction (wrong blobs, not deformation: on the
 #: fast preset's truth the largest deviation is 0.6 spacing, the 99.9th percentile 0.4).
 _OUTLIER_SHARE = 0.75
-#: Judged neighbours a point needs for its own neighbourhood's prediction error to gate
-#: its single-sensor depth; with fewer, the frame's median is used.
+#: Judged neighbours a point needs for its own neighbourhood's error to gate its
+#: single-sensor depth (`_neighbourhood_error`).
 _LOCAL_TYPICAL_MIN = 3
+
+
+def _neighbourhood_error(near: NDArray[np.float64], nb: NDArray[np.intp],
+                         frame_median: float) -> NDArray[np.float64]:
+    """Median leave-one-out error (mm) of each point's judged neighbours (``frame_median``
+    with fewer than `_LOCAL_TYPICAL_MIN`): while the jaw moves, the mouth's points are
+    predicted worse than the brow's. ``near`` (P + 1,): errors, inf where not judged;
+    ``nb`` (n, k): neighbour indices. Sorted, since `np.nanmedian` costs ten times more.
+    """
+    around = np.sort(near[nb], axis=1)  # the unjudged (inf) last
+    n = np.isfinite(around).sum(1)
+    rows = np.arange(len(nb))
+    mid = 0.5 * (around[rows, np.maximum((n - 1) // 2, 0)]
+                 + around[rows, np.maximum(n // 2, 0)])
+    return np.where(n >= _LOCAL_TYPICAL_MIN, mid, frame_median)
+
 
 #: Candidate detections per point in the wide region vote (:meth:`FrameMatcher._wide_vote`).
 _WIDE_CANDIDATES = 12
@@ -663,22 +679,11 @@ class FrameMatcher:
         err3 = np.linalg.norm(X - Xel, axis=-1)
         need = self.need[fi]
         judged = np.isfinite(X).all(-1) & (sup >= need)
-        # how well neighbours predict points in this frame (mm); single-sensor depth is
-        # only as good as that
+        # how well neighbours predict points in this frame and around each point (mm),
+        # before any is solved again below; single-sensor depth is only as good as that
         typical = float(np.median(err3[judged])) if judged.any() else np.inf
-        # ... and around each point: while the jaw moves, the mouth's points are predicted
-        # worse than the brow's or the cheeks', so a frame-wide figure would refuse (or
-        # admit) every single-sensor point of the frame alike
         near = np.full(Pf_all + 1, np.inf)
         near[fi[judged]] = err3[judged]
-        around = np.sort(near[self.nb[fi]], axis=1)  # (n, k), the unjudged (inf) last
-        n_around = np.isfinite(around).sum(1)
-        # the median of each row's judged neighbours (np.nanmedian costs ten times more,
-        # and this runs for every frame's solve)
-        rows_n = np.arange(len(fi))
-        mid = 0.5 * (around[rows_n, np.maximum((n_around - 1) // 2, 0)]
-                     + around[rows_n, np.maximum(n_around // 2, 0)])
-        local = np.where(n_around >= _LOCAL_TYPICAL_MIN, mid, typical)
         if p.remove_bad_3d_points:
             # A point whose observation in one camera is much further from the elastic
             # prediction than is usual in this frame probably matched a wrong blob along
@@ -778,7 +783,8 @@ class FrameMatcher:
                 dist = np.linalg.norm(Xs - target, axis=-1)
                 keep = (sup[rows] >= need[rows]) & \
                     (dist <= p.single_sensor_tracking_threshold) & (s > 0) & \
-                    (local[rows] <= p.single_sensor_tracking_threshold)
+                    (_neighbourhood_error(near, self.nb[fi[rows]], typical)
+                     <= p.single_sensor_tracking_threshold)
                 positions[f[rows[keep]]] = Xs[keep]
                 recon[f[rows[keep]]] = RECON_SINGLE_SENSOR
                 residual[f[rows[keep]]] = dist[keep]
