@@ -31,8 +31,9 @@ from carapost.synth import SynthConfig, build_scene
 
 
 @lru_cache(maxsize=8)
-def scene_of(preset: str, frames: int, seed: int = 1, markers: str = "standard"):
-    return build_scene(SynthConfig(preset=preset, markers=markers, frames=frames, seed=seed))
+def scene_of(preset: str, frames: int, seed: int = 1, markers: str = "standard", **config):
+    return build_scene(SynthConfig(preset=preset, markers=markers, frames=frames, seed=seed,
+                                   **config))
 
 
 def synth_detections(scene, seed: int = 0, noise: float = 0.15, clutter: int = 10,
@@ -632,8 +633,7 @@ def test_region_moving_further_than_the_search_radius_keeps_identities():
     to the plain radius, the chin markers slip onto their neighbours' blobs (3 swaps and
     RMSE 0.51 mm on this take; the round-2 tracker: 0.90 coverage, 2 swaps, RMSE 2.7 mm
     on a take like it)."""
-    scene = build_scene(SynthConfig(preset="fast", markers="standard", frames=40, seed=2,
-                                    fps=30.0))
+    scene = scene_of("fast", 40, seed=2, fps=30.0)
     dets = synth_detections(scene)
     start, stop = 10, 39
     params = TrackingParameters()

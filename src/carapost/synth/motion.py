@@ -111,7 +111,7 @@ class ExpressionMotion:
     ----------
     preset : str
         ``"rom"`` (neutral start, then every mode in turn, then combinations),
-        ``"speech"`` (the jaw and lips open and close once per syllable, 2.5-5.5 per
+        ``"speech"`` (the jaw and lips open and close once per syllable, 3-7 per
         second; occasional smile/brow, blinks),
         ``"fast"`` (speech at three times the speed) or ``"blink"`` (calm face, frequent
         blinks).
