@@ -90,6 +90,38 @@ def test_gaps_and_shared_error():
     assert np.array_equal(X2, X, equal_nan=True)
 
 
+def test_a_wrong_depth_follows_the_others_and_says_so():
+    # one-caddy depth noise (0.15 mm) and, in 12 samples, a wrong match's depth error of
+    # 1.5-2.5 mm (a blob of a neighbour along the caddy's epipolar line): before, the fit
+    # that includes the sample is pulled towards it and the gain leaves most of it
+    rng = np.random.default_rng(4)
+    truth = _tracks(120, rng, speed=2.0)
+    cov, noise = _depth_noise(*truth.shape[:2], rng)
+    X = truth + noise
+    frames = rng.choice(np.arange(10, 110), 12, replace=False)
+    points = rng.integers(0, truth.shape[1], 12)
+    X[frames, points, 2] += rng.uniform(1.5, 2.5, 12) * rng.choice([-1, 1], 12)
+    Xs, cov_s = smooth_along_uncertainty(X, cov)
+    Xo, _ = smooth_along_uncertainty(X, cov, outlier_sigmas=0)
+    err = np.linalg.norm(Xs - truth, axis=-1)
+    before = np.linalg.norm(Xo - truth, axis=-1)[frames, points]
+    assert np.median(err[frames, points]) < 0.2 and err[frames, points].max() < 0.35
+    assert np.median(before) > 0.4
+    # their sigma grows to cover what is left; the rest is as without the check
+    sig = np.sqrt(np.einsum("...ii->...", cov_s))
+    assert (err[frames, points] < 3 * sig[frames, points]).all()
+    assert _rmse(Xs, truth) < 0.8 * _rmse(Xo, truth)
+    ok = np.ones(err.shape, bool)
+    for f, p in zip(frames, points, strict=True):
+        ok[max(f - 8, 0):f + 9, p] = False  # the fits and the motion allowance it spoilt
+    changed = np.abs(Xs - Xo).max(-1)[ok] > 1e-9
+    assert changed.mean() < 0.01
+    # right samples are seldom taken for outliers
+    Xc, _ = smooth_along_uncertainty(truth + noise, cov)
+    Xc0, _ = smooth_along_uncertainty(truth + noise, cov, outlier_sigmas=0)
+    assert (np.abs(Xc - Xc0).max(-1) > 1e-9).mean() < 0.01
+
+
 def test_sample_covariance_matches_a_monte_carlo():
     from carapost.algorithms.camera import CameraIntrinsics
     from carapost.algorithms.triangulation import TriangulationParameters, triangulate

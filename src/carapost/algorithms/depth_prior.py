@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.uncertainty import observation_information
 
-__all__ = ["DEPTH_SMOOTHING_FRAMES", "MOTION_TAU_MM", "sample_covariance",
+__all__ = ["DEPTH_SMOOTHING_FRAMES", "MOTION_TAU_MM", "OUTLIER_SIGMAS", "sample_covariance",
            "smooth_along_uncertainty"]
 
 #: Window (frames) of the local quadratic of the depth prior (see docs/algorithms.md).
@@ -38,6 +38,11 @@ DEPTH_SMOOTHING_FRAMES = 9
 #: Least deviation (mm) of real marker motion from a local quadratic over the window
 #: assumed (the measured one, across the image, is added).
 MOTION_TAU_MM = 0.03
+
+#: A sample further than this many standard deviations (Mahalanobis, its own
+#: covariance with the fit's and the motion's) from the fit of its neighbours in time is
+#: an outlier of the depth prior (0: none).
+OUTLIER_SIGMAS = 4.0
 
 
 def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
@@ -103,7 +108,8 @@ def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     return out
 
 
-def _local_quadratic(X: NDArray[np.float64], half: int, min_support: int
+def _local_quadratic(X: NDArray[np.float64], half: int, min_support: int,
+                     centre: NDArray[np.bool_] | None = None
                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Value at each frame of a least-squares quadratic over ``2 half + 1`` frames.
 
@@ -111,6 +117,8 @@ def _local_quadratic(X: NDArray[np.float64], half: int, min_support: int
     support instead of stopping the fit. Returns the fit (NaN where fewer than
     ``min_support`` samples, or not on both sides, support it) and the variance factor
     of the fit's value for unit-variance white samples (the centre weight, ``c_0``).
+    ``centre`` (F, P): samples left out (NaN in ``X``) whose frame is fitted all the
+    same, from the others (``c_0`` 0 there).
     """
     from scipy.ndimage import correlate1d
 
@@ -125,14 +133,18 @@ def _local_quadratic(X: NDArray[np.float64], half: int, min_support: int
     left = correlate1d(w, (j < 0).astype(np.float64), axis=0, mode="constant")
     right = correlate1d(w, (j > 0).astype(np.float64), axis=0, mode="constant")
     ok = (S[0] >= min_support) & (left >= 1) & (right >= 1) & (w > 0)
+    if centre is not None:
+        # frames whose own sample is left out of the fit (weight 0) are fitted as well
+        ok |= (S[0] >= min_support) & (left >= 1) & (right >= 1) & centre
     fit = np.full(X.shape, np.nan)
     c0 = np.full(X.shape[:2], np.nan)
     if ok.any():
         Mi = np.linalg.inv(M[ok])  # (N, 3, 3)
         rhs = np.stack([T[0][ok], T[1][ok], T[2][ok]], -2)  # (N, 3, 3): rows = powers
         fit[ok] = np.einsum("nk,nkd->nd", Mi[:, 0], rhs)
-        # the weight of the centre sample in the fit: (M^-1)_0. . (1, 0, 0)
-        c0[ok] = Mi[:, 0, 0]
+        # the weight of the centre sample in the fit: (M^-1)_0. . (1, 0, 0), times its
+        # own weight (0 where it is left out)
+        c0[ok] = Mi[:, 0, 0] * w[ok]
     return fit, c0
 
 
@@ -149,7 +161,8 @@ def _window_mean(v: NDArray[np.float64], half: int) -> NDArray[np.float64]:
 
 def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
                              window: int = DEPTH_SMOOTHING_FRAMES,
-                             tau_mm: float = MOTION_TAU_MM, shared: float = 0.0
+                             tau_mm: float = MOTION_TAU_MM, shared: float = 0.0,
+                             outlier_sigmas: float = OUTLIER_SIGMAS
                              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Move each sample towards its track's local quadratic where it is poorly seen.
 
@@ -169,6 +182,13 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
         The error that neighbouring frames share (camera pose error that changes slowly),
         as a multiple of ``cov``: no fit over time removes it, so it is added to the
         returned covariance unchanged.
+    outlier_sigmas : float
+        A sample whose leave-one-out distance to the fit of the others along its
+        worst-seen direction is more than this many standard deviations (its variance
+        there divided by ``1 - c_0``, plus ``tau^2`` and the sample's own departure
+        from the fit across the image) is left out of its neighbours' fits and its
+        variance along that direction is scaled up to that distance, so its depth
+        follows the fit of the others; 0 turns this off.
 
     Returns
     -------
@@ -205,24 +225,84 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
     out_C = Cm * (1.0 + float(shared))
     if not use.any():
         return out_X, out_C
-    lam, U = np.linalg.eigh(Cm[use])  # (N, 3), (N, 3, 3): columns are directions
-    lam = np.maximum(lam, 0.0)
+    F, P = Xm.shape[:2]
+    lam_all = np.full((F, P, 3), np.nan)
+    U_all = np.full((F, P, 3, 3), np.nan)
+    ok_cov = np.isfinite(Cm).all((-1, -2))
+    lam_all[ok_cov], U_all[ok_cov] = np.linalg.eigh(Cm[ok_cov])
+    lam_all = np.maximum(lam_all, 0.0)
+    tau2 = _motion_miss(Xm, fit, c0, lam_all, U_all, use, half, tau_mm)
+    # outliers: a sample whose leave-one-out residual to the fit along its worst-seen
+    # direction is far beyond its variance there, the fit's and the motion's (a wrong
+    # match along a one-caddy depth) is left out of the fit of its neighbours in time
+    # and its variance along that direction is inflated to what it departs by (so its
+    # depth follows the fit, and its sigma says so)
+    out_s = float(outlier_sigmas)
+    flagged = np.zeros((F, P), bool)
+    m2_flag = np.ones((F, P))
+    c_orig = c0.copy()
+    if out_s > 0:
+        for _ in range(3):
+            test = use & ~flagged & (c0 < 1.0)
+            if not test.any():
+                break
+            # along the sample's worst-seen direction only (a wrong match's error lies
+            # along it); the local departure across the image, where the sample is
+            # well seen, is the motion the fit misses at that very frame (the onset of
+            # a fast expression), allowed for as well
+            cz = c0[test]
+            loo = np.einsum("nji,nj->ni", U_all[test],
+                            fit[test] - Xm[test]) / (1.0 - cz)[:, None]
+            across = np.mean(loo[:, :2] ** 2, axis=1)
+            m2 = loo[:, 2] ** 2 / (lam_all[test][:, 2] / (1.0 - cz) + tau2[test] + across)
+            new = np.zeros((F, P), bool)
+            new[test] = m2 > out_s ** 2
+            if not new.any():
+                break
+            m2_flag[new] = m2[new[test]] / out_s ** 2
+            flagged |= new
+            Xf = np.where(flagged[..., None], np.nan, Xm)
+            fit, c0 = _local_quadratic(Xf, half, min_support=5, centre=flagged)
+            use = np.isfinite(fit).all(-1) & ok_cov
+            tau2 = _motion_miss(Xm, fit, c0, lam_all, U_all, use & ~flagged, half, tau_mm)
+    lam = lam_all[use].copy()
+    lam[:, 2] *= np.where(flagged[use], m2_flag[use], 1.0)
+    U = U_all[use]
     d = fit[use] - Xm[use]
     along = np.einsum("nji,nj->ni", U, d)  # components of the step along each direction
     c = c0[use][:, None]
-    # How far the motion departs from the quadratic, measured where the sample is well
-    # seen: across the image the step to the fit is the motion the fit misses plus
-    # noise of variance (1 - c_0) lambda. Averaged over the window and taken as the
-    # same in every direction (fast lips and jaw get a small gain, a still face a
-    # large one).
-    miss = np.full(Xm.shape[:2], np.nan)
-    miss[use] = np.mean(along[:, :2] ** 2 - (1 - c) * lam[:, :2], axis=1)
-    tau2 = float(tau_mm) ** 2 + np.maximum(_window_mean(miss, half), 0.0)[use][:, None]
-    g = lam / (lam + tau2)
+    t2 = tau2[use][:, None]
+    g = lam / (lam + t2)
     out_X[use] = Xm[use] + np.einsum("nij,nj->ni", U, g * along)
     # X' = (1 - g) X + g fit, and the fit weighs X itself by c_0 (the rest of its
-    # variance, c_0 - c_0^2, comes from the other frames)
-    lam_new = (((1 - g + g * c) ** 2 + g ** 2 * (c - c ** 2)) * lam + g ** 2 * tau2
-               + float(shared) * lam)
+    # variance, c_0 - c_0^2, comes from the other frames); a sample left out of its fit
+    # (c_0 0) keeps the other frames' part, c_0 / (1 - c_0) of its own variance before
+    # the fit left it out
+    lam_new = ((1 - g + g * c) ** 2 + g ** 2 * (c - c ** 2)) * lam + g ** 2 * t2 \
+        + float(shared) * lam_all[use]
+    fl = flagged[use]
+    if fl.any():
+        co = c_orig[use][fl][:, None]
+        lam_new[fl] = ((1 - g[fl]) ** 2 * lam[fl] + g[fl] ** 2 * (
+            co / (1 - co) * lam_all[use][fl] + t2[fl]) + float(shared) * lam_all[use][fl])
     out_C[use] = np.einsum("nij,nj,nkj->nik", U, lam_new, U)
     return out_X, out_C
+
+
+def _motion_miss(X: NDArray[np.float64], fit: NDArray[np.float64], c0: NDArray[np.float64],
+                 lam: NDArray[np.float64], U: NDArray[np.float64], use: NDArray[np.bool_],
+                 half: int, tau_mm: float) -> NDArray[np.float64]:
+    """(F, P) variance (mm^2) of the real motion about the local quadratic.
+
+    How far the motion departs from the quadratic, measured where the sample is well
+    seen: across the image the step to the fit is the motion the fit misses plus noise
+    of variance (1 - c_0) lambda. Averaged over the window and taken as the same in
+    every direction (fast lips and jaw get a small gain, a still face a large one);
+    at least ``tau_mm`` squared.
+    """
+    miss = np.full(X.shape[:2], np.nan)
+    if use.any():
+        along = np.einsum("nji,nj->ni", U[use], fit[use] - X[use])
+        c = c0[use][:, None]
+        miss[use] = np.mean(along[:, :2] ** 2 - (1 - c) * lam[use][:, :2], axis=1)
+    return float(tau_mm) ** 2 + np.maximum(np.nan_to_num(_window_mean(miss, half)), 0.0)
