@@ -44,6 +44,10 @@ MOTION_TAU_MM = 0.03
 #: an outlier of the depth prior (0: none).
 OUTLIER_SIGMAS = 4.0
 
+#: ... and its square distance is this many times the mean of the others in its window
+#: (an isolated outlier; a track noisy over many frames has no right neighbours).
+OUTLIER_RATIO = 4.0
+
 
 def sample_covariance(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
                       intr: CameraIntrinsics, noise_px: ArrayLike,
@@ -255,8 +259,14 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
                             fit[test] - Xm[test]) / (1.0 - cz)[:, None]
             across = np.mean(loo[:, :2] ** 2, axis=1)
             m2 = loo[:, 2] ** 2 / (lam_all[test][:, 2] / (1.0 - cz) + tau2[test] + across)
+            # an isolated outlier, not a noisy track: the others in the window must
+            # agree with their fits (a run of biased blobs, one camera then the other,
+            # leaves no right neighbours to follow)
+            m2_all = np.full((F, P), np.nan)
+            m2_all[test] = m2
+            others = _others_mean(m2_all, half)
             new = np.zeros((F, P), bool)
-            new[test] = m2 > out_s ** 2
+            new[test] = (m2 > out_s ** 2) & (m2 > OUTLIER_RATIO * others[test])
             if not new.any():
                 break
             m2_flag[new] = m2[new[test]] / out_s ** 2
@@ -287,6 +297,21 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
             co / (1 - co) * lam_all[use][fl] + t2[fl]) + float(shared) * lam_all[use][fl])
     out_C[use] = np.einsum("nij,nj,nkj->nik", U, lam_new, U)
     return out_X, out_C
+
+
+def _others_mean(v: NDArray[np.float64], half: int) -> NDArray[np.float64]:
+    """Mean of the finite values of ``v`` (F, P) over ``2 half + 1`` frames, each
+    frame's own left out (inf where there is no other)."""
+    from scipy.ndimage import uniform_filter1d
+
+    ok = np.isfinite(v)
+    n = 2 * half + 1
+    tot = uniform_filter1d(np.where(ok, v, 0.0), n, axis=0, mode="constant") * n
+    cnt = np.rint(uniform_filter1d(ok.astype(np.float64), n, axis=0, mode="constant") * n)
+    own = np.where(ok, v, 0.0)
+    k = cnt - ok
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(k > 0, (tot - own) / np.maximum(k, 1), np.inf)
 
 
 def _motion_miss(X: NDArray[np.float64], fit: NDArray[np.float64], c0: NDArray[np.float64],
