@@ -44,8 +44,10 @@ MOTION_TAU_MM = 0.03
 #: an outlier of the depth prior (0: none).
 OUTLIER_SIGMAS = 4.0
 
-#: ... and its square distance is this many times the mean of the others in its window
-#: (an isolated outlier; a track noisy over many frames has no right neighbours).
+#: ... and its square distance is this many times the largest of the others in its
+#: window (an isolated outlier: the others' distances are raised only by its weight in
+#: their fits, a fifth of its error or less; a track off over many frames has no right
+#: neighbours to follow).
 OUTLIER_RATIO = 4.0
 
 
@@ -264,7 +266,7 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
             # leaves no right neighbours to follow)
             m2_all = np.full((F, P), np.nan)
             m2_all[test] = m2
-            others = _others_mean(m2_all, half)
+            others = _others_max(m2_all, half)
             new = np.zeros((F, P), bool)
             new[test] = (m2 > out_s ** 2) & (m2 > OUTLIER_RATIO * others[test])
             if not new.any():
@@ -299,19 +301,15 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
     return out_X, out_C
 
 
-def _others_mean(v: NDArray[np.float64], half: int) -> NDArray[np.float64]:
-    """Mean of the finite values of ``v`` (F, P) over ``2 half + 1`` frames, each
-    frame's own left out (inf where there is no other)."""
-    from scipy.ndimage import uniform_filter1d
+def _others_max(v: NDArray[np.float64], half: int) -> NDArray[np.float64]:
+    """Largest finite value of ``v`` (F, P) over ``2 half + 1`` frames, each frame's own
+    left out (0 where there is no other)."""
+    from scipy.ndimage import maximum_filter
 
-    ok = np.isfinite(v)
-    n = 2 * half + 1
-    tot = uniform_filter1d(np.where(ok, v, 0.0), n, axis=0, mode="constant") * n
-    cnt = np.rint(uniform_filter1d(ok.astype(np.float64), n, axis=0, mode="constant") * n)
-    own = np.where(ok, v, 0.0)
-    k = cnt - ok
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(k > 0, (tot - own) / np.maximum(k, 1), np.inf)
+    foot = np.ones((2 * half + 1, 1), bool)
+    foot[half, 0] = False
+    return maximum_filter(np.where(np.isfinite(v), v, 0.0), footprint=foot,
+                          mode="constant", cval=0.0)
 
 
 def _motion_miss(X: NDArray[np.float64], fit: NDArray[np.float64], c0: NDArray[np.float64],
