@@ -30,16 +30,12 @@ def call_in_child(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     of the same test read without fault), while a file of ours that crashes the
     reader every time still fails the test.
     """
-    for _ in range(2):
+    for _ in range(3):
         try:
             return _call_once(fn, *args, **kwargs)
-        except _ChildDied:
-            continue
-    try:
-        return _call_once(fn, *args, **kwargs)
-    except _ChildDied as exc:
-        raise AssertionError(f"the ufbx reader's child process died ({exc}), three times"
-                             ) from None
+        except _ChildDied as exc:
+            why = exc
+    raise AssertionError(f"the ufbx reader's child process died ({why}), three times")
 
 
 class _ChildDied(Exception):

@@ -232,10 +232,11 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
     if not use.any():
         return out_X, out_C
     F, P = Xm.shape[:2]
+    ok_cov = np.isfinite(Cm).all((-1, -2))
+    # the refits below only take samples away, so every later `use` is within this one
     lam_all = np.full((F, P, 3), np.nan)
     U_all = np.full((F, P, 3, 3), np.nan)
-    ok_cov = np.isfinite(Cm).all((-1, -2))
-    lam_all[ok_cov], U_all[ok_cov] = np.linalg.eigh(Cm[ok_cov])
+    lam_all[use], U_all[use] = np.linalg.eigh(Cm[use])
     lam_all = np.maximum(lam_all, 0.0)
     tau2 = _motion_miss(Xm, fit, c0, lam_all, U_all, use, half, tau_mm)
     # outliers: a sample whose leave-one-out residual to the fit along its worst-seen
@@ -277,7 +278,8 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
             fit, c0 = _local_quadratic(Xf, half, min_support=5, centre=flagged)
             use = np.isfinite(fit).all(-1) & ok_cov
             tau2 = _motion_miss(Xm, fit, c0, lam_all, U_all, use & ~flagged, half, tau_mm)
-    lam = lam_all[use].copy()
+    lam0 = lam_all[use]  # before the inflation
+    lam = lam0.copy()
     lam[:, 2] *= np.where(flagged[use], m2_flag[use], 1.0)
     U = U_all[use]
     d = fit[use] - Xm[use]
@@ -290,13 +292,13 @@ def smooth_along_uncertainty(X: ArrayLike, cov: ArrayLike,
     # variance, c_0 - c_0^2, comes from the other frames); a sample left out of its fit
     # (c_0 0) keeps the other frames' part, c_0 / (1 - c_0) of its own variance before
     # the fit left it out
-    lam_new = ((1 - g + g * c) ** 2 + g ** 2 * (c - c ** 2)) * lam + g ** 2 * t2 \
-        + float(shared) * lam_all[use]
+    lam_new = ((1 - g + g * c) ** 2 + g ** 2 * (c - c ** 2)) * lam + g ** 2 * t2
     fl = flagged[use]
     if fl.any():
         co = c_orig[use][fl][:, None]
-        lam_new[fl] = ((1 - g[fl]) ** 2 * lam[fl] + g[fl] ** 2 * (
-            co / (1 - co) * lam_all[use][fl] + t2[fl]) + float(shared) * lam_all[use][fl])
+        lam_new[fl] = (1 - g[fl]) ** 2 * lam[fl] + g[fl] ** 2 * (co / (1 - co) * lam0[fl]
+                                                                 + t2[fl])
+    lam_new += float(shared) * lam0
     out_C[use] = np.einsum("nij,nj,nkj->nik", U, lam_new, U)
     return out_X, out_C
 
