@@ -10,9 +10,9 @@ the index, so a take is reproducible from it.
 
 Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
 developing the tracker, and `HELD_OUT_VARIANTS`, `HELD_OUT_VARIANTS_2` and
-`HELD_OUT_VARIANTS_3`, takes that are only ever scored (``benchmarks/tracking.py
---variety``) and never used to choose a parameter; the second and third sets were each
-declared before any of their takes was rendered, and scored once, for figures untouched
+`HELD_OUT_VARIANTS_3` and `HELD_OUT_VARIANTS_4`, takes that are only ever scored
+(``benchmarks/tracking.py --variety``) and never used to choose a parameter; the second,
+third and fourth sets were each declared before any of their takes was rendered, and scored once, for figures untouched
 by every earlier round of tuning.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 from carapost.synth.scene import SynthConfig
 
 __all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "HELD_OUT_VARIANTS_3",
-           "TUNING_VARIANTS", "other_rig_config"]
+           "HELD_OUT_VARIANTS_4", "TUNING_VARIANTS", "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
 TUNING_VARIANTS = (1, 2, 3, 4, 5)
@@ -34,6 +34,9 @@ HELD_OUT_VARIANTS_2 = (201, 202, 203, 204)
 #: A third held-out set (blink, fast, speech, dense speech, like 101-104), declared
 #: before any was rendered.
 HELD_OUT_VARIANTS_3 = (301, 302, 303, 304)
+#: A fourth held-out set (same presets), declared after the second and third had been
+#: looked at while developing the depth prior's outlier step, before any was rendered.
+HELD_OUT_VARIANTS_4 = (401, 402, 403, 404)
 
 _PRESETS = ("speech", "blink", "fast", "speech")
 
