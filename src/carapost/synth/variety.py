@@ -9,12 +9,12 @@ drawn rig variant (camera aims, lenses, brim layout). Every random choice comes 
 the index, so a take is reproducible from it.
 
 Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
-developing the tracker, and `HELD_OUT_VARIANTS`, `HELD_OUT_VARIANTS_2` and
-`HELD_OUT_VARIANTS_3`, `HELD_OUT_VARIANTS_4` and `HELD_OUT_VARIANTS_5`, takes that are
-only ever scored (``benchmarks/tracking.py --variety``) and never used to choose a
-parameter; the second to fifth sets were each declared before any of their takes was
-rendered, and scored once, for figures untouched
-by every earlier round of tuning.
+developing the tracker, and `HELD_OUT_VARIANTS` and `HELD_OUT_VARIANTS_2` to
+`HELD_OUT_VARIANTS_5`, takes that are only ever scored (``benchmarks/tracking.py
+--variety``) and never used to choose a parameter; the second to fifth sets were each
+declared before any of their takes was rendered, and scored once, for figures untouched
+by every earlier round of tuning (which sets have since been looked at is said beside
+each).
 """
 
 from __future__ import annotations
