@@ -40,10 +40,13 @@ from carapost.algorithms.tracking.records import (
 )
 from carapost.algorithms.tracking.sequence import Spawner, track
 from carapost.algorithms.tracking.time_checks import (
+    PAIR_TARGET_FACTOR,
     detach_observations,
     place_single_sensor,
     reject_by_motion,
+    reject_inconsistent_pairs,
     reject_merged_blobs,
+    reject_unanchored_single_sensor,
     reject_wrong_samples,
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
@@ -449,13 +452,15 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if window >= 5 and len(R) >= 5 and tri.any():
         R, t = smooth_camera_poses(R, t, window, keep=fixed)
         redo = tri & ~fixed[:, None]
-        if target_px > 0 and intr.n_cameras > 2:
+        target = 0.0
+        if target_px > 0:
             # a wrong match stands out against the take's own centroid noise: the target
             # is 6 times it (at least 0.5 px, at most the per-frame tracker's)
             X0 = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
             s0 = float(np.median(noise_from_residuals(
                 np.where(tri[..., None, None], obs, np.nan), X0, R, t, intr)))
             target = min(target_px, max(0.5, 6.0 * s0))
+        if target > 0 and intr.n_cameras > 2:
             X, res, used = _resolve_rejecting(obs, R, t, intr, redo, target)
             ok = redo & np.isfinite(X).all(-1)
             drop = ok[..., None] & np.isfinite(obs).all(-1) & ~used
@@ -466,11 +471,17 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             ok = redo & np.isfinite(X).all(-1)
         o["positions"][ok] = X[ok].astype(o["positions"].dtype)
         o["residual"][ok] = res[ok].astype(o["residual"].dtype)
-        # wrong observations the motion contradicts, then single-sensor samples from
-        # both sides (docs/algorithms.md, "Wrong observations and single-sensor depth")
+        # two-camera samples whose rays miss each other, wrong observations the motion
+        # contradicts, single-sensor samples no other camera ever checked, then
+        # single-sensor samples from both sides (docs/algorithms.md, "Wrong
+        # observations and single-sensor depth")
+        reject_inconsistent_pairs(o, R, t, face, intr, fixed, PAIR_TARGET_FACTOR * target,
+                                  single_sensor=single_sensor)
+        tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
         Xt = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
         nb = neighbours(Xt, tri)
         reject_by_motion(o, R, t, face, intr, fixed, nb, single_sensor=single_sensor)
+        reject_unanchored_single_sensor(o, face, fixed)
         single_sigma = place_single_sensor(o, R, t, face, intr, fixed, nb,
                                            threshold_mm=single_threshold_mm)
         tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]

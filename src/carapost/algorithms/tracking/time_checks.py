@@ -10,19 +10,28 @@ before the cameras are fitted over time and the face samples re-solved with them
 
 The others run after that re-solve:
 
-1. :func:`reject_by_motion`: an observation far from where the point's neighbours in
+1. :func:`reject_inconsistent_pairs`: a sample of two cameras whose rays miss each
+   other by far more than the take's 2D noise explains has a wrong observation (with
+   two cameras the triangulation's outlier rejection cannot tell which): the one whose
+   camera observes the point least in the triangulated samples around it is removed.
+2. :func:`reject_by_motion`: an observation far from where the point's neighbours in
    time (moved with its neighbours on the face) put it, while the sample's other
    observations agree, is removed (:mod:`carapost.algorithms.temporal_check`); the
    sample is solved again from the rest, or becomes a single-sensor sample when one
    camera is left.
-2. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
+3. :func:`reject_unanchored_single_sensor`: a single-sensor sample whose camera's 2D
+   track of the point (its observations in consecutive frames, gaps up to `MAX_GAP`
+   bridged) never takes part in a triangulated sample is removed: nothing but the
+   motion's prediction ever checked that blob (on other renderers' takes, a dark
+   feature beside the marker in the caddy that does not see it: 1.2 mm median error).
+4. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
    (with the fitted cameras) nearest the prediction from the point's triangulated
    samples on both sides (:mod:`carapost.algorithms.single_sensor`), with a sigma
    measured on the take for its distance in time to them; as in the per-frame
    tracker, a sample whose ray passes further than the Single Sensor Tracking
    Threshold from the prediction is not kept, nor one whose prediction is expected
    to be wrong by more than it (its sigma).
-3. :func:`reject_wrong_samples`, after the depth priors (where a one-caddy sample's
+5. :func:`reject_wrong_samples`, after the depth priors (where a one-caddy sample's
    depth noise no longer hides a wrong one): a triangulated sample whose observations
    are all on a wrong blob (consistent across its cameras, so its residual is small),
    which its neighbours in time on both sides contradict as a whole, is removed
@@ -40,7 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from carapost.algorithms.camera import CameraIntrinsics
+from carapost.algorithms.camera import CameraIntrinsics, project
 from carapost.algorithms.codes import (
     POINT_FILLS,
     RECON_NONE,
@@ -60,8 +69,10 @@ from carapost.algorithms.temporal_check import (
 )
 from carapost.algorithms.uncertainty import retriangulate
 
-__all__ = ["MERGED_WIDTH_RATIO", "detach_observations", "merged_blobs", "place_single_sensor",
-           "reject_by_motion", "reject_merged_blobs", "reject_wrong_samples"]
+__all__ = ["MERGED_WIDTH_RATIO", "PAIR_TARGET_FACTOR", "detach_observations", "merged_blobs",
+           "place_single_sensor", "reject_by_motion", "reject_inconsistent_pairs",
+           "reject_merged_blobs", "reject_unanchored_single_sensor", "reject_wrong_samples",
+           "unanchored_single_sensor"]
 
 #: An observation's blob whose semi-minor axis is more than this many times the median
 #: of the same point's blobs in the same camera over the frames around it is taken for
@@ -79,6 +90,16 @@ _WIDTH_SUPPORT = 5
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
 MAX_GAP = 2
+
+#: A two-camera sample is inconsistent when the RMS reprojection error of its
+#: triangulation is above this many times the outlier target of the re-solve (a wrong
+#: blob ``e`` px off across the epipolar line leaves ``e / 2`` in each camera; on the
+#: takes of other renderers every right cross-caddy pair was below 1.5 px, every wrong
+#: one above it, docs/benchmarks.md).
+PAIR_TARGET_FACTOR = 2.0
+
+#: Half-window (frames) over which a camera's support of a point is counted.
+_SUPPORT_HALF = 10
 
 #: Gap lengths (frames) at which the single-sensor prediction's error is measured.
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
@@ -257,6 +278,156 @@ def reject_by_motion(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     obs[flag] = np.nan
     _solve_again(o, obs, flag.any(-1), R, t, intr, single_sensor)
     return n
+
+
+def reject_inconsistent_pairs(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
+                              face: NDArray[np.bool_], intr: CameraIntrinsics,
+                              fixed: NDArray[np.bool_], target_px: float, *,
+                              single_sensor: bool = True,
+                              half: int = _SUPPORT_HALF) -> NDArray[np.bool_]:
+    """Remove a wrong observation from the two-camera samples whose rays do not meet.
+
+    A triangulated face sample seen by exactly two cameras whose RMS reprojection error
+    is above ``target_px`` has one wrong observation, and two cameras cannot say which.
+    The point's other samples can: the observation removed is the one whose camera
+    observes the point in fewer of the triangulated samples within ``half`` frames
+    either side (a blob in a camera that does not usually see the point: a dark
+    feature beside the marker, picked up while the usual camera missed it); both are
+    removed (a gap) when the two cameras are equally supported. What is left is solved
+    again (:func:`_solve_again`: one camera left makes a single-sensor sample).
+
+    Parameters
+    ----------
+    o : dict of arrays
+        The track result's arrays (changed in place).
+    R, t : ndarray, shapes (F, C, 3, 3) and (F, C, 3)
+        The cameras the positions were solved with.
+    face : ndarray of bool, shape (P,)
+    intr : CameraIntrinsics
+    fixed : ndarray of bool, shape (F,)
+        Frames left alone (the initialised frame).
+    target_px : float
+        RMS reprojection error (px) above which a pair is inconsistent.
+    single_sensor : bool
+        As for :func:`reject_by_motion`.
+    half : int
+        Half-window (frames) of the cameras' support.
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P, C)
+        The observations removed.
+    """
+    obs = o["obs"].astype(np.float64)
+    has = np.isfinite(obs).all(-1)
+    tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :] & ~fixed[:, None]
+    drop = np.zeros(has.shape, bool)
+    f, p = np.nonzero(tri & (has.sum(-1) == 2))
+    if f.size == 0 or target_px <= 0:
+        return drop
+    X = o["positions"][f, p].astype(np.float64)
+    uv = project(X[:, None], R[f], t[f], intr)[0][:, 0]  # (N, C, 2)
+    err = np.linalg.norm(uv - obs[f, p], axis=-1)
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.nanmean(np.where(has[f, p], err, np.nan) ** 2, axis=-1))
+        bad = rms > target_px
+    if not bad.any():
+        return drop
+    f, p = f[bad], p[bad]
+    # each camera's support: the triangulated samples of the point around the frame
+    # that it observes (the sample itself left out)
+    from scipy.ndimage import uniform_filter1d
+
+    seen = (has & ((o["recon"] == RECON_TRIANGULATED) & face[None, :])[..., None])
+    count = uniform_filter1d(seen.astype(np.float64), 2 * half + 1, axis=0,
+                             mode="constant") * (2 * half + 1) - seen
+    cams = np.argsort(~has[f, p], axis=1, kind="stable")[:, :2]  # the two cameras
+    sup = np.take_along_axis(count[f, p], cams, axis=1)
+    lo = np.where(sup[:, 0] < sup[:, 1] - 0.5, 0, 1)
+    tie = np.abs(sup[:, 0] - sup[:, 1]) < 0.5
+    drop[f, p, cams[np.arange(f.size), lo]] = True
+    drop[f[tie], p[tie], cams[tie, 1 - lo[tie]]] = True
+    detach_observations(o, drop)
+    obs[drop] = np.nan
+    _solve_again(o, obs, drop.any(-1), R, t, intr, single_sensor)
+    return drop
+
+
+def unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
+                             max_gap: int = MAX_GAP) -> NDArray[np.bool_]:
+    """The single-sensor face samples that no triangulated sample anchors.
+
+    A camera's 2D track of a point is its observations of the point in consecutive
+    frames (gaps of up to ``max_gap`` frames bridged), in triangulated and single-sensor
+    samples alike. A single-sensor sample is anchored when its camera's track through it
+    takes part in at least one triangulated sample: the blob was then once checked
+    against another camera. An unanchored one was only ever checked against the
+    motion's prediction.
+
+    Parameters
+    ----------
+    o : dict of arrays
+        A track result's arrays (read only).
+    face : ndarray of bool, shape (P,)
+    max_gap : int
+        Longest gap (frames) a 2D track bridges.
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P)
+
+    Examples
+    --------
+    A point seen by camera 0 on frames 0-4 (triangulated with camera 1 on frames 0-1)
+    and by camera 1 alone on frames 8-9:
+
+    >>> import numpy as np
+    >>> from carapost.algorithms.codes import RECON_SINGLE_SENSOR, RECON_TRIANGULATED
+    >>> obs = np.full((10, 1, 2, 2), np.nan); recon = np.zeros((10, 1), np.int8)
+    >>> obs[0:5, 0, 0] = 1.0; obs[0:2, 0, 1] = 1.0; obs[8:10, 0, 1] = 1.0
+    >>> recon[0:2] = RECON_TRIANGULATED; recon[2:5] = recon[8:10] = RECON_SINGLE_SENSOR
+    >>> m = unanchored_single_sensor({"obs": obs, "recon": recon}, np.ones(1, bool))
+    >>> np.flatnonzero(m[:, 0]).tolist()
+    [8, 9]
+    """
+    recon = o["recon"]
+    has = np.isfinite(o["obs"]).all(-1)  # (F, P, C)
+    F, P, C = has.shape
+    single = (recon == RECON_SINGLE_SENSOR) & face[None, :] & (has.sum(-1) == 1)
+    out = np.zeros((F, P), bool)
+    if not single.any():
+        return out
+    tri = recon == RECON_TRIANGULATED
+    on = has & (tri | (recon == RECON_SINGLE_SENSOR))[..., None]
+    # one flat sequence per (point, camera): runs of observations split where the gap
+    # exceeds max_gap or the (point, camera) changes
+    seq = np.moveaxis(on, 0, -1).reshape(-1)  # (P * C * F,)
+    idx = np.flatnonzero(seq)
+    if idx.size == 0:
+        return out
+    pair, frame = np.divmod(idx, F)
+    new = np.ones(idx.size, bool)
+    new[1:] = (pair[1:] != pair[:-1]) | (frame[1:] - frame[:-1] > max_gap + 1)
+    run = np.cumsum(new) - 1
+    p_of, c_of = np.divmod(pair, C)
+    anchored_obs = tri[frame, p_of]
+    anchored = np.zeros(run[-1] + 1, bool)
+    np.logical_or.at(anchored, run, anchored_obs)
+    lonely = ~anchored[run] & single[frame, p_of]
+    out[frame[lonely], p_of[lonely]] = True
+    return out
+
+
+def reject_unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
+                                    fixed: NDArray[np.bool_],
+                                    max_gap: int = MAX_GAP) -> NDArray[np.bool_]:
+    """Turn the unanchored single-sensor face samples (:func:`unanchored_single_sensor`)
+    into gaps; returns them, (F, P)."""
+    bad = unanchored_single_sensor(o, face, max_gap) & ~fixed[:, None]
+    if bad.any():
+        detach_observations(o, np.broadcast_to(bad[..., None], o["detection"].shape))
+        _make_gaps(o, bad)
+    return bad
 
 
 def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
