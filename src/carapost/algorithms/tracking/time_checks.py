@@ -292,9 +292,10 @@ def reject_inconsistent_pairs(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray
     The point's other samples can: the observation removed is the one whose camera
     observes the point in fewer of the triangulated samples within ``half`` frames
     either side (a blob in a camera that does not usually see the point: a dark
-    feature beside the marker, picked up while the usual camera missed it); both are
-    removed (a gap) when the two cameras are equally supported. What is left is solved
-    again (:func:`_solve_again`: one camera left makes a single-sensor sample).
+    feature beside the marker, picked up while the usual camera missed it), when the
+    other camera's are at least twice as many; a pair of cameras that both observe the
+    point throughout is left alone. What is left is solved again
+    (:func:`_solve_again`: one camera left makes a single-sensor sample).
 
     Parameters
     ----------
@@ -343,10 +344,15 @@ def reject_inconsistent_pairs(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray
                              mode="constant") * (2 * half + 1) - seen
     cams = np.argsort(~has[f, p], axis=1, kind="stable")[:, :2]  # the two cameras
     sup = np.take_along_axis(count[f, p], cams, axis=1)
-    lo = np.where(sup[:, 0] < sup[:, 1] - 0.5, 0, 1)
-    tie = np.abs(sup[:, 0] - sup[:, 1]) < 0.5
-    drop[f, p, cams[np.arange(f.size), lo]] = True
-    drop[f[tie], p[tie], cams[tie, 1 - lo[tie]]] = True
+    # the less supported camera, where the other observes the point in at least twice
+    # as many samples around (and in one at least): two cameras that both observe it
+    # throughout are left for the point's own test (the spurious points' "rays do not
+    # meet"), which judges all of its samples together
+    weak = np.argmin(sup, axis=1)
+    clear = np.max(sup, axis=1) >= np.maximum(2.0 * np.min(sup, axis=1), 1.0)
+    drop[f[clear], p[clear], cams[clear, weak[clear]]] = True
+    if not drop.any():
+        return drop
     detach_observations(o, drop)
     obs[drop] = np.nan
     _solve_again(o, obs, drop.any(-1), R, t, intr, single_sensor)
