@@ -10,6 +10,9 @@ whose observations are all on a wrong blob, consistently in both cameras of a ca
 ray misses its prediction by more than the Single Sensor Tracking Threshold is not
 kept. An observation on a blob twice as wide as the marker's blob in the frames around
 it (merged with a neighbour, its centre pixels off in every camera alike) is removed.
+A two-camera sample whose rays miss each other loses the observation of the camera that
+does not usually see the point; a single-sensor sample that no other camera ever
+checked becomes a gap.
 """
 
 import numpy as np
@@ -26,11 +29,15 @@ from carapost.algorithms.codes import (
 from carapost.algorithms.single_sensor import neighbour_prediction
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
 from carapost.algorithms.tracking.time_checks import (
+    PAIR_TARGET_FACTOR,
     merged_blobs,
     place_single_sensor,
     reject_by_motion,
+    reject_inconsistent_pairs,
     reject_merged_blobs,
+    reject_unanchored_single_sensor,
     reject_wrong_samples,
+    unanchored_single_sensor,
 )
 from carapost.algorithms.uncertainty import retriangulate
 from carapost.synth import SynthConfig, build_scene
@@ -394,3 +401,112 @@ def test_widths_that_change_slowly_are_not_merged(scene):
     sparse[::6] = w[::6]
     sparse[18] = 3 * np.nan_to_num(w[18], nan=2.0)
     assert not merged_blobs(sparse).any()
+
+
+def _pair_target(noise=0.1):
+    """The pair test's target as the clean-up sets it: twice the re-solve's outlier
+    target (6 times the 2D noise, at least 0.5 px)."""
+    return PAIR_TARGET_FACTOR * max(0.5, 6.0 * noise)
+
+
+def _resolve(o, scene, f, p):
+    X, res = retriangulate(o["obs"][f:f + 1, p:p + 1].astype(float), scene.cam_R[f:f + 1],
+                           scene.cam_t[f:f + 1], scene.intrinsics, np.ones((1, 1), bool))
+    o["positions"][f, p] = X[0, 0]
+    o["residual"][f, p] = res[0, 0]
+
+
+def test_a_blob_in_a_camera_that_does_not_see_the_point_is_removed_from_its_pair(scene):
+    rng = np.random.default_rng(21)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    ok = _one_caddy(o, scene)
+    # a point seen by caddy (0, 1) throughout; on two frames camera 1 misses it and
+    # camera 2 (which never observes it) has a dark feature 8 px from its projection
+    p = int(np.flatnonzero(ok.all(0))[0])
+    for c in (2, 3):
+        col = o["obs"][:, p, c]
+        col[:] = np.nan
+        o["obs"][:, p, c] = col
+    frames = (17, 18)
+    for f in frames:
+        row = o["obs"][f, p]
+        row[1] = np.nan
+        row[2] = scene.uv[f, p, 2] + [6.4, -4.8]
+        o["obs"][f, p] = row
+        _resolve(o, scene, f, p)
+    assert (_error(o, scene)[list(frames), p] > 1.0).all()
+    n_before = int(np.isfinite(o["obs"][..., 0]).sum())
+    drop = reject_inconsistent_pairs(o, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                                     scene.intrinsics, np.zeros(F, bool), _pair_target())
+    # camera 2's two observations, nothing else; the samples keep camera 0 alone
+    assert sorted(map(tuple, np.argwhere(drop).tolist())) == [(f, p, 2) for f in frames]
+    assert int(np.isfinite(o["obs"][..., 0]).sum()) == n_before - 2
+    assert (o["recon"][list(frames), p] == RECON_SINGLE_SENSOR).all()
+
+
+def test_right_pairs_and_a_pair_seen_throughout_are_left_alone(scene):
+    rng = np.random.default_rng(22)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    # every right pair of the take, cross-caddy ones included: nothing is removed
+    pairs = (o["recon"] == RECON_TRIANGULATED) & (np.isfinite(o["obs"][..., 0]).sum(-1) == 2)
+    assert pairs.sum() > 100
+    before = o["obs"].copy()
+    drop = reject_inconsistent_pairs(o, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                                     scene.intrinsics, np.zeros(F, bool), _pair_target())
+    assert not drop.any()
+    assert np.array_equal(before, o["obs"], equal_nan=True)
+    # a point whose two cameras both observe it throughout, one of them 4 px off on
+    # every frame: the pairs cannot say which camera is wrong, so none is removed (the
+    # spurious points' test judges such a point as a whole)
+    ok = _one_caddy(o, scene, cams=(0, 2))
+    p = int(np.flatnonzero(ok.all(0))[0])
+    col = o["obs"][:, p, 2]
+    col += [0.0, 4.0]
+    o["obs"][:, p, 2] = col
+    for f in range(F):
+        _resolve(o, scene, f, p)
+    uv = project(o["positions"][:, p].astype(float)[:, None], scene.cam_R, scene.cam_t,
+                 scene.intrinsics)[0][:, 0]
+    err = np.linalg.norm(uv - o["obs"][:, p], axis=-1)[:, [0, 2]]
+    assert (np.sqrt((err ** 2).mean(-1)) > _pair_target()).mean() > 0.8  # they do miss
+    drop = reject_inconsistent_pairs(o, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                                     scene.intrinsics, np.zeros(F, bool), _pair_target())
+    assert not drop[:, p].any()
+
+
+def test_single_sensor_samples_no_other_camera_checked_become_gaps(scene):
+    rng = np.random.default_rng(23)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    ok = _one_caddy(o, scene)
+    p = int(np.flatnonzero(ok.all(0))[0])
+    for c in (2, 3):
+        col = o["obs"][:, p, c]
+        col[:] = np.nan
+        o["obs"][:, p, c] = col
+    # frames 10-13: camera 1 misses the marker, camera 0 goes on (anchored: its 2D
+    # track is triangulated with camera 1 around); frames 25-29: the caddy loses it and
+    # camera 3 alone has a blob 7 px from the marker's projection
+    for f in range(10, 14):
+        row = o["obs"][f, p]
+        row[1] = np.nan
+        o["obs"][f, p] = row
+    for f in range(25, 30):
+        row = o["obs"][f, p]
+        row[:] = np.nan
+        row[3] = scene.uv[f, p, 3] + [7.0, 0.0]
+        o["obs"][f, p] = row
+    o["recon"][10:14, p] = RECON_SINGLE_SENSOR
+    o["recon"][25:30, p] = RECON_SINGLE_SENSOR
+    single = o["recon"] == RECON_SINGLE_SENSOR
+    lonely = unanchored_single_sensor(o, np.ones(M, bool))
+    assert np.flatnonzero(lonely[:, p]).tolist() == list(range(25, 30))
+    assert lonely.sum() == 5
+    bad = reject_unanchored_single_sensor(o, np.ones(M, bool), np.zeros(F, bool))
+    assert np.array_equal(bad, lonely)
+    assert (o["recon"][25:30, p] == RECON_NONE).all()
+    assert np.isnan(o["obs"][25:30, p]).all()
+    # the anchored ones stay single-sensor samples
+    assert (o["recon"][single & ~lonely] == RECON_SINGLE_SENSOR).all()

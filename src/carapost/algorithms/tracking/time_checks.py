@@ -98,8 +98,9 @@ MAX_GAP = 2
 #: one above it, docs/benchmarks.md).
 PAIR_TARGET_FACTOR = 2.0
 
-#: Half-window (frames) over which a camera's support of a point is counted.
-_SUPPORT_HALF = 10
+#: Half-window (frames) over which a camera's support of a point is counted (a second
+#: at 30 fps: a wrong pair can sit between gaps of the point).
+_SUPPORT_HALF = 30
 
 #: Gap lengths (frames) at which the single-sensor prediction's error is measured.
 _GAPS = np.array([1, 2, 4, 8, 16, 32])
