@@ -122,7 +122,8 @@ class _Detections:
         det = project.detections
         self.ragged = RaggedDetections(_read_only(det.offsets),
                                        _read_only(det.arrays["centre"]),
-                                       _read_only(det.arrays["axes"]), project.n_cameras)
+                                       _read_only(det.arrays["axes"]), project.n_cameras,
+                                       _read_only(det.arrays["score"]))
         self.counts = det.counts()  # a new array (np.diff)
         self.n_cameras = project.n_cameras
         self.blob_section = dict(project.properties.section("Blob Parameters"))
@@ -160,6 +161,14 @@ class _Detections:
                 out.append((d.centre.astype(np.float64), d.axes.astype(np.float64)))
             return out
 
+        def scores(frame: int) -> list[NDArray | None]:
+            """Per camera the blobs' scores of one frame (as ``source`` serves it)."""
+            if (frame, 0) in found:
+                return [found[(frame, c)]["score"] for c in range(C)]
+            rows = ragged.offsets[frame * C:(frame + 1) * C + 1]
+            return [ragged.score[rows[c]:rows[c + 1]] for c in range(C)]
+
+        source.scores = scores  # type: ignore[attr-defined]
         return source
 
 

@@ -52,14 +52,18 @@ class RaggedDetections:
     centre : array_like, shape (N, 2)
     axes : array_like, shape (N, 2), optional
     n_cameras : int
+    score : array_like, shape (N,), optional
+        The detector's probability of each blob (for the observations' 2D noise,
+        :func:`carapost.algorithms.uncertainty.blob_noise_scale`).
     """
 
     def __init__(self, offsets: ArrayLike, centre: ArrayLike, axes: ArrayLike | None,
-                 n_cameras: int) -> None:
+                 n_cameras: int, score: ArrayLike | None = None) -> None:
         self.offsets = np.asarray(offsets, dtype=np.int64)
         self.centre = np.asarray(centre)
         self.axes = None if axes is None else np.asarray(axes)
         self.n_cameras = int(n_cameras)
+        self.score = None if score is None else np.asarray(score)
 
     def __call__(self, frame: int) -> list[tuple[NDArray[Any], NDArray[Any] | None]]:
         """Per camera ``(centre, axes)`` of one frame (float64 copies)."""

@@ -51,6 +51,7 @@ from carapost.algorithms.tracking.time_checks import (
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
+    blob_noise_scale,
     brim_pose_covariance,
     noise_from_residuals,
     point_noise_factor,
@@ -352,10 +353,10 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     drop_isolated(A, kind, keep, P)
     sl = slice(first, last + 1)
     o = {k: v[sl][:, keep] for k, v in A.items()}
-    widths = attached_widths(detections, o["detection"], first)
+    widths, lengths, scores = attached_blobs(detections, o["detection"], first)
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
-                                    widths=widths)
+                                    widths=widths, blob_scale=blob_noise_scale(lengths, scores))
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -364,12 +365,22 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
 
 def attached_widths(detections: Callable[[int], FrameDetections],
                     detection: NDArray[np.integer], first: int = 0) -> NDArray[np.float32]:
-    """Semi-minor axis (px) of the blob attached to every observation.
+    """Semi-minor axis (px) of the blob attached to every observation, (F, P, C)
+    float32, NaN where none (:func:`attached_blobs`)."""
+    return attached_blobs(detections, detection, first)[0]
+
+
+def attached_blobs(detections: Callable[[int], FrameDetections],
+                   detection: NDArray[np.integer], first: int = 0
+                   ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Semi-minor axis, semi-major axis (px) and score of the blob of every observation.
 
     Parameters
     ----------
     detections : callable
         Frame -> `FrameDetections` (a :class:`RaggedDetections` is read without copies).
+        A callable with a ``scores`` attribute (frame -> per camera the blobs' scores)
+        gives the scores too.
     detection : ndarray of int, shape (F, P, C)
         Index of each observation's blob in its image (-1 where none), frames from
         ``first``.
@@ -378,30 +389,38 @@ def attached_widths(detections: Callable[[int], FrameDetections],
 
     Returns
     -------
-    ndarray, shape (F, P, C), float32
-        NaN where no blob is attached or the detections have no axes.
+    minor, major, score : ndarray, shape (F, P, C), float32
+        NaN where no blob is attached or the detections have no axes (no scores).
     """
     det = np.asarray(detection)
     F, P, C = det.shape
-    out = np.full(det.shape, np.nan, np.float32)
+    axes = np.full(det.shape + (2,), np.nan, np.float32)
+    score = np.full(det.shape, np.nan, np.float32)
     has = det >= 0
     if not has.any():
-        return out
+        return axes[..., 1], axes[..., 0], score
     if isinstance(detections, RaggedDetections):
-        if detections.axes is None:
-            return out
         f, p, c = np.nonzero(has)
         rows = detections.offsets[(f + first) * C + c] + det[f, p, c]
-        out[f, p, c] = detections.axes[rows, 1]
-        return out
+        if detections.axes is not None:
+            axes[f, p, c] = detections.axes[rows, :2]
+        if detections.score is not None:
+            score[f, p, c] = detections.score[rows]
+        return axes[..., 1], axes[..., 0], score
+    scores = getattr(detections, "scores", None)
     for f in np.flatnonzero(has.any((1, 2))):
         frame = detections(int(f + first))
+        sc = None if scores is None else scores(int(f + first))
         for c in range(C):
-            ax = frame[c][1]
             m = has[f, :, c]
-            if ax is not None and m.any():
-                out[f, m, c] = np.asarray(ax, np.float64).reshape(-1, 2)[det[f, m, c], 1]
-    return out
+            if not m.any():
+                continue
+            ax = frame[c][1]
+            if ax is not None:
+                axes[f, m, c] = np.asarray(ax, np.float64).reshape(-1, 2)[det[f, m, c]]
+            if sc is not None and sc[c] is not None:
+                score[f, m, c] = np.asarray(sc[c], np.float64)[det[f, m, c]]
+    return axes[..., 1], axes[..., 0], score
 
 
 def _outlier_target_px(params: TrackingParameters) -> float:
@@ -427,7 +446,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     kind: NDArray[np.int8], intr: CameraIntrinsics, fixed: NDArray[np.bool_],
                     window: int, depth_window: int = 0, target_px: float = 0.0,
                     single_sensor: bool = True, single_threshold_mm: float | None = None,
-                    widths: NDArray[np.float32] | None = None
+                    widths: NDArray[np.float32] | None = None,
+                    blob_scale: NDArray[np.float64] | None = None
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -441,7 +461,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     take's measured 2D noise, between 0.5 px and ``target_px``: an observation the
     solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
     C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
-    scales its 2D noise in the sigma."""
+    scales its 2D noise in the sigma; ``blob_scale`` (F, P, C) a further factor of that
+    noise from the blob's score and length (:func:`blob_noise_scale`)."""
     face = kind != KIND_BRIM
     if widths is not None:
         # merged blobs first: their centres are pixels off in every camera alike, so
@@ -492,6 +513,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
     scale = None if widths is None else width_noise_scale(widths)
+    if scale is not None and blob_scale is not None:
+        scale = scale * blob_scale
     noise = noise_from_residuals(obs_t, X, R, t, intr, scale=scale)
     phi = point_noise_factor(obs_t, X, R, t, intr, noise, scale=scale)
     brim = ~face
