@@ -8,6 +8,7 @@ import pytest
 from carapost.algorithms.camera import CameraIntrinsics, project, rodrigues_to_matrix
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
+    blob_noise_scale,
     brim_pose_covariance,
     noise_from_residuals,
     pair_holdout_scale,
@@ -168,6 +169,67 @@ def test_attached_widths_reads_the_blob_of_each_observation():
     assert np.allclose(w[1, 0], [10.0, 11.1])
     # the same through a plain per-frame callable, and from a later first frame
     assert np.allclose(attached_widths(lambda f: rag(f), det[1:], first=1), w[1:])
+
+
+def test_attached_blobs_reads_lengths_and_scores_both_ways():
+    from carapost.algorithms.tracking import RaggedDetections
+    from carapost.algorithms.tracking.take import attached_blobs
+
+    offsets = np.arange(0, 10, 2)
+    axes = np.array([[20 + 10 * f + c + k / 10, 1.0] for f in range(2) for c in range(2)
+                     for k in range(2)])
+    score = np.array([0.5 + (4 * f + 2 * c + k) / 20 for f in range(2) for c in range(2)
+                      for k in range(2)])
+    rag = RaggedDetections(offsets, np.zeros((8, 2)), axes, 2, score)
+    det = np.array([[[1, -1]], [[0, 1]]])
+    minor, major, sc = attached_blobs(rag, det)
+    assert np.allclose(major[1, 0], [30.0, 31.1])
+    assert np.allclose(sc[0, 0], [0.55, np.nan], equal_nan=True)
+    assert np.allclose(sc[1, 0], [0.7, 0.85])
+    # a per-frame callable gives scores through its ``scores`` attribute (the tracking
+    # job's source does), none without it
+
+    def source(f):
+        return rag(f)
+
+    source.scores = lambda f: [score[offsets[2 * f + c]:offsets[2 * f + c + 1]]
+                               for c in range(2)]
+    _, major2, sc2 = attached_blobs(source, det)
+    assert np.allclose(major2, major, equal_nan=True)
+    assert np.allclose(sc2, sc, equal_nan=True)
+    assert np.isnan(attached_blobs(lambda f: rag(f), det)[2]).all()
+
+
+def test_blob_noise_scale_follows_the_measured_errors():
+    """Clean blobs keep factor 1; a low score or a blob longer than the marker's usual in
+    that camera (against a lower quartile, so merged frames as many as clean ones still
+    count) raises it to the factors measured on the tuning takes."""
+    rng = np.random.default_rng(4)
+    F = 60
+    major = 5.0 * (1 + rng.normal(0, 0.01, (F, 2, 2)))
+    score = np.full((F, 2, 2), 0.999)
+    major[1::2, 0, 0] *= 1.25  # merged every other frame (half of them)
+    score[30, 1, 1] = 0.9
+    major[40, 1, 0] = np.nan  # no blob
+    f = blob_noise_scale(major, score)
+    assert np.allclose(f[0::2, 0, 0], 1.0)
+    assert (f[1::2, 0, 0] >= 3.0).all()
+    assert np.isclose(f[30, 1, 1], 4.0)
+    assert np.isclose(f[40, 1, 0], 1.0)
+    other = np.ones(f.shape, bool)
+    other[:, 0, 0] = False
+    other[30, 1, 1] = False
+    assert np.allclose(f[other], 1.0)
+    # the reference is the window's lower quartile, as numpy's (NaN left out)
+    from carapost.algorithms.uncertainty import _lower_quartile, window_statistic
+
+    gappy = np.where(rng.random(major.shape) < 0.3, np.nan, major)
+    assert np.allclose(window_statistic(gappy, _lower_quartile, 10, 5),
+                       window_statistic(gappy, lambda w: np.nanpercentile(w, 25, axis=-1),
+                                        10, 5), equal_nan=True)
+    # unknown scores (detections without them) leave the length alone to decide
+    f2 = blob_noise_scale(major, np.full(score.shape, np.nan))
+    assert np.allclose(f2[:, 1, 1], 1.0) and (f2[1::2, 0, 0] >= 3.0).all()
 
 
 def test_noise_and_holdout_scale_recover_the_true_noise():

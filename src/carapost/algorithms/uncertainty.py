@@ -164,6 +164,19 @@ def window_statistic(values: ArrayLike, stat: Callable[[NDArray[np.float64]], ND
     return out
 
 
+def _lower_quartile(win: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.nanpercentile(win, 25, axis=-1)`` (linear), from one sort: NaN sort last, so
+    the finite values of each row come first (nanpercentile is ~30 times slower)."""
+    srt = np.sort(win, axis=-1)
+    n = np.isfinite(win).sum(-1)
+    pos = 0.25 * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.intp)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    rows = np.arange(win.shape[0])
+    frac = pos - lo
+    return srt[rows, lo] + frac * (srt[rows, hi] - srt[rows, lo])
+
+
 def blob_noise_scale(major_px: ArrayLike, score: ArrayLike, *, half: int = _LENGTH_HALF,
                      support: int = _LENGTH_SUPPORT) -> NDArray[np.float64]:
     """Factor of each observation's 2D noise from its blob's score and length.
@@ -201,7 +214,7 @@ def blob_noise_scale(major_px: ArrayLike, score: ArrayLike, *, half: int = _LENG
     sc = np.asarray(score, dtype=np.float64)
     f_score = np.where(np.isfinite(sc), np.interp(np.nan_to_num(sc, nan=1.0), *SCORE_NOISE),
                        1.0)
-    ref = window_statistic(a, lambda win: np.nanpercentile(win, 25, axis=-1), half, support)
+    ref = window_statistic(a, _lower_quartile, half, support)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = a / ref
     f_len = np.where(np.isfinite(ratio), np.interp(np.nan_to_num(ratio, nan=1.0),
