@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from carapost.algorithms.blob_noise import blob_noise_scale
 from carapost.algorithms.camera import CameraIntrinsics, project, rodrigues_to_matrix
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
-    blob_noise_scale,
     brim_pose_covariance,
     noise_from_residuals,
     pair_holdout_scale,
@@ -221,7 +221,7 @@ def test_blob_noise_scale_follows_the_measured_errors():
     other[30, 1, 1] = False
     assert np.allclose(f[other], 1.0)
     # the reference is the window's lower quartile, as numpy's (NaN left out)
-    from carapost.algorithms.uncertainty import _lower_quartile, window_statistic
+    from carapost.algorithms.blob_noise import _lower_quartile, window_statistic
 
     gappy = np.where(rng.random(major.shape) < 0.3, np.nan, major)
     assert np.allclose(window_statistic(gappy, _lower_quartile, 10, 5),

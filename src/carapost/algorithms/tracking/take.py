@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from carapost.algorithms.blob_noise import blob_noise_scale
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.codes import (
     KIND_BRIM,
@@ -51,7 +52,6 @@ from carapost.algorithms.tracking.time_checks import (
 )
 from carapost.algorithms.triangulation import TriangulationParameters, triangulate
 from carapost.algorithms.uncertainty import (
-    blob_noise_scale,
     brim_pose_covariance,
     noise_from_residuals,
     point_noise_factor,

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from carapost.algorithms.blob_noise import window_statistic
 from carapost.algorithms.camera import CameraIntrinsics, project
 from carapost.algorithms.codes import (
     POINT_FILLS,
@@ -157,28 +158,12 @@ def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RA
     >>> np.argwhere(merged_blobs(w)[:, 0, 0]).ravel().tolist()
     [10, 11, 12]
     """
-    w = np.asarray(widths)
-    F = w.shape[0]
-    out = np.zeros(w.shape, bool)
-    if F == 0 or not np.isfinite(w).any():
-        return out
-    for a in range(0, F, chunk):
-        b = min(F, a + chunk)
-        # the block with `half` frames either side (NaN beyond the take)
-        lo, hi = max(0, a - half), min(F, b + half)
-        blk = np.full((b - a + 2 * half,) + w.shape[1:], np.nan)
-        blk[lo - (a - half):hi - (a - half)] = w[lo:hi]
-        win = np.lib.stride_tricks.sliding_window_view(blk, 2 * half + 1,
-                                                       axis=0)  # (b - a, P, C, 2h + 1)
-        n = np.isfinite(win).sum(-1)
-        judge = np.isfinite(w[a:b]) & (n >= support)
-        if not judge.any():
-            continue
-        med = np.full(w[a:b].shape, np.nan)
-        # the median over the window's widths only where there is one to judge
-        med[judge] = np.nanmedian(win[judge], axis=-1)
-        out[a:b] = judge & (w[a:b] > ratio * med)
-    return out
+    w = np.asarray(widths, dtype=np.float64)
+    if w.shape[0] == 0 or not np.isfinite(w).any():
+        return np.zeros(w.shape, bool)
+    med = window_statistic(w, lambda win: np.nanmedian(win, axis=-1), half, support, chunk)
+    with np.errstate(invalid="ignore"):
+        return w > ratio * med
 
 
 def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating],
