@@ -121,7 +121,7 @@ def test_detect_blobs_and_the_batch_version(take, tmp_path):
 
 
 def test_fbx_export_with_face_points_under_other_nodes(projects, tmp_path):
-    ufbx = pytest.importorskip("ufbx")
+    pytest.importorskip("ufbx")
     out = tmp_path / "out.fbx"
     rc, text = call("cara_fbx_export", projects["tracked"], "-o", out,
                     "--group", "mouth=Point 2*,*Lip*", "--group", "nose=Point 3*")
@@ -131,15 +131,17 @@ def test_fbx_export_with_face_points_under_other_nodes(projects, tmp_path):
     n_mouth = sum(s.startswith("Point 2") or "Lip" in s for s in labels)
     n_nose = sum(s.startswith("Point 3") and "Lip" not in s for s in labels)
     assert n_mouth and n_nose and n_mouth + n_nose < len(labels)
-    parents, kids = call_in_child(_groups, ufbx, out)
+    parents, kids = call_in_child(_groups, out)
     assert parents == {"mouth": "face", "nose": "face"}
     assert len(kids["mouth"]) == n_mouth and len(kids["nose"]) == n_nose
     assert f"/face/mouth: {n_mouth} points" in text
 
 
-def _groups(ufbx, path) -> tuple[dict[str, str], dict[str, list[str]]]:
+def _groups(path) -> tuple[dict[str, str], dict[str, list[str]]]:
     """The mouth and nose nodes' parents and children, read with ufbx (in a child
     process: `tests.ufbx_child`)."""
+    import ufbx
+
     scene = ufbx.load_file(str(path), strict=True)
     nodes = list(scene.nodes)
     by_name = {n.name: n for n in nodes}

@@ -1,12 +1,18 @@
-"""Read FBX files with ufbx in a forked child that never frees a ufbx object.
+"""Read FBX files with ufbx in a child process that never frees a ufbx object.
 
 The ufbx binding (0.0.5) can crash the interpreter while it frees its wrappers: it
 segfaults on a wrapper whose scene is gone, and freeing them in a fixed order (every
 wrapper, then the scene) was not enough: one `tests/io` run in about eight under load
 still died in `test_fbx`'s clean-up with SIGSEGV, which takes the whole test run
-with it. A child forked for the reading runs the check, sends back its result (or its
+with it. A child made for the reading runs the check, sends back its result (or its
 traceback) and leaves with `os._exit`, so no ufbx object is ever freed, and a crash
 inside the binding fails one test with a message instead of ending the run.
+
+The child comes from a fork server (``multiprocessing``'s "forkserver": a fresh
+single-threaded interpreter that forks the children), not from a fork of the test
+process: under load, children forked from the full test run (its BLAS, numba and
+decoder threads gone in the child, their state not) died with SIGSEGV three times in
+a row in one test that passes alone.
 """
 
 from __future__ import annotations
@@ -42,31 +48,64 @@ class _ChildDied(Exception):
     """The child ended by a signal (its name is the message) or without a result."""
 
 
-def _call_once(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
-    """One forked run of ``fn`` (see :func:`call_in_child`)."""
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: run, report, and leave without freeing anything
-        os.close(r)
+_CONTEXT: Any = None
+
+
+def _context() -> Any:
+    """The fork server's context (started on first use, numpy and ufbx preloaded)."""
+    global _CONTEXT
+    if _CONTEXT is None:
+        import multiprocessing
+
+        _CONTEXT = multiprocessing.get_context("forkserver")
+        _CONTEXT.set_forkserver_preload(["numpy", "ufbx"])
+    return _CONTEXT
+
+
+def _reference(fn: Callable[..., Any]) -> tuple[str, str]:
+    """(module, qualified name) of ``fn``: a test decorated by `in_child` is found
+    under its name as the wrapper, and unwrapped in the child."""
+    return fn.__module__, fn.__qualname__
+
+
+def _child(conn: Any, ref: tuple[str, str], args: tuple, kwargs: dict) -> None:
+    """The child's body: run, report, and leave without freeing anything."""
+    try:
         try:
-            try:
-                out = (True, fn(*args, **kwargs))
-                data = pickle.dumps(out)
-            except BaseException as exc:  # reported to the parent
-                data = pickle.dumps((False, "".join(traceback.format_exception(exc))))
-            with os.fdopen(w, "wb") as f:
-                f.write(data)
-        finally:
-            os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        data = f.read()
-    _, status = os.waitpid(pid, 0)
+            import importlib
+            import inspect
+
+            obj: Any = importlib.import_module(ref[0])
+            for part in ref[1].split("."):
+                obj = getattr(obj, part)
+            out = (True, inspect.unwrap(obj)(*args, **kwargs))
+            data = pickle.dumps(out)
+        except BaseException as exc:  # reported to the parent
+            data = pickle.dumps((False, "".join(traceback.format_exception(exc))))
+        conn.send_bytes(data)
+        conn.close()
+    finally:
+        os._exit(0)
+
+
+def _call_once(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """One run of ``fn`` in a child of the fork server (see :func:`call_in_child`)."""
+    ctx = _context()
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(send, _reference(fn), args, kwargs))
+    proc.start()
+    send.close()
+    try:
+        data = recv.recv_bytes()
+    except EOFError:
+        data = b""
+    proc.join()
     if not data:
-        if os.WIFSIGNALED(status):
-            why = signal.Signals(os.WTERMSIG(status)).name
+        code = proc.exitcode
+        if code is not None and code < 0:
+            why = signal.Signals(-code).name
         else:
-            why = f"exit status {os.WEXITSTATUS(status)}"
+            why = f"exit status {code}"
         raise _ChildDied(why)
     ok, value = pickle.loads(data)
     if not ok:
