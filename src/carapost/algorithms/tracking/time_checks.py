@@ -20,7 +20,7 @@ The others run after that re-solve:
    sample is solved again from the rest, or becomes a single-sensor sample when one
    camera is left.
 3. :func:`reject_unanchored_single_sensor`: a single-sensor sample whose camera's 2D
-   track of the point (its observations in consecutive frames, gaps up to `MAX_GAP`
+   track of the point (its observations in consecutive frames, gaps up to `TRACK_GAP`
    bridged) never takes part in a triangulated sample is removed: nothing but the
    motion's prediction ever checked that blob (on other renderers' takes, a dark
    feature beside the marker in the caddy that does not see it: 1.2 mm median error).
@@ -91,6 +91,10 @@ _WIDTH_SUPPORT = 5
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
 MAX_GAP = 2
+
+#: Longest gap (frames) a camera's 2D track of a point bridges
+#: (:func:`unanchored_single_sensor`).
+TRACK_GAP = 2
 
 #: A two-camera sample is inconsistent when the RMS reprojection error of its
 #: triangulation is above this many times the outlier target of the re-solve (a wrong
@@ -346,7 +350,7 @@ def reject_inconsistent_pairs(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray
 
 
 def unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
-                             max_gap: int = MAX_GAP) -> NDArray[np.bool_]:
+                             max_gap: int = TRACK_GAP) -> NDArray[np.bool_]:
     """The single-sensor face samples that no triangulated sample anchors.
 
     A camera's 2D track of a point is its observations of the point in consecutive
@@ -412,7 +416,7 @@ def unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_]
 
 def reject_unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
                                     fixed: NDArray[np.bool_],
-                                    max_gap: int = MAX_GAP) -> NDArray[np.bool_]:
+                                    max_gap: int = TRACK_GAP) -> NDArray[np.bool_]:
     """Turn the unanchored single-sensor face samples (:func:`unanchored_single_sensor`)
     into gaps; returns them, (F, P)."""
     bad = unanchored_single_sensor(o, face, max_gap) & ~fixed[:, None]
