@@ -90,7 +90,7 @@ _WIDTH_SUPPORT = 5
 
 #: Farthest (frames) a single-sensor sample is predicted from the triangulated samples
 #: on both sides; beyond, the tracker's placement is kept (moved onto the fitted ray).
-MAX_GAP = 16
+MAX_GAP = 32
 
 #: Longest gap (frames) a camera's 2D track of a point bridges
 #: (:func:`unanchored_single_sensor`).
