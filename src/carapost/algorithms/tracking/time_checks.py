@@ -24,7 +24,8 @@ The others run after that re-solve:
    bridged) never takes part in a triangulated sample is removed: nothing but the
    motion's prediction ever checked that blob (on other renderers' takes, a dark
    feature beside the marker in the caddy that does not see it: 1.2 mm median error).
-4. :func:`place_single_sensor`: every single-sensor sample is put on its camera's ray
+4. :func:`place_single_sensor`, after the depth priors (so the triangulated samples it
+   predicts from are final): every single-sensor sample is put on its camera's ray
    (with the fitted cameras) nearest the prediction from the point's triangulated
    samples on both sides (:mod:`carapost.algorithms.single_sensor`), with a sigma
    measured on the take for its distance in time to them; as in the per-frame
