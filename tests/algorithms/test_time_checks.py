@@ -417,18 +417,24 @@ def _resolve(o, scene, f, p):
     o["residual"][f, p] = res[0, 0]
 
 
-def test_a_blob_in_a_camera_that_does_not_see_the_point_is_removed_from_its_pair(scene):
-    rng = np.random.default_rng(21)
-    o = _arrays(scene, rng)
-    F, M, C = scene.visible.shape
+def _caddy_01_point(scene, seed):
+    """Track arrays (``_arrays``, caddy (0, 1) alone where it sees a marker) and a point
+    seen by that caddy throughout, with no observation in cameras 2 and 3."""
+    o = _arrays(scene, np.random.default_rng(seed))
     ok = _one_caddy(o, scene)
-    # a point seen by caddy (0, 1) throughout; on two frames camera 1 misses it and
-    # camera 2 (which never observes it) has a dark feature 8 px from its projection
     p = int(np.flatnonzero(ok.all(0))[0])
     for c in (2, 3):
         col = o["obs"][:, p, c]
         col[:] = np.nan
         o["obs"][:, p, c] = col
+    return o, p
+
+
+def test_a_blob_in_a_camera_that_does_not_see_the_point_is_removed_from_its_pair(scene):
+    o, p = _caddy_01_point(scene, 21)
+    F, M, C = scene.visible.shape
+    # on two frames camera 1 misses it and camera 2 (which never observes it) has a dark
+    # feature 8 px from its projection
     frames = (17, 18)
     for f in frames:
         row = o["obs"][f, p]
@@ -478,15 +484,8 @@ def test_right_pairs_and_a_pair_seen_throughout_are_left_alone(scene):
 
 
 def test_single_sensor_samples_no_other_camera_checked_become_gaps(scene):
-    rng = np.random.default_rng(23)
-    o = _arrays(scene, rng)
+    o, p = _caddy_01_point(scene, 23)
     F, M, C = scene.visible.shape
-    ok = _one_caddy(o, scene)
-    p = int(np.flatnonzero(ok.all(0))[0])
-    for c in (2, 3):
-        col = o["obs"][:, p, c]
-        col[:] = np.nan
-        o["obs"][:, p, c] = col
     # frames 10-13: camera 1 misses the marker, camera 0 goes on (anchored: its 2D
     # track is triangulated with camera 1 around); frames 25-29: the caddy loses it and
     # camera 3 alone has a blob 7 px from the marker's projection
