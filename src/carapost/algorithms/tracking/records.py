@@ -54,7 +54,7 @@ class RaggedDetections:
     n_cameras : int
     score : array_like, shape (N,), optional
         The detector's probability of each blob (for the observations' 2D noise,
-        :func:`carapost.algorithms.uncertainty.blob_noise_scale`).
+        :func:`carapost.algorithms.blob_noise.blob_noise_scale`).
     """
 
     def __init__(self, offsets: ArrayLike, centre: ArrayLike, axes: ArrayLike | None,
