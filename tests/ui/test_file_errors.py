@@ -70,6 +70,7 @@ def test_a_never_saved_project_is_autosaved_and_offered_after_a_crash(
     w = make_window(_small_project())
     w.context.session.set_active_range(1, 4)  # an unsaved change
     file_menu.autosave(w.context)
+    w.context.autosaver.wait()  # written on a thread of its own
     copies = list((tmp_path / "auto").glob("*.cara"))
     assert len(copies) == 1
     # the window "crashed": a new one offers the copy and opens it unsaved, untitled
@@ -103,6 +104,7 @@ def test_discarding_a_saved_project_removes_the_autosave_this_session_wrote(
     assert stale.read_bytes() == b"left by a crash"
     w.context.session.set_active_range(1, 4)
     file_menu.autosave(w.context)
+    w.context.autosaver.wait()  # written on a thread of its own
     assert stale.read_bytes() != b"left by a crash"  # now the session's own copy
     w.dialogs.ask_save_answers.append("discard")
     assert file_menu.maybe_save(w.context)

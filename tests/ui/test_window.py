@@ -317,6 +317,7 @@ def test_save_reopen_prompt_autosave_and_recovery(make_window, demo, tmp_path, q
     assert w.isWindowModified()
     # autosave copy beside the file, then "crash": reopen offers the copy
     file_menu.autosave(w.context)
+    w.context.autosaver.wait()  # written on a thread of its own
     assert autosave_path(target).exists()
     w.dialogs.ask_save_answers.append("cancel")
     assert not w.close()  # the unsaved-changes prompt can cancel closing

@@ -62,31 +62,42 @@ def discard_autosaves(project: Project) -> None:
     project.session_autosave = None
 
 
-def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
-    """Write the autosave copy of a project (beside its file, or ``path``).
+def autosave_target(project: Project, path: str | Path | None = None) -> Path:
+    """Where the autosave copy of a project goes: beside its file (or ``path``), or for
+    a project that was never saved a ``.cara`` file in `untitled_autosave_folder`
+    (named after the take and the time it was first autosaved, remembered in the
+    project, the folder created). File > Open opens such a copy; the project's first
+    save removes it."""
+    target = path or project.path
+    if target is not None:
+        return autosave_path(target)
+    copy = project.untitled_autosave
+    if copy is None:
+        folder = untitled_autosave_folder()
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CaraFileError(folder, f"cannot be created: {exc.strerror or exc}") from None
+        name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
+                       (project.take.name or "untitled"))[:80]
+        copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
+        project.untitled_autosave = copy
+    return Path(copy)
 
-    A project that was never saved is autosaved too, as a ``.cara`` file in
-    `untitled_autosave_folder` (named after the take and the time it was first
-    autosaved; File > Open opens it); its first save removes that copy.
+
+def autosave_project(project: Project, path: str | Path | None = None) -> Path | None:
+    """Write the autosave copy of a project (beside its file, or ``path``; a project
+    that was never saved goes to `untitled_autosave_folder`, see `autosave_target`).
+
+    Synchronous (scripts, tests); the window writes its copy on a thread of its own
+    (`carapost.ui.autosaver`).
     """
     from carapost.io.cara import save_project  # cara imports this module
 
-    target = path or project.path
-    if target is None:
-        copy = project.untitled_autosave
-        if copy is None:
-            folder = untitled_autosave_folder()
-            try:
-                folder.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                raise CaraFileError(folder, f"cannot be created: {exc.strerror or exc}") from None
-            name = "".join(c if c.isalnum() or c in "-_" else "_" for c in
-                           (project.take.name or "untitled"))[:80]
-            copy = folder / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.cara"
-            project.untitled_autosave = copy
-        return save_project(project, copy, autosave=True)
-    written = save_project(project, autosave_path(target), autosave=True)
-    project.session_autosave = written
+    beside = (path or project.path) is not None
+    written = save_project(project, autosave_target(project, path), autosave=True)
+    if beside:  # this session's copy: discarded with the project's changes
+        project.session_autosave = written
     return written
 
 

@@ -33,6 +33,7 @@ from carapost.io.launcher import start_launcher
 from carapost.model.events import Change
 from carapost.model.project import Project, Selection, new_project
 from carapost.session import Session
+from carapost.ui.autosaver import Autosaver
 from carapost.ui.bridge import JobRunner, ModelBridge
 from carapost.ui.frames import FrameSource, frame_source_for
 from carapost.ui.opening import OpenSlices
@@ -401,6 +402,7 @@ class ActionContext(QObject):
         self.view.frame_ready.connect(self._frame_ready, Qt.ConnectionType.QueuedConnection)
         self.playback = Playback(self)
         self.proxies = ProxyBuilder(self)
+        self.autosaver = Autosaver(self)
         start_launcher()  # every take's decoder threads start from it, not from here
         if start_detector(settings):
             # the detector processes' forkserver loads the detector once per program
@@ -648,6 +650,7 @@ class ActionContext(QObject):
         """Stop playback and the worker, stop listening, close the images."""
         self.playback.stop()
         self.proxies.stop()
+        self.autosaver.wait()
         if self.runner.busy:
             self.runner.cancel()
             self.runner.wait(30)

@@ -33,11 +33,13 @@ def maybe_save(ctx: ActionContext) -> bool:
     from carapost.io.autosave import discard_autosaves
 
     if not ctx.is_modified or ctx.project.n_frames == 0:
+        ctx.autosaver.drop()
         discard_autosaves(ctx.project)
         return True
     answer = ctx.dialogs.ask_save(ctx.project_name())
     if answer == "cancel":
         return False
+    ctx.autosaver.drop()  # saved or discarded: a copy being written is stale
     if answer == "save":
         return save_project(ctx)
     discard_autosaves(ctx.project)
@@ -132,13 +134,13 @@ def save_to(ctx: ActionContext, path: str) -> bool:
 
 
 def autosave(ctx: ActionContext) -> None:
-    """Write the autosave copy beside the project when there are unsaved changes."""
-    from carapost.io.autosave import autosave_project
-
-    # never-saved projects too (autosave_project puts them in the autosave folder)
+    """Start writing the autosave copy beside the project when there are unsaved
+    changes, on a thread of its own (`carapost.ui.autosaver`: the copy is in place a
+    moment later, or thrown away if the project changed meanwhile)."""
+    # never-saved projects too (their copy goes to the autosave folder)
     if ctx.is_modified and ctx.project.n_frames and not ctx.runner.busy:
         try:
-            autosave_project(ctx.project)
+            ctx.autosaver.start(ctx.project)
         except Exception as exc:  # autosave must never interrupt work
             log.warning("autosave failed: %s", exc)
 
