@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 import threading
 from collections import deque
 from concurrent.futures import Future
@@ -47,7 +46,7 @@ from numpy.typing import NDArray
 
 from carapost.io.decode_slots import DecodeSlots, SlotWait
 from carapost.io.errors import CaraFileError
-from carapost.io.launcher import launch, started
+from carapost.io.launcher import launch, lower_thread_priority, started
 from carapost.io.lockstep import PlaySchedule
 from carapost.io.video import ReadyCallback, TakeFrames, VideoSource
 
@@ -478,7 +477,7 @@ class FrameService(TakeFrames):
 
     def _run(self, camera: int) -> None:
         self._service_threads.add(threading.get_ident())
-        _lower_priority(DECODER_NICE)
+        lower_thread_priority(DECODER_NICE)
         state = self._cams[camera]
         while True:
             with self._cond:
@@ -786,15 +785,3 @@ def _ahead_order(origin: int, step: int, limit: int, playing: bool) -> list[int]
     order += [origin - step * k for k in range(min(near, back) + 1, back + 1)]
     return order
 
-
-def _lower_priority(increment: int) -> None:
-    """Raise the calling thread's nice value by ``increment`` (Linux; no-op elsewhere,
-    where PRIO_PROCESS would renice the whole program)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        tid = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid)
-                                                 + increment, 19))
-    except (AttributeError, OSError):  # not Linux, or not permitted: same priority
-        pass

@@ -20,11 +20,13 @@ True
 
 from __future__ import annotations
 
+import os
 import queue
+import sys
 import threading
 import time
 
-__all__ = ["launch", "start_launcher", "started"]
+__all__ = ["launch", "lower_thread_priority", "start_launcher", "started"]
 
 _lock = threading.Lock()
 _queue: queue.SimpleQueue[threading.Thread] | None = None
@@ -70,3 +72,18 @@ def started(thread: threading.Thread, timeout: float = 5.0) -> bool:
             return False
         time.sleep(0.001)
     return True
+
+
+def lower_thread_priority(increment: int) -> None:
+    """Raise the calling thread's nice value by ``increment`` (at most 19), so that
+    background work (decoding ahead, proxies, the autosave) leaves the cores to the GUI
+    thread first. Linux only (a per-thread nice value); elsewhere PRIO_PROCESS would
+    renice the whole program, so nothing changes. Not permitted: nothing changes."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid)
+                                                 + increment, 19))
+    except (AttributeError, OSError):
+        pass

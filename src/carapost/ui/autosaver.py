@@ -26,12 +26,15 @@ from PySide6.QtCore import QObject, Qt, Signal
 if TYPE_CHECKING:
     from carapost.model.project import Project
 
-__all__ = ["PARTIAL_SUFFIX", "Autosaver"]
+__all__ = ["AUTOSAVE_NICE", "PARTIAL_SUFFIX", "Autosaver"]
 
 log = logging.getLogger("carapost.ui")
 
 #: Suffix of the copy being written (moved onto the autosave copy when done).
 PARTIAL_SUFFIX = ".partial"
+
+#: Nice value added to the writer thread (the decoders' read-ahead has 10).
+AUTOSAVE_NICE = 15
 
 #: Changes that leave the saved data as it was (a write may overlap them).
 _HARMLESS = frozenset({"current_frame", "selection"})
@@ -104,7 +107,11 @@ class Autosaver(QObject):
 
     def _run(self, job: _Write) -> None:
         from carapost.io.cara import save_project
+        from carapost.io.launcher import lower_thread_priority
 
+        # the write takes CPU (zip members, checksums) for a second or more on a long
+        # take: the GUI thread and the decoders come first
+        lower_thread_priority(AUTOSAVE_NICE)
         try:
             save_project(job.project, job.partial, autosave=True)
         except BaseException as exc:  # reported on the GUI thread; autosave never stops work

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 import threading
 from typing import TYPE_CHECKING, Any
 
@@ -82,13 +81,10 @@ class ProxyBuilder(QObject):
 
     def _run(self, todo: list[str], stop: threading.Event) -> None:
         from carapost.io.errors import CaraFileError
+        from carapost.io.launcher import lower_thread_priority
         from carapost.io.proxy import write_proxy
 
-        try:  # interactive decoding comes first (Linux: per-thread nice value)
-            if sys.platform.startswith("linux"):  # elsewhere it would renice the program
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 15)
-        except (AttributeError, OSError):
-            pass
+        lower_thread_priority(15)  # interactive decoding comes first
         total = len(todo)
         for k, path in enumerate(todo):
 
