@@ -480,16 +480,17 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         Farthest (frames) the prediction from both sides is used.
     threshold_mm : float, optional
         The Single Sensor Tracking Threshold: a sample whose ray passes further than
-        this from its prediction, or whose sigma (the prediction's expected error
-        there) is above it, is removed (a gap), as the per-frame tracker does not keep
+        this from its prediction, or whose prediction's expected error there (RMS per
+        axis) is above it, is removed (a gap), as the per-frame tracker does not keep
         such samples. None keeps every sample.
 
     Returns
     -------
     ndarray, shape (F, P), float32
-        Sigma (mm) of each single-sensor sample: the error of the prediction along the
-        ray measured on the take for its distance in time to the triangulated samples
-        (:func:`prediction_sigma`); NaN elsewhere.
+        Sigma (mm) of each single-sensor sample: the RMS length of the prediction's
+        error measured on the take for its distance in time to the triangulated
+        samples (``sqrt(3)`` times :func:`prediction_sigma`'s per-axis figure); NaN
+        elsewhere.
     """
     F, P = o["recon"].shape
     sigma = np.full((F, P), np.nan, np.float32)
@@ -528,7 +529,7 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         j = np.clip(np.searchsorted(_GAPS, g) - 1, 0, _GAPS.size - 2)
         w = np.clip((g - _GAPS[j]) / (_GAPS[j + 1] - _GAPS[j]), 0.0, 1.0)
         val = curve[ps, j] * (1 - w) + curve[ps, j + 1] * w
-        sigma[fs, ps] = val.astype(np.float32)
+        sigma[fs, ps] = val.astype(np.float32)  # per axis (the threshold's test)
     if threshold_mm is not None:
         res = o["residual"].astype(np.float64)
         with np.errstate(invalid="ignore"):
@@ -539,4 +540,8 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
             detach_observations(o, drop[..., None] & has)
             _make_gaps(o, drop)
             sigma[drop] = np.nan
-    return sigma
+    # the stored sigma is the RMS length of the prediction's error, as every sample's is
+    # (the root of its covariance's trace): the sample's error lies along its ray, often
+    # the prediction's worst direction, and the per-axis figure left 35 % of the errors
+    # within one sigma on the takes of other renderers (docs/benchmarks.md)
+    return sigma * np.float32(np.sqrt(3.0))
