@@ -156,7 +156,10 @@ def test_thin_blob_noise_is_carried_by_the_width_scale():
 
 def test_attached_widths_reads_the_blob_of_each_observation():
     from carapost.algorithms.tracking import RaggedDetections
-    from carapost.algorithms.tracking.take import attached_widths
+    from carapost.algorithms.tracking.take import attached_blobs
+
+    def attached_widths(detections, detection, first=0):
+        return attached_blobs(detections, detection, first)[0]
 
     # 2 frames, 2 cameras: image (f, c) holds 2 blobs whose minor axis is 10 f + c + k / 10
     offsets = np.arange(0, 10, 2)

@@ -39,9 +39,9 @@ DEPTH_SMOOTHING_FRAMES = 9
 #: assumed (the measured one, across the image, is added).
 MOTION_TAU_MM = 0.03
 
-#: A sample further than this many standard deviations (Mahalanobis, its own
-#: covariance with the fit's and the motion's) from the fit of its neighbours in time is
-#: an outlier of the depth prior (0: none).
+#: A sample further than this many standard deviations from the fit of its neighbours
+#: in time, along its worst-seen direction (its variance there, the fit's and the
+#: motion's; see `smooth_along_uncertainty`), is an outlier of the depth prior (0: none).
 OUTLIER_SIGMAS = 4.0
 
 #: ... and its square distance is this many times the largest of the others in its

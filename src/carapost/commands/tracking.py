@@ -165,8 +165,7 @@ class _Detections:
             """Per camera the blobs' scores of one frame (as ``source`` serves it)."""
             if (frame, 0) in found:
                 return [found[(frame, c)]["score"] for c in range(C)]
-            rows = ragged.offsets[frame * C:(frame + 1) * C + 1]
-            return [ragged.score[rows[c]:rows[c + 1]] for c in range(C)]
+            return ragged.scores(frame)
 
         source.scores = scores  # type: ignore[attr-defined]
         return source

@@ -75,3 +75,11 @@ class RaggedDetections:
             ax = None if self.axes is None else self.axes[s:e].astype(np.float64)
             out.append((self.centre[s:e].astype(np.float64), ax))
         return out
+
+    def scores(self, frame: int) -> list[NDArray[Any] | None]:
+        """Per camera the blobs' scores of one frame (None without scores)."""
+        C = self.n_cameras
+        rows = self.offsets[frame * C:(frame + 1) * C + 1]
+        if self.score is None:
+            return [None] * C
+        return [self.score[rows[c]:rows[c + 1]] for c in range(C)]

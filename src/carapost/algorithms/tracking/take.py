@@ -363,13 +363,6 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
                        sigma=sigma)
 
 
-def attached_widths(detections: Callable[[int], FrameDetections],
-                    detection: NDArray[np.integer], first: int = 0) -> NDArray[np.float32]:
-    """Semi-minor axis (px) of the blob attached to every observation, (F, P, C)
-    float32, NaN where none (:func:`attached_blobs`)."""
-    return attached_blobs(detections, detection, first)[0]
-
-
 def attached_blobs(detections: Callable[[int], FrameDetections],
                    detection: NDArray[np.integer], first: int = 0
                    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
@@ -460,7 +453,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     :func:`carapost.algorithms.triangulation.triangulate`) with a target of 6 times the
     take's measured 2D noise, between 0.5 px and ``target_px``: an observation the
     solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
-    C): the semi-minor axis of each observation's blob (:func:`attached_widths`), which
+    C): the semi-minor axis of each observation's blob (:func:`attached_blobs`), which
     scales its 2D noise in the sigma; ``blob_scale`` (F, P, C) a further factor of that
     noise from the blob's score and length (:func:`blob_noise_scale`)."""
     face = kind != KIND_BRIM

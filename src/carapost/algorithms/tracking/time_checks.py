@@ -144,7 +144,7 @@ def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RA
     ----------
     widths : ndarray, shape (F, P, C)
         Semi-minor axis (px) of each observation's blob, NaN where none
-        (:func:`carapost.algorithms.tracking.take.attached_widths`).
+        (:func:`carapost.algorithms.tracking.take.attached_blobs`).
     ratio : float
         Flagged above this multiple of the local median.
     half : int
@@ -334,8 +334,10 @@ def reject_inconsistent_pairs(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray
     from scipy.ndimage import uniform_filter1d
 
     seen = (has & ((o["recon"] == RECON_TRIANGULATED) & face[None, :])[..., None])
-    count = uniform_filter1d(seen.astype(np.float64), 2 * half + 1, axis=0,
-                             mode="constant") * (2 * half + 1) - seen
+    # counts of 0/1 over the window: rounded, as the filter's mean times its length is
+    # not exact (the test below compares them with 1)
+    count = np.rint(uniform_filter1d(seen.astype(np.float64), 2 * half + 1, axis=0,
+                                     mode="constant") * (2 * half + 1)) - seen
     cams = np.argsort(~has[f, p], axis=1, kind="stable")[:, :2]  # the two cameras
     sup = np.take_along_axis(count[f, p], cams, axis=1)
     # the less supported camera, where the other observes the point in at least twice
@@ -409,7 +411,7 @@ def unanchored_single_sensor(o: dict[str, NDArray[Any]], face: NDArray[np.bool_]
     new = np.ones(idx.size, bool)
     new[1:] = (pair[1:] != pair[:-1]) | (frame[1:] - frame[:-1] > max_gap + 1)
     run = np.cumsum(new) - 1
-    p_of, c_of = np.divmod(pair, C)
+    p_of = pair // C
     anchored_obs = tri[frame, p_of]
     anchored = np.zeros(run[-1] + 1, bool)
     np.logical_or.at(anchored, run, anchored_obs)
