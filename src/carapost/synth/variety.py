@@ -10,8 +10,8 @@ the index, so a take is reproducible from it.
 
 Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
 developing the tracker, and `HELD_OUT_VARIANTS` and `HELD_OUT_VARIANTS_2` to
-`HELD_OUT_VARIANTS_5`, takes that are only ever scored (``benchmarks/tracking.py
---variety``) and never used to choose a parameter; the second to fifth sets were each
+`HELD_OUT_VARIANTS_6`, takes that are only ever scored (``benchmarks/tracking.py
+--variety``) and never used to choose a parameter; the second to sixth sets were each
 declared before any of their takes was rendered, and scored once, for figures untouched
 by every earlier round of tuning (which sets have since been looked at is said beside
 each).
@@ -24,7 +24,8 @@ import numpy as np
 from carapost.synth.scene import SynthConfig
 
 __all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "HELD_OUT_VARIANTS_3",
-           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "TUNING_VARIANTS", "other_rig_config"]
+           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "HELD_OUT_VARIANTS_6", "TUNING_VARIANTS",
+           "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
 TUNING_VARIANTS = (1, 2, 3, 4, 5)
@@ -42,6 +43,10 @@ HELD_OUT_VARIANTS_4 = (401, 402, 403, 404)
 #: rendered: the fourth was scored once and then looked at (seventeenth session,
 #: docs/benchmarks.md); this one is scored only after the changes made from that.
 HELD_OUT_VARIANTS_5 = (501, 502, 503, 504)
+#: A sixth held-out set (same presets), declared at the start of the eighteenth session,
+#: before any was rendered, after every earlier set had been looked at; scored first on
+#: main as it stood then (bb67900).
+HELD_OUT_VARIANTS_6 = (601, 602, 603, 604)
 
 _PRESETS = ("speech", "blink", "fast", "speech")
 
