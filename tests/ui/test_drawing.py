@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from carapost.model.project import (
+    KIND_BRIM,
     RECON_INTERPOLATED,
     RECON_TRIANGULATED,
     SOURCE_BLOB,
@@ -43,6 +44,28 @@ def test_point_codes_count_contributing_cameras():
                                  cont.INTERPOLATED, cont.GAP]
     assert (codes[1] == cont.INTERPOLATED).all()
     assert cont.point_codes(p, (1, 2))[0].tolist() == [cont.CAM3, cont.CAM2]
+
+
+def test_point_codes_of_brim_dots_and_of_a_column_subset():
+    """Brim dots are BRIM wherever they have 3D, whatever their 2D; a subset of columns
+    (brim and face mixed, in any order) gives the rows of the full chart."""
+    p = new_project(3, 2)
+    p.points.append(1)
+    p.points.append(1, kind=KIND_BRIM)
+    p.points.append(1)
+    pts = p.points
+    pts.positions[:, :] = 1.0
+    pts.recon[:] = RECON_TRIANGULATED
+    pts.obs[:, :, 0] = 5.0
+    pts.source[:, :, 0] = SOURCE_BLOB
+    pts.obs[1, 2, 1] = 5.0
+    pts.source[1, 2, 1] = SOURCE_BLOB
+    pts.positions[2, 1] = np.nan
+    full = cont.point_codes(p)
+    assert full[1].tolist() == [cont.BRIM, cont.BRIM, cont.GAP]
+    assert full[2].tolist() == [cont.CAM1, cont.CAM2, cont.CAM1]
+    sub = cont.point_codes(p, (1, 2), np.array([2, 1]))
+    assert np.array_equal(sub, full[[2, 1], 1:3])
 
 
 def test_camera_codes_sources_and_quality():

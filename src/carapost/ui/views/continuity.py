@@ -75,22 +75,27 @@ def point_codes(project: Project, frames: tuple[int, int] | None = None,
     pts = project.points
     f0, f1 = (0, project.n_frames - 1) if frames is None else frames
     sl = slice(f0, f1 + 1)
-    cols = slice(None) if columns is None else np.asarray(columns, dtype=np.intp)
-    recon = pts.recon[sl][:, cols]
-    measured = (recon != RECON_NONE) & (recon != RECON_INTERPOLATED)
-    count = np.zeros(recon.shape, np.uint8)
-    for c in range(pts.n_cameras):  # one [F, P] pass per camera: faster than sum(-1)
-        count += ((pts.source[sl, :, c] != SOURCE_NONE)
-                  & ~np.isnan(pts.obs[sl, :, c, 0]))[:, cols]
-    count *= measured
-    if pts.n_cameras == 0:  # an imported C3D: measured by a system we know nothing of
-        count = (measured * 4).astype(np.uint8)
-    present = ~np.isnan(pts.positions[sl, :, 0][:, cols])
-    codes = np.where(count > 0, CAM1 - 1 + np.minimum(count, 4), INTERPOLATED)
-    codes = np.where(present, codes, GAP).astype(np.uint8)
+    cols = (np.arange(len(pts.kind)) if columns is None
+            else np.asarray(columns, dtype=np.intp))
     brim = pts.kind[cols] == KIND_BRIM
-    if brim.any():
-        codes[:, brim] = np.where(present[:, brim], BRIM, GAP)
+    present = ~np.isnan(pts.positions[sl, :, 0][:, cols])
+    codes = np.where(present, BRIM, GAP).astype(np.uint8)  # [F', P']
+    # Brim dots need only their presence: counting their cameras (a pass over the
+    # observations, the bulk of the work on a long take) would be thrown away.
+    track = np.flatnonzero(~brim)
+    if track.size:
+        tcols = cols[track] if columns is not None or brim.any() else slice(None)
+        recon = pts.recon[sl][:, tcols]
+        measured = (recon != RECON_NONE) & (recon != RECON_INTERPOLATED)
+        count = np.zeros(recon.shape, np.uint8)
+        for c in range(pts.n_cameras):  # one [F, P] pass per camera: faster than sum(-1)
+            count += ((pts.source[sl, :, c] != SOURCE_NONE)
+                      & ~np.isnan(pts.obs[sl, :, c, 0]))[:, tcols]
+        count *= measured
+        if pts.n_cameras == 0:  # an imported C3D: measured by a system we know nothing of
+            count = (measured * 4).astype(np.uint8)
+        tracked = np.where(count > 0, CAM1 - 1 + np.minimum(count, 4), INTERPOLATED)
+        codes[:, track] = np.where(present[:, track], tracked, GAP)
     return np.ascontiguousarray(codes.T)
 
 
