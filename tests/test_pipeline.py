@@ -90,8 +90,9 @@ def test_pipeline_on_rendered_speech_take(tmp_path, patch_tracking):
     assert info["removed_points"] == []
     pts = open_project(out).points
     face = pts.kind == 0
-    tri = pts.recon[1:, face] == 1  # triangulated, after the initialised frame
-    assert np.isfinite(pts.arrays["sigma"][1:, face][tri]).mean() > 0.99
+    tri = pts.recon[:, face] == 1  # triangulated, the initialised frame included
+    assert np.isfinite(pts.arrays["sigma"][:, face][tri]).mean() > 0.99
+    assert np.isfinite(pts.arrays["sigma"][0, face][tri[0]]).all()
     patched = int((open_project(out).points.source == SOURCE_PATCH).sum())
     assert (patched > 0) == patch_tracking
     assert info["initialised"] > 50

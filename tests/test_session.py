@@ -334,6 +334,32 @@ def test_process_methods_make_one_entry_and_undo_exactly(synth_take):
     roundtrip(s, lambda s: s.import_xcp(synth_take.with_suffix(".xcp")))
 
 
+def test_track_take_gives_the_initialised_frame_a_sigma_and_keeps_its_positions(synth_take):
+    """The initialisation measures no sigma; Track Take leaves the initialised frame's
+    samples as they were and gives them the tracker's sigma (mm), so no frame of an
+    export falls back to the reprojection residual (px)."""
+    from carapost.model.project import KIND_FACE, RECON_TRIANGULATED
+
+    s = Session.import_take(synth_take)
+    p = s.project
+    s.detect_blobs("all")
+    s.solve_brim(frame=0, method="automatic")
+    s.initialize_3d(frame=0)
+    face = p.points.kind == KIND_FACE
+    initialised = p.points.positions[0].copy()
+    assert np.isnan(p.points.arrays["sigma"][0, face]).all()
+    s.track_take(frame=0)
+    tri = p.points.recon[:, face] == RECON_TRIANGULATED
+    sigma = p.points.arrays["sigma"][:, face]
+    assert tri[0].sum() > 50
+    assert np.isfinite(sigma[0][tri[0]]).all() and np.isfinite(sigma[tri]).mean() > 0.99
+    assert (sigma[tri] > 0).all() and np.median(sigma[0][tri[0]]) < 0.5
+    n = initialised.shape[0]
+    np.testing.assert_array_equal(p.points.positions[0][:n], initialised)
+    s.undo()
+    assert np.isnan(p.points.arrays["sigma"][0, face]).all()
+
+
 def test_cancelled_detection_keeps_the_finished_images(synth_take):
     s = Session.import_take(synth_take)
     calls = []

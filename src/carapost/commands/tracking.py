@@ -430,8 +430,15 @@ class TakeTrackComputation(_TrackedPoints):
         def value(name: str) -> NDArray:
             cur = pts.arrays[name][fr][:, cols]
             val = np.asarray(getattr(res, name)).astype(cur.dtype)
-            # the initialised frame of the existing points stays as initialised
-            val[keep_start, : old.size] = cur[keep_start, : old.size]
+            # the initialised frame of the existing points stays as initialised; its
+            # sigma is the tracker's (the initialisation measures none, and the
+            # tracker's describes those very samples: it leaves the frame as it is),
+            # else that frame would export the reprojection residual in px among mm
+            held = cur[keep_start, : old.size]
+            if name == "sigma":
+                held = np.where(np.isfinite(val[keep_start, : old.size]),
+                                val[keep_start, : old.size], held)
+            val[keep_start, : old.size] = held
             return val
 
         journal.write_points(fr, cols, tracked_arrays(value, sigma=res.sigma is not None))
