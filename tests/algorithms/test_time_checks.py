@@ -153,13 +153,13 @@ def test_single_sensor_samples_from_both_sides(scene):
     # with max_gap 2 only the frames next to the triangulated ones are predicted from
     # both sides; further in, the tracker's placement is kept (moved onto the ray)
     place_single_sensor(kept, scene.cam_R, scene.cam_t, np.ones(M, bool),
-                        scene.intrinsics, np.zeros(F, bool), max_gap=2)
+                        scene.intrinsics, max_gap=2)
     ek = _error(kept, scene)[run][:, pts]
     assert np.median(ek[[0, 1, -2, -1]]) < 0.3
     assert np.median(ek[3:7]) > 0.7
     # by default (MAX_GAP, 32 frames) the whole 10-frame run is
     sigma = place_single_sensor(o, scene.cam_R, scene.cam_t, np.ones(M, bool),
-                                scene.intrinsics, np.zeros(F, bool))
+                                scene.intrinsics)
     e = _error(o, scene)[run][:, pts]
     # the 1 mm placement is replaced; lips whose neighbours move otherwise stay worst
     assert np.sqrt(np.mean(e ** 2)) < 0.4
@@ -172,6 +172,31 @@ def test_single_sensor_samples_from_both_sides(scene):
     assert np.mean(e <= 2 * s) >= 0.75
     assert np.median(s) < 0.5
     assert np.isnan(sigma[o["recon"] != RECON_SINGLE_SENSOR]).all()
+
+
+def test_single_sensor_samples_of_the_first_frame_are_placed_and_get_a_sigma(scene):
+    """The initialised (fixed) frame is placed like any other: what it holds of a point
+    found later is the per-frame tracker's placement, which had no sigma."""
+    rng = np.random.default_rng(3)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    pts = _caddy_23_only(scene)
+    run = slice(0, 4)  # camera 3 misses them on the first four frames
+    o["obs"][run, pts, 3] = np.nan
+    cen = -np.einsum("fji,fj->fi", scene.cam_R[run, 2], scene.cam_t[run, 2])
+    d = scene.points3d[run][:, pts] - cen[:, None]
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    block = o["positions"][run]
+    block[:, pts] = scene.points3d[run][:, pts] + 1.0 * d
+    o["positions"][run] = block
+    rec = o["recon"][run]
+    rec[:, pts] = RECON_SINGLE_SENSOR
+    o["recon"][run] = rec
+    sigma = place_single_sensor(o, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                                scene.intrinsics)
+    e = _error(o, scene)[run][:, pts]
+    assert np.median(e[0]) < 0.3 and np.median(e) < 0.3  # the 1 mm placement replaced
+    assert np.isfinite(sigma[run][:, pts]).all()
 
 
 def test_neighbour_prediction_blends_both_sides():
@@ -302,8 +327,7 @@ def test_single_sensor_threshold(scene):
     blk = o["obs"][13]
     blk[pts, 2] += [6.0, 0.0]
     o["obs"][13] = blk
-    args = (scene.cam_R, scene.cam_t, np.ones(M, bool), scene.intrinsics,
-            np.zeros(F, bool))
+    args = (scene.cam_R, scene.cam_t, np.ones(M, bool), scene.intrinsics)
     free = {k: v.copy() for k, v in o.items()}
     place_single_sensor(free, *args)
     assert (free["recon"][13, pts] == RECON_SINGLE_SENSOR).all()

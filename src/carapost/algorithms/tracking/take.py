@@ -508,8 +508,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         into its single-sensor neighbours in time."""
         if nb is None:
             return np.full(tri.shape, np.nan, np.float32)
-        return place_single_sensor(o, R, t, face, intr, fixed, nb,
-                                   threshold_mm=single_threshold_mm)
+        return place_single_sensor(o, R, t, face, intr, nb, threshold_mm=single_threshold_mm)
 
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)

@@ -468,16 +468,15 @@ def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
 
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                         face: NDArray[np.bool_], intr: CameraIntrinsics,
-                        fixed: NDArray[np.bool_], nb: NDArray[np.intp] | None = None,
-                        max_gap: int = MAX_GAP, threshold_mm: float | None = None
-                        ) -> NDArray[np.float32]:
+                        nb: NDArray[np.intp] | None = None, max_gap: int = MAX_GAP,
+                        threshold_mm: float | None = None) -> NDArray[np.float32]:
     """Put every single-sensor face sample on its ray nearest the prediction from both
     sides; return their sigmas.
 
     Parameters
     ----------
-    o, R, t, face, intr, fixed, nb
-        As for :func:`reject_by_motion`.
+    o, R, t, face, intr, nb
+        As for :func:`reject_by_motion` (every frame is placed, the fixed one too).
     max_gap : int
         Farthest (frames) the prediction from both sides is used.
     threshold_mm : float, optional
@@ -498,8 +497,10 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     sigma = np.full((F, P), np.nan, np.float32)
     obs = o["obs"].astype(np.float64)
     has = np.isfinite(obs).all(-1)
+    # the fixed (initialised) frame too: what it holds of a point found later is the
+    # per-frame tracker's placement, predicted from one side only and with no sigma
+    # (Track Take keeps the initialised points' samples of that frame as they were)
     single = (o["recon"] == RECON_SINGLE_SENSOR) & face[None, :] & (has.sum(-1) == 1)
-    single &= ~fixed[:, None]
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     if not single.any() or tri.sum() < 10:
         return sigma
