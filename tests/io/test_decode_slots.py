@@ -143,6 +143,40 @@ def test_slots_wait_and_count():
     assert DecodeSlots(0).limit == 1  # at least one decode at a time
 
 
+def test_read_ahead_leaves_a_core_to_the_gui_thread():
+    """Read-ahead decodes start only while fewer than `ahead_limit` (one core fewer
+    than the slots) decode; urgent ones use every slot and never queue behind
+    read-ahead that waits for its cap."""
+    slots = DecodeSlots(2)
+    assert slots.ahead_limit == 1 and DecodeSlots(1).ahead_limit == 1
+    assert DecodeSlots(4, ahead_limit=9).ahead_limit == 4
+    assert slots.acquire(urgent=False)  # one read-ahead decodes
+    got: list[str] = []
+
+    def ask(name: str, urgent: bool) -> threading.Thread:
+        def run():
+            slots.acquire(urgent)
+            got.append(name)
+        t = threading.Thread(target=run)
+        t.start()
+        return t
+
+    ahead = ask("ahead", False)
+    while not slots._queues[1]:
+        time.sleep(0.001)
+    assert got == []  # a second read-ahead waits: the other core is the GUI's
+    view = ask("view", True)
+    view.join(timeout=5)
+    assert got == ["view"] and slots._busy == 2  # the view's decode took the free slot
+    slots.release()  # the view's: the read-ahead would make two with the first one
+    assert got == ["view"] and slots._busy == 1
+    slots.release()  # the first read-ahead's: now the waiting one starts
+    ahead.join(timeout=5)
+    assert got == ["view", "ahead"] and slots._busy == 1 and slots.peak == 2
+    slots.release()
+    assert slots._busy == 0
+
+
 def test_a_slot_given_up_goes_to_the_waiters_urgent_first():
     """A thread reading ahead that gives its slot up and asks again at once queues
     behind the waiters (no barging), and urgent waiters go before read-ahead."""

@@ -34,10 +34,20 @@ class DecodeSlots:
     behind read-ahead for seconds on a loaded machine). A read-ahead wait can be called
     off (`SlotWait`, `cancel`).
 
+    Read-ahead decodes only start while fewer than ``ahead_limit`` decodes run: by
+    default one core fewer than ``limit``, so the GUI thread always finds a core free
+    while the decoders fill the cache. A lower nice value is not enough: a thread at
+    nice 0 that wakes while every core runs a nice +10 thread waited up to 80 ms for
+    one on this machine's scheduler (docs/benchmarks.md, eighteenth session), against
+    at most 4 ms with a core left free.
+
     Parameters
     ----------
     limit : int
         Decodes running at once (at least 1).
+    ahead_limit : int, optional
+        Decodes running at once when a read-ahead one may start (default ``limit - 1``,
+        at least 1).
 
     Attributes
     ----------
@@ -45,9 +55,11 @@ class DecodeSlots:
         Most decodes that ran at once so far (tests, benchmarks).
     """
 
-    def __init__(self, limit: int) -> None:
+    def __init__(self, limit: int, ahead_limit: int | None = None) -> None:
         self._lock = threading.Lock()
         self._limit = max(int(limit), 1)
+        self._ahead = max(min(self._limit - 1 if ahead_limit is None else int(ahead_limit),
+                              self._limit), 1)
         self._busy = 0
         # waiters, each a lock held until a slot is handed to it: urgent, read-ahead
         self._queues: tuple[deque[threading.Lock], deque[threading.Lock]] = (deque(), deque())
@@ -58,6 +70,11 @@ class DecodeSlots:
         """Decodes allowed at once."""
         return self._limit
 
+    @property
+    def ahead_limit(self) -> int:
+        """Decodes running at once below which a read-ahead one may start."""
+        return self._ahead
+
     def acquire(self, urgent: bool = True, wait: SlotWait | None = None) -> bool:
         """Wait for a slot (``urgent``: ahead of every read-ahead waiter).
 
@@ -66,7 +83,10 @@ class DecodeSlots:
         with self._lock:
             if wait is not None and wait.cancelled:
                 return False
-            if self._busy < self._limit and not (self._queues[0] or self._queues[1]):
+            # first come first served within a class; an urgent decode does not queue
+            # behind read-ahead that waits only for its own cap
+            cap = self._limit if urgent else self._ahead
+            if self._busy < cap and not self._queues[0] and (urgent or not self._queues[1]):
                 self._busy += 1
                 self.peak = max(self.peak, self._busy)
                 return True
@@ -100,12 +120,13 @@ class DecodeSlots:
             # handed a slot already: nothing to call off
 
     def release(self) -> None:
-        """Give the slot up: to the first urgent waiter, else the first other one."""
+        """Give the slot up: to the first urgent waiter, else to the first read-ahead
+        one if fewer than `ahead_limit` others decode."""
         with self._lock:
-            for queue in self._queues:
-                if queue:
-                    queue.popleft().release()  # still busy: the slot changes hands
-                    return
+            urgent, ahead = self._queues
+            if urgent or (ahead and self._busy - 1 < self._ahead):
+                (urgent or ahead).popleft().release()  # still busy: it changes hands
+                return
             self._busy -= 1
 
     def __enter__(self) -> DecodeSlots:
