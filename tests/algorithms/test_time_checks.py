@@ -174,6 +174,47 @@ def test_single_sensor_samples_from_both_sides(scene):
     assert np.isnan(sigma[o["recon"] != RECON_SINGLE_SENSOR]).all()
 
 
+def test_single_sensor_sigma_carries_a_bad_references_sigma(scene):
+    """A single-sensor sample predicted from a triangulated sample that is itself off
+    (the frame where the caddy's second camera starts to lose the marker) inherits that
+    error; the reference's sigma says so, and the sample's sigma must too."""
+    rng = np.random.default_rng(4)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    pts = _caddy_23_only(scene)
+    run = slice(12, 22)
+    o["obs"][run, pts, 3] = np.nan
+    rec = o["recon"][run]
+    rec[:, pts] = RECON_SINGLE_SENSOR
+    o["recon"][run] = rec
+    # the reference before the run: 0.8 mm off along camera 2's ray, and its sigma
+    # says so; every other triangulated sample has the take's typical sigma
+    cen = -np.einsum("ji,j->i", scene.cam_R[11, 2], scene.cam_t[11, 2])
+    d = scene.points3d[11, pts] - cen
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o["positions"][11, pts] = scene.points3d[11, pts] + 0.8 * d
+    tri = o["recon"] == RECON_TRIANGULATED
+    ref = np.where(tri, 0.05, np.nan).astype(np.float32)
+    ref[11, pts] = 0.8
+    args = (scene.cam_R, scene.cam_t, np.ones(M, bool), scene.intrinsics)
+    plain = {k: v.copy() for k, v in o.items()}
+    s0 = place_single_sensor(plain, *args)[run][:, pts]
+    s1 = place_single_sensor(o, *args, ref_sigma=ref)[run][:, pts]
+    e = _error(o, scene)[run][:, pts]
+    assert np.allclose(e, _error(plain, scene)[run][:, pts])  # the placement is the same
+    assert np.median(e[0]) > 0.5  # next to the bad reference the sample inherits its error
+    assert np.mean(e[0] <= 2 * s0[0]) < 0.5  # the take's curve alone does not cover it
+    assert np.mean(e[0] <= 2 * s1[0]) == 1.0
+    # the weight follows the distance in time: at the run's far end the good reference
+    # dominates and the sigma hardly moves
+    assert (s1 >= s0 - 1e-6).all()
+    assert np.median(s1[-1] / s0[-1]) < 1.5 < np.median(s1[0] / s0[0])
+    # a reference no worse than the point's typical sample adds nothing
+    flat = {k: v.copy() for k, v in plain.items()}
+    same = place_single_sensor(flat, *args, ref_sigma=np.where(tri, 0.05, np.nan))
+    assert np.allclose(same[run][:, pts], s0, rtol=1e-5)
+
+
 def test_single_sensor_samples_of_the_first_frame_are_placed_and_get_a_sigma(scene):
     """The initialised (fixed) frame is placed like any other: what it holds of a point
     found later is the per-frame tracker's placement, which had no sigma."""

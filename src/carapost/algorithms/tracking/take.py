@@ -501,14 +501,15 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     else:
         nb = None
 
-    def placed() -> NDArray[np.float32]:
+    def placed(ref_sigma: NDArray[np.float32]) -> NDArray[np.float32]:
         """Single-sensor samples from both sides (with the time checks only), their
         sigmas; called once the triangulated samples they are predicted from are final
         (after the depth priors), so a one-caddy reference's depth noise does not go
         into its single-sensor neighbours in time."""
         if nb is None:
             return np.full(tri.shape, np.nan, np.float32)
-        return place_single_sensor(o, R, t, face, intr, nb, threshold_mm=single_threshold_mm)
+        return place_single_sensor(o, R, t, face, intr, nb, threshold_mm=single_threshold_mm,
+                                   ref_sigma=ref_sigma)
 
     X = np.where(tri[..., None], o["positions"].astype(np.float64), np.nan)
     obs_t = np.where(tri[..., None, None], obs, np.nan)
@@ -522,7 +523,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if depth_window < 5 or len(R) < 5 or not tri.any():
         sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
                              point_factor=phi, scale=scale).astype(np.float32)
-        single_sigma = placed()
+        single_sigma = placed(sigma)
         return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
     # the depth prior from time: one-caddy depth follows the smooth track, well-seen
     # directions keep their measurement (docs/algorithms.md). It reduces only the error
@@ -557,7 +558,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         var = np.einsum("fpii->fp", cov) * own[None, ps] + np.nan_to_num(shared[:, ps]) ** 2
         sigma[:, ps] = np.sqrt(var)
     sigma[~np.isfinite(X).all(-1)] = np.nan
-    single_sigma = placed()
+    single_sigma = placed(sigma)
     # wrong whole samples (a wrong blob in every camera) last: before the depth priors
     # a one-caddy sample's depth noise is as large as such an error (on tuning take 5,
     # 50 right samples were removed there)

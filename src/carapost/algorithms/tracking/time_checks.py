@@ -469,7 +469,9 @@ def reject_wrong_samples(o: dict[str, NDArray[Any]], face: NDArray[np.bool_],
 def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                         face: NDArray[np.bool_], intr: CameraIntrinsics,
                         nb: NDArray[np.intp] | None = None, max_gap: int = MAX_GAP,
-                        threshold_mm: float | None = None) -> NDArray[np.float32]:
+                        threshold_mm: float | None = None,
+                        ref_sigma: NDArray[np.floating] | None = None
+                        ) -> NDArray[np.float32]:
     """Put every single-sensor face sample on its ray nearest the prediction from both
     sides; return their sigmas.
 
@@ -484,6 +486,11 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         this from its prediction, or whose prediction's expected error there (RMS per
         axis) is above it, is removed (a gap), as the per-frame tracker does not keep
         such samples. None keeps every sample.
+    ref_sigma : ndarray, shape (F, P), optional
+        Sigma (mm) of the triangulated samples. A prediction carries its references'
+        own error: where a reference is worse than the point's typical sample (the
+        frames where the caddy's second camera starts to lose the marker), its excess
+        variance, weighted as in the blend, is added to the sample's.
 
     Returns
     -------
@@ -523,6 +530,7 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     # the sigma: the prediction's error measured on the take at that distance in time
     # (interpolated between the measured gaps, the longest one beyond)
     curve = prediction_sigma(X, tri, nb, _GAPS)  # (P, G)
+    extra = np.zeros((F, P))
     good = np.isfinite(curve)
     if good.any():
         curve = np.maximum.accumulate(np.where(good, curve, 0.0), axis=1)
@@ -533,6 +541,12 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
         w = np.clip((g - _GAPS[j]) / (_GAPS[j + 1] - _GAPS[j]), 0.0, 1.0)
         val = curve[ps, j] * (1 - w) + curve[ps, j + 1] * w
         sigma[fs, ps] = val.astype(np.float32)  # per axis (the threshold's test)
+        if ref_sigma is not None:
+            # per axis, like the curve: the reference's error lies mostly along the
+            # depth of its caddy, which is about the single camera's ray. Not in the
+            # threshold's test: that asks how well the face's motion carries a point
+            # over the gap, as the per-frame tracker does
+            extra[fs, ps] = _reference_excess(ref_sigma, tri, fs, ps) / 3.0
     if threshold_mm is not None:
         res = o["residual"].astype(np.float64)
         with np.errstate(invalid="ignore"):
@@ -547,4 +561,34 @@ def place_single_sensor(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     # (the root of its covariance's trace): the sample's error lies along its ray, often
     # the prediction's worst direction, and the per-axis figure left 35 % of the errors
     # within one sigma on the takes of other renderers (docs/benchmarks.md)
-    return sigma * np.float32(np.sqrt(3.0))
+    sigma = np.sqrt(sigma.astype(np.float64) ** 2 + extra)
+    return (sigma * np.sqrt(3.0)).astype(np.float32)
+
+
+def _reference_excess(ref_sigma: NDArray[np.floating], tri: NDArray[np.bool_],
+                      fs: NDArray[np.intp], ps: NDArray[np.intp]) -> NDArray[np.float64]:
+    """(N,) variance (mm^2, RMS length squared) the references of samples ``(fs, ps)``
+    add beyond the point's typical triangulated sample: each side's sigma squared less
+    the point's median one, weighted by its blend weight squared (the nearer side
+    weighs more, linearly in time, as :func:`neighbour_prediction` blends them).
+
+    The measured prediction error (:func:`prediction_sigma`) already holds a typical
+    reference's error; only what a particular reference has beyond that is added."""
+    F, P = tri.shape
+    sg = np.where(tri, np.asarray(ref_sigma, np.float64), np.nan)
+    with np.errstate(all="ignore"):
+        typical = np.nanmedian(np.where(np.isfinite(sg), sg, np.nan), axis=0)  # (P,)
+    frames = np.arange(F)[:, None]
+    before = np.maximum.accumulate(np.where(tri, frames, -1), axis=0)
+    after = np.minimum.accumulate(np.where(tri, frames, F)[::-1], axis=0)[::-1]
+    a, b = before[fs, ps], after[fs, ps]
+    has_a, has_b = a >= 0, b < F
+    da = np.where(has_a, fs - a, 0).astype(np.float64)
+    db = np.where(has_b, b - fs, 0).astype(np.float64)
+    both = has_a & has_b
+    wa = np.where(both, db / np.maximum(da + db, 1.0), has_a.astype(np.float64))
+    wb = np.where(both, da / np.maximum(da + db, 1.0), has_b.astype(np.float64))
+    typ = np.nan_to_num(typical[ps]) ** 2
+    ea = np.where(has_a, np.nan_to_num(sg[np.where(has_a, a, 0), ps]) ** 2 - typ, 0.0)
+    eb = np.where(has_b, np.nan_to_num(sg[np.where(has_b, b, 0), ps]) ** 2 - typ, 0.0)
+    return wa ** 2 * np.maximum(ea, 0.0) + wb ** 2 * np.maximum(eb, 0.0)
