@@ -576,8 +576,9 @@ def _reference_excess(ref_sigma: NDArray[np.floating], tri: NDArray[np.bool_],
     reference's error; only what a particular reference has beyond that is added."""
     F, P = tri.shape
     sg = np.where(tri, np.asarray(ref_sigma, np.float64), np.nan)
-    with np.errstate(all="ignore"):
-        typical = np.nanmedian(np.where(np.isfinite(sg), sg, np.nan), axis=0)  # (P,)
+    typical = np.zeros(P)
+    known = np.isfinite(sg).any(0)  # a point with no sigma at all: nothing to compare
+    typical[known] = np.nanmedian(sg[:, known], axis=0)
     frames = np.arange(F)[:, None]
     before = np.maximum.accumulate(np.where(tri, frames, -1), axis=0)
     after = np.minimum.accumulate(np.where(tri, frames, F)[::-1], axis=0)[::-1]
