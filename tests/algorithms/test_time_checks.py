@@ -131,6 +131,14 @@ def _caddy_23_only(scene) -> np.ndarray:
     return pts
 
 
+def _camera_3_misses(o, pts, run) -> None:
+    """Camera 3 misses ``pts`` over ``run``: their samples there are single-sensor."""
+    o["obs"][run, pts, 3] = np.nan
+    rec = o["recon"][run]
+    rec[:, pts] = RECON_SINGLE_SENSOR
+    o["recon"][run] = rec
+
+
 def test_single_sensor_samples_from_both_sides(scene):
     rng = np.random.default_rng(2)
     o = _arrays(scene, rng)
@@ -183,10 +191,7 @@ def test_single_sensor_sigma_carries_a_bad_references_sigma(scene):
     F, M, C = scene.visible.shape
     pts = _caddy_23_only(scene)
     run = slice(12, 22)
-    o["obs"][run, pts, 3] = np.nan
-    rec = o["recon"][run]
-    rec[:, pts] = RECON_SINGLE_SENSOR
-    o["recon"][run] = rec
+    _camera_3_misses(o, pts, run)
     # the reference before the run: 0.8 mm off along camera 2's ray, and its sigma
     # says so; every other triangulated sample has the take's typical sigma
     cen = -np.einsum("ji,j->i", scene.cam_R[11, 2], scene.cam_t[11, 2])
@@ -361,10 +366,7 @@ def test_single_sensor_threshold(scene):
     F, M, C = scene.visible.shape
     pts = _caddy_23_only(scene)
     run = slice(12, 15)
-    o["obs"][run, pts, 3] = np.nan
-    rec = o["recon"][run]
-    rec[:, pts] = RECON_SINGLE_SENSOR
-    o["recon"][run] = rec
+    _camera_3_misses(o, pts, run)
     blk = o["obs"][13]
     blk[pts, 2] += [6.0, 0.0]
     o["obs"][13] = blk
