@@ -389,3 +389,69 @@ def test_point_noise_factor_finds_the_point_with_bad_blobs():
     s = sample_sigma(Y, uv, Rf, tf, intr, est, point_factor=phi)
     e = np.linalg.norm(Y - X, axis=-1)
     assert 0.5 < np.mean(e[:, 3] <= s[:, 3]) < 0.85
+
+
+def _perturbed(R, t, cov, rng, K):
+    """K draws of every camera's pose moved by an independent error of covariance cov
+    (C, 6, 6): rotation (camera frame, rad) then translation (mm), as the resection's."""
+    from carapost.algorithms.camera import rodrigues_to_matrix
+
+    C = len(R)
+    L = np.linalg.cholesky(cov)
+    xi = np.einsum("cij,kcj->kci", L, rng.normal(0, 1, (K, C, 6)))
+    dR = rodrigues_to_matrix(xi[..., :3].reshape(-1, 3)).reshape(K, C, 3, 3)
+    return dR @ R[None], np.einsum("kcij,cj->kci", dR, t) + xi[..., 3:]
+
+
+@pytest.mark.parametrize("cams", [(0, 1), (0, 1, 2, 3)])
+def test_independent_pose_errors_are_carried_through_the_triangulation(cams):
+    """Each camera's pose is off by its own error (what each camera's brim noise does):
+    triangulating the points' exact projections with those cameras scatters them as the
+    independent model predicts, also along the short baseline of one caddy, where a
+    shift shared by the cameras says far too little."""
+    rng = np.random.default_rng(8)
+    intr, R, t = caddy_rig()
+    K, P = 400, 6
+    X = face_points(rng, P)
+    sd = np.r_[np.full(3, np.radians(0.01)), np.full(3, 0.02)]
+    cov = np.broadcast_to(np.diag(sd ** 2), (4, 6, 6)).copy()
+    uv, _ = project(X, R, t, intr)  # (P, C, 2) exact
+    uv[:, [c for c in range(4) if c not in cams]] = np.nan
+    Rk, tk = _perturbed(R, t, cov, rng, K)
+    params = TriangulationParameters(minimum_cameras=2, refine_iterations=3)
+    Y = triangulate(np.broadcast_to(uv, (K,) + uv.shape), Rk, tk, intr, params).points
+    emp = np.mean(np.sum((Y - X) ** 2, -1), axis=0)  # (P,) mm^2
+    Rf, tf = np.broadcast_to(R, (1, 4, 3, 3)), np.broadcast_to(t, (1, 4, 3))
+    pc = np.broadcast_to(cov, (1, 4, 6, 6))
+    tiny = np.full(4, 1e-6)  # no 2D noise: the pose term alone
+
+    def predicted(independent):
+        s = sample_sigma(X[None], uv[None], Rf, tf, intr, tiny, pose_cov=pc,
+                         pose_independent=independent)[0]
+        return s.astype(np.float64) ** 2
+
+    ratio = emp / predicted(True)
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+    if len(cams) == 2:
+        assert np.all(emp > 3 * predicted(False))
+
+
+def test_white_factor_keeps_what_each_dot_keeps():
+    """Brim residuals made of white noise and of an offset each dot keeps in every frame:
+    the fit over time's factor applies to the white part only."""
+    rng = np.random.default_rng(9)
+    intr, R, t = caddy_rig()
+    B = brim_dots()
+    F = 200
+    Rf, tf = np.broadcast_to(R, (F, 4, 3, 3)), np.broadcast_to(t, (F, 4, 3))
+    uv0 = project(B, Rf, tf, intr)[0]  # (F, N, C, 2)
+    Bf = np.broadcast_to(B, (F,) + B.shape)
+    white, kept, factor = 0.05, 0.03, np.full(F, 0.2)
+    for sys_px, expect in ((0.0, 0.2), (kept, (0.2 * white ** 2 + kept ** 2)
+                                        / (white ** 2 + kept ** 2))):
+        uv = (uv0 + rng.normal(0, white, uv0.shape)
+              + rng.normal(0, sys_px, uv0.shape[1:])[None])
+        full, _ = brim_pose_covariance(Bf, uv, Rf, tf, intr)
+        part, _ = brim_pose_covariance(Bf, uv, Rf, tf, intr, white_factor=factor)
+        got = np.median(part[..., 0, 0] / full[..., 0, 0])
+        assert got == pytest.approx(expect, rel=0.2), (sys_px, got, expect)

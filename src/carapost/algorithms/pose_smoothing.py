@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["POSE_SMOOTHING_FRAMES", "savgol_quadratic", "smooth_camera_poses"]
+__all__ = ["POSE_SMOOTHING_FRAMES", "savgol_quadratic", "smooth_camera_poses",
+           "smoothing_variance_factor"]
 
 #: Window (frames) of the pose fit. On rendered takes with rig flex up to 2.5 Hz at
 #: 60 fps, 9-11 frames removed most of the per-frame resection noise (camera tilt error
@@ -75,6 +76,40 @@ def savgol_quadratic(x: ArrayLike, window: int) -> NDArray[np.float64]:
     out[:half] = np.tensordot(V[:half] @ fit, xs[:w], axes=1)
     out[F - half:] = np.tensordot(V[half + 1:] @ fit, xs[F - w:], axes=1)
     return out
+
+
+def smoothing_variance_factor(window: int, frames: int) -> float:
+    """What :func:`smooth_camera_poses` leaves of white per-frame pose noise (variance).
+
+    A least-squares fit's hat matrix is idempotent, so the variance of the fitted value
+    at the window's centre is its own weight ``h_00``: for a quadratic over ``2m + 1``
+    frames ``3 (3m^2 + 3m - 1) / ((2m + 3)(2m + 1)(2m - 1))`` (0.21 for 11 frames). The
+    window is shortened as :func:`smooth_camera_poses` shortens it; 1 where it smooths
+    nothing. (The ends of the take, fitted off-centre, keep somewhat more.)
+
+    Parameters
+    ----------
+    window : int
+        Frames of the fit.
+    frames : int
+        Frames of the take.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> round(smoothing_variance_factor(11, 600), 4), smoothing_variance_factor(3, 600)
+    (0.2075, 1.0)
+    """
+    F = int(frames)
+    w = min(int(window), F if F % 2 else F - 1)
+    if w < 5:
+        return 1.0
+    w += 1 - w % 2
+    m = (w - 1) // 2
+    return 3.0 * (3 * m * m + 3 * m - 1) / ((2 * m + 3) * (2 * m + 1) * (2 * m - 1))
 
 
 def smooth_camera_poses(R: ArrayLike, t: ArrayLike, window: int = POSE_SMOOTHING_FRAMES,

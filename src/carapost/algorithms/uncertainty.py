@@ -38,6 +38,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.camera import CameraIntrinsics, project
+from carapost.algorithms.pose_error import (  # re-exported: sigma's pose term
+    brim_pose_covariance,
+    pose_noise_variance,
+    pose_shift_variance,
+)
 from carapost.algorithms.pose_smoothing import (  # re-exported: the pose fit's home
     POSE_SMOOTHING_FRAMES,
     savgol_quadratic,
@@ -341,7 +346,8 @@ def _project_per_frame(X: NDArray[np.float64], R: NDArray[np.float64], t: NDArra
 def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
                  intr: CameraIntrinsics, noise_px: ArrayLike,
                  pose_cov: ArrayLike | None = None, point_factor: ArrayLike | None = None,
-                 scale: ArrayLike | None = None, chunk: int = 256) -> NDArray[np.float32]:
+                 scale: ArrayLike | None = None, chunk: int = 256,
+                 pose_independent: bool = False) -> NDArray[np.float32]:
     """Standard deviation (mm) of each triangulated sample's 3D error.
 
     First-order propagation: with ``J_c`` the 2x3 Jacobian of camera ``c``'s pixel
@@ -351,7 +357,13 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
     the shift of the point by each observing camera's pose error is added (the mean
     over those cameras of ``M_c Cov_c M_c^T``, ``M_c`` = ``R_c^T [-[X_c]x, I]`` the
     point's displacement per pose parameter, ``X_c`` the point in camera coordinates;
-    see the module docstring for why the shift is shared). The value stored is the root
+    see the module docstring for why the shift is shared); with ``pose_independent`` the
+    cameras' pose errors are taken as independent instead, each an extra 2D noise of its
+    observation carried through the triangulation
+    (`carapost.algorithms.pose_error.pose_noise_variance`): what is left once the brim
+    dots' offsets are removed (:mod:`carapost.algorithms.brim_discs`) is each camera's
+    own centroid noise. The
+    value stored is the root
     of the trace: the RMS length of the error vector, which is the standard deviation
     along the worst direction when one direction dominates (depth along a short caddy
     baseline) and never less than it.
@@ -376,6 +388,9 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
         `observation_information`.
     chunk : int
         Frames per block (bounds the memory of long takes).
+    pose_independent : bool
+        How ``pose_cov`` enters: a shift shared by the cameras (False) or independent
+        errors of each camera (True).
 
     Returns
     -------
@@ -410,7 +425,7 @@ def sample_sigma(X: ArrayLike, obs: ArrayLike, R: ArrayLike, t: ArrayLike,
         b = slice(a, a + max(1, int(chunk)))
         out[b] = _sigma_block(Xm[b], o[b].astype(np.float64), Rm[b], tm[b], intr, s,
                               None if pc is None else pc[b], phi,
-                              None if sc is None else sc[b])
+                              None if sc is None else sc[b], pose_independent)
     return out
 
 
@@ -489,7 +504,8 @@ def observation_information(X: NDArray[np.float64], obs: NDArray[np.float64],
 def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np.float64],
                  tm: NDArray[np.float64], intr: CameraIntrinsics, s: NDArray[np.float64],
                  pc: NDArray[np.float64] | None, phi: NDArray[np.float64],
-                 scale: NDArray[np.float64] | None = None) -> NDArray[np.float32]:
+                 scale: NDArray[np.float64] | None = None,
+                 pose_independent: bool = False) -> NDArray[np.float32]:
     """`sample_sigma` of a block of frames."""
     info, ok, Xc = observation_information(Xm, o, Rm, tm, intr, s, scale)
     out = np.full(Xm.shape[:2], np.nan, dtype=np.float32)
@@ -503,117 +519,13 @@ def _sigma_block(Xm: NDArray[np.float64], o: NDArray[np.float64], Rm: NDArray[np
     var[good] = np.einsum("nii->n", np.linalg.inv(A[good]))
     var *= np.broadcast_to(phi[None, :], two.shape)[two]
     if pc is not None:
-        var += _pose_shift_variance(Xc[two], ok[two], Rm, np.nonzero(two)[0], pc)
+        if pose_independent:
+            var += pose_noise_variance(Xc[two], ok[two], Rm, np.nonzero(two)[0], pc,
+                                        intr.focal)
+        else:
+            var += pose_shift_variance(Xc[two], ok[two], Rm, np.nonzero(two)[0], pc)
     out[two] = np.sqrt(var).astype(np.float32)
     return out
-
-
-def _pose_shift_variance(Xc: NDArray[np.float64], ok: NDArray[np.bool_], R: NDArray[np.float64],
-                         frame: NDArray[np.intp], pc: NDArray[np.float64]
-                         ) -> NDArray[np.float64]:
-    """Trace of the point's shift covariance from its cameras' pose errors (mm^2), the
-    mean over the cameras that see it. ``Xc`` (N, C, 3) camera coordinates, ``ok``
-    (N, C), ``frame`` (N,) the block frame of each sample, ``pc`` (F, C, 6, 6)."""
-    N, C, _ = Xc.shape
-    # displacement of a point fixed to camera c per pose parameter (omega, delta), in c
-    M = np.zeros((N, C, 3, 6))
-    M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
-    M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
-    M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
-    M[..., 3:] = np.eye(3)
-    # the rotation to world keeps the trace, so it is left out
-    cov = np.nan_to_num(pc[frame])  # (N, C, 6, 6)
-    tr = np.einsum("ncik,nckl,ncil->nc", M, cov, M)
-    use = ok & np.isfinite(pc[frame]).all((-1, -2))
-    n = use.sum(-1)
-    return np.where(n > 0, np.where(use, tr, 0.0).sum(-1) / np.maximum(n, 1), 0.0)
-
-
-def brim_pose_covariance(brim_xyz: ArrayLike, brim_obs: ArrayLike, R: ArrayLike,
-                         t: ArrayLike, intr: CameraIntrinsics, min_dots: int = 4
-                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Covariance of every camera's pose resected from its brim dots, per frame.
-
-    Each camera's pose is solved from the brim dots it sees, so its uncertainty is that
-    of a resection: ``s_b^2 (G^T G)^-1`` with ``G`` (2N x 6) the Jacobian of the dots'
-    pixels with respect to a small rotation and translation of the camera, and ``s_b``
-    the camera's brim reprojection residual (RMS per axis over the take, ``2N - 6``
-    degrees of freedom per frame). The residual is measured on the poses given (fitted
-    over time or not); the fit over time removes white scatter but not the part of the
-    dots' centroid error that stays the same from frame to frame, so no reduction is
-    assumed (on rendered takes the error of the fitted poses at the face matched this
-    single-frame figure; docs/algorithms.md).
-
-    Parameters
-    ----------
-    brim_xyz : array_like, shape (F, N, 3)
-        The brim dots (mm, world), NaN where unknown.
-    brim_obs : array_like, shape (F, N, C, 2)
-        Their observations (raw pixels), NaN where none.
-    R, t : array_like, shapes (F, C, 3, 3) and (F, C, 3)
-    intr : CameraIntrinsics
-    min_dots : int
-        Fewer dots seen by a camera in a frame leave its covariance NaN there.
-
-    Returns
-    -------
-    cov : ndarray, shape (F, C, 6, 6)
-        Rotation (rad) then translation (mm), in camera coordinates.
-    residual_px : ndarray, shape (C,)
-        ``s_b`` of each camera (NaN without brim observations).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from carapost.algorithms.camera import CameraIntrinsics, project
-    >>> intr = CameraIntrinsics(focal=np.array([800.0]), principal_point=np.array([[640.0, 360.0]]))
-    >>> g = np.stack(np.meshgrid(np.linspace(-60, 60, 5), np.linspace(-20, 20, 3)), -1)
-    >>> B = np.c_[g.reshape(-1, 2), np.full(15, 120.0)][None].repeat(10, 0)
-    >>> R = np.tile(np.eye(3), (10, 1, 1, 1)); t = np.zeros((10, 1, 3))
-    >>> uv = project(B, R, t, intr)[0] + np.random.default_rng(0).normal(0, 0.05, (10, 15, 1, 2))
-    >>> cov, s_b = brim_pose_covariance(B, uv, R, t, intr)
-    >>> bool(0.03 < s_b[0] < 0.08), cov.shape
-    (True, (10, 1, 6, 6))
-    """
-    B = np.asarray(brim_xyz, dtype=np.float64)
-    ob = np.asarray(brim_obs, dtype=np.float64)
-    Rm = np.asarray(R, dtype=np.float64)
-    tm = np.asarray(t, dtype=np.float64)
-    F, N, C, _ = ob.shape
-    has = np.isfinite(ob).all(-1) & np.isfinite(B).all(-1)[..., None]  # (F, N, C)
-    cov = np.full((F, C, 6, 6), np.nan)
-    s_b = np.full(C, np.nan)
-    if N == 0 or not has.any():
-        return cov, s_b
-    Bz = np.nan_to_num(B)
-    uv = project(Bz, Rm, tm, intr)[0]  # (F, N, C, 2)
-    r2 = np.where(has, np.sum((ob - uv) ** 2, -1), 0.0)
-    n = has.sum(1)  # (F, C)
-    solved = n >= min_dots
-    dof = np.where(solved, 2 * n - 6, 0).sum(0)
-    ss = np.where(solved[:, None, :], r2, 0.0).sum((0, 1))
-    s_b = np.where(dof > 0, np.sqrt(ss / np.maximum(dof, 1)), np.nan)
-    f = np.asarray(intr.focal, dtype=np.float64)[None, None, :]
-    info = np.zeros((F, C, 6, 6))
-    for a in range(0, F, 256):  # blocks of frames bound the memory of long takes
-        b = slice(a, a + 256)
-        Xc = np.einsum("fcij,fnj->fnci", Rm[b], Bz[b]) + tm[b][:, None]  # (f, N, C, 3)
-        zs = np.where(has[b] & (Xc[..., 2] > 1e-6), Xc[..., 2], 1.0)
-        Jp = np.zeros(Xc.shape[:-1] + (2, 3))
-        Jp[..., 0, 0] = Jp[..., 1, 1] = f / zs
-        Jp[..., 0, 2] = -f * Xc[..., 0] / zs ** 2
-        Jp[..., 1, 2] = -f * Xc[..., 1] / zs ** 2
-        M = np.zeros(Xc.shape[:-1] + (3, 6))
-        M[..., 0, 1], M[..., 0, 2] = Xc[..., 2], -Xc[..., 1]
-        M[..., 1, 0], M[..., 1, 2] = -Xc[..., 2], Xc[..., 0]
-        M[..., 2, 0], M[..., 2, 1] = Xc[..., 1], -Xc[..., 0]
-        M[..., 3:] = np.eye(3)
-        G = np.where(has[b][..., None, None], Jp @ M, 0.0)  # (f, N, C, 2, 6)
-        info[b] = np.einsum("fncai,fncaj->fcij", G, G)
-    good = solved & np.isfinite(s_b)[None, :]
-    good[good] = np.linalg.cond(info[good]) < 1e12
-    cov[good] = np.linalg.inv(info[good]) * (s_b ** 2)[None, :, None, None].repeat(F, 0)[good]
-    return cov, s_b
 
 
 def point_noise_factor(obs: ArrayLike, X: ArrayLike, R: ArrayLike, t: ArrayLike,

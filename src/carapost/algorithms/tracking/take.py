@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from carapost.algorithms.blob_noise import blob_noise_scale
+from carapost.algorithms.brim_discs import unbias_brim_cameras
 from carapost.algorithms.camera import CameraIntrinsics
 from carapost.algorithms.codes import (
     KIND_BRIM,
@@ -24,6 +25,7 @@ from carapost.algorithms.codes import (
 )
 from carapost.algorithms.depth_prior import sample_covariance, smooth_along_uncertainty
 from carapost.algorithms.neighbour_prior import deformation_sigma, fuse, patch_prediction
+from carapost.algorithms.pose_smoothing import smoothing_variance_factor
 from carapost.algorithms.single_sensor import neighbours
 from carapost.algorithms.tracking.identity import (
     absorb,
@@ -356,7 +358,8 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     widths, lengths, scores = attached_blobs(detections, o["detection"], first)
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
-                                    widths=widths, blob_scale=blob_noise_scale(lengths, scores))
+                                    widths=widths, blob_scale=blob_noise_scale(lengths, scores),
+                                    majors=lengths)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -416,6 +419,17 @@ def attached_blobs(detections: Callable[[int], FrameDetections],
     return axes[..., 1], axes[..., 0], score
 
 
+def _brim_model(positions: NDArray) -> NDArray[np.float64]:
+    """(B, 3) the brim dots' model positions from their samples (F, B, 3), which are the
+    model wherever a dot is placed; NaN for a dot never placed."""
+    X = positions.astype(np.float64)
+    seen = np.isfinite(X).all(-1)
+    first = np.argmax(seen, axis=0)
+    out = X[first, np.arange(X.shape[1])]
+    out[~seen.any(0)] = np.nan
+    return out
+
+
 def _outlier_target_px(params: TrackingParameters) -> float:
     """The per-frame tracker's target reprojection error (px, `FrameMatcher`)."""
     return max(0.5, params.max_2d_projection_error / 5.0)
@@ -440,7 +454,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     window: int, depth_window: int = 0, target_px: float = 0.0,
                     single_sensor: bool = True, single_threshold_mm: float | None = None,
                     widths: NDArray[np.float32] | None = None,
-                    blob_scale: NDArray[np.float64] | None = None
+                    blob_scale: NDArray[np.float64] | None = None,
+                    majors: NDArray[np.float32] | None = None
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -455,8 +470,15 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
     C): the semi-minor axis of each observation's blob (:func:`attached_blobs`), which
     scales its 2D noise in the sigma; ``blob_scale`` (F, P, C) a further factor of that
-    noise from the blob's score and length (:func:`blob_noise_scale`)."""
+    noise from the blob's score and length (:func:`blob_noise_scale`); ``majors`` (F, P,
+    C) the semi-major axes, from which the brim dots' radii are estimated: before
+    anything else every frame's cameras are solved again from the brim dots' centroids
+    less their offset from the dots' centres (a flat dot seen at an angle,
+    :func:`carapost.algorithms.brim_discs.unbias_brim_cameras`)."""
     face = kind != KIND_BRIM
+    brim_obs = o["obs"][:, ~face].astype(np.float64)
+    pose_factor = np.ones(len(R))
+    unbiased = False
     if widths is not None:
         # merged blobs first: their centres are pixels off in every camera alike, so
         # neither the outlier rejection nor the motion checks below see them
@@ -464,6 +486,18 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():
+        if majors is not None and (~face).any():
+            # the face samples are solved again below, so the cameras may change here
+            model = _brim_model(o["positions"][:, ~face])
+            corr = unbias_brim_cameras(model, brim_obs, majors[:, ~face], R, t, intr,
+                                       keep=fixed)
+            if corr is not None:
+                R, t, brim_obs = corr.R, corr.t, corr.obs
+                unbiased = True
+                # what is left of the resections' error is white, and the fit over time
+                # removes most of it (without the correction the dots' offsets, the same
+                # in every frame, dominate and the fit removes nothing of them)
+                pose_factor = np.where(fixed, 1.0, smoothing_variance_factor(window, len(R)))
         R, t = smooth_camera_poses(R, t, window, keep=fixed)
         redo = tri & ~fixed[:, None]
         target = 0.0
@@ -519,10 +553,12 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     noise = noise_from_residuals(obs_t, X, R, t, intr, scale=scale)
     phi = point_noise_factor(obs_t, X, R, t, intr, noise, scale=scale)
     brim = ~face
-    pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], o["obs"][:, brim], R, t, intr)
+    pose_cov, _ = brim_pose_covariance(o["positions"][:, brim], brim_obs, R, t, intr,
+                                       white_factor=pose_factor if unbiased else None)
     if depth_window < 5 or len(R) < 5 or not tri.any():
         sigma = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                             point_factor=phi, scale=scale).astype(np.float32)
+                             pose_independent=unbiased, point_factor=phi,
+                             scale=scale).astype(np.float32)
         single_sigma = placed(sigma)
         return R, t, np.where(np.isfinite(single_sigma), single_sigma, sigma)
     # the depth prior from time: one-caddy depth follows the smooth track, well-seen
@@ -532,7 +568,7 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     # excess noise (phi above 1: a blob consistently off) and the cameras' pose error
     # from the brim, both through `sample_sigma` (with the excess as its point factor)
     shared = sample_sigma(X, obs_t, R, t, intr, noise, pose_cov=pose_cov,
-                          point_factor=np.maximum(phi - 1.0, 0.0),
+                          pose_independent=unbiased, point_factor=np.maximum(phi - 1.0, 0.0),
                           scale=scale).astype(np.float64)
     own = np.minimum(phi, 1.0)
     F, P = X.shape[:2]
