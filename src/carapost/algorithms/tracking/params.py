@@ -135,6 +135,11 @@ class TrackingParameters:
     #: Frames of the depth prior from time after tracking a take (`track_take`; below 5:
     #: off), see :func:`carapost.algorithms.depth_prior.smooth_along_uncertainty`.
     depth_smoothing_frames: int = param(9, min=0)
+    #: Before the pose fit, solve every frame's cameras again from the brim centroids
+    #: less each tilted dot's image offset (`track_take`, needs the blobs' axes; see
+    #: :mod:`carapost.algorithms.brim_discs`). Off only for detections whose centres are
+    #: already the projections of the dots' centres (truth-derived synthetic ones).
+    brim_dot_offsets: bool = True
 
     def __post_init__(self) -> None:
         validate(self)

@@ -273,7 +273,8 @@ def track_take(
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
                                                   params.allow_single_sensor_tracking,
-                                                  params.single_sensor_tracking_threshold))
+                                                  params.single_sensor_tracking_threshold),
+                            brim_offsets=params.brim_dot_offsets)
     # ---- second pass over the whole take the other way, guided by the first -------------
     guide = np.where((A["recon"] == RECON_TRIANGULATED)[..., None],
                      A["positions"].astype(np.float64), np.nan)
@@ -312,14 +313,16 @@ def track_take(
                                                   params.depth_smoothing_frames,
                                                   _outlier_target_px(params),
                                                   params.allow_single_sensor_tracking,
-                                                  params.single_sensor_tracking_threshold))
+                                                  params.single_sensor_tracking_threshold),
+                            brim_offsets=params.brim_dot_offsets)
 
 
 def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int, last: int,
                  done: int, cancelled: bool, kind: NDArray[np.int8], P: int, min_frames: int,
                  merge_mm: float, intr: CameraIntrinsics, start: int,
                  detections: Callable[[int], FrameDetections],
-                 windows: tuple[int, int, float, bool, float]) -> TrackResult:
+                 windows: tuple[int, int, float, bool, float],
+                 brim_offsets: bool = True) -> TrackResult:
     """Clean the joined passes and build the result.
 
     1. Split every point where it hops to another marker (:func:`hop_segments`): the
@@ -343,7 +346,8 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
        and the sigma, the checks of
        :mod:`carapost.algorithms.tracking.time_checks` run, and the depth prior from
        the neighbours (:mod:`carapost.algorithms.neighbour_prior`) follows the one
-       from time.
+       from time. With ``brim_offsets`` the cameras are first solved again without
+       the brim dots' image offsets (:mod:`carapost.algorithms.brim_discs`).
     """
     keep = np.ones(A["positions"].shape[1], bool)
     A, kind, keep = split_hops(A, kind, keep)
@@ -359,7 +363,7 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
                                     widths=widths, blob_scale=blob_noise_scale(lengths, scores),
-                                    majors=lengths)
+                                    majors=lengths if brim_offsets else None)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
