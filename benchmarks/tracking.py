@@ -38,7 +38,7 @@ Prints JSON lines:
   pooled over the takes (``take: "pooled"``); the calibration also per number of
   cameras that observed the sample (groups ``cameras_2``, ``cameras_3``, ``cameras_4``).
   ``--variety-set heldout`` (the default) scores the held-out takes, never used to tune;
-  ``heldout2`` to ``heldout6`` the second to sixth held-out sets; ``tuning`` the development ones.
+  ``heldout2`` to ``heldout7`` the second to seventh held-out sets; ``tuning`` the development ones.
 """
 
 from __future__ import annotations
@@ -260,6 +260,7 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
         HELD_OUT_VARIANTS_4,
         HELD_OUT_VARIANTS_5,
         HELD_OUT_VARIANTS_6,
+        HELD_OUT_VARIANTS_7,
         TUNING_VARIANTS,
         other_rig_config,
     )
@@ -267,6 +268,7 @@ def bench_variety(frames: int, folder: Path, which: str = "heldout") -> None:
     indices = {"heldout": HELD_OUT_VARIANTS, "heldout2": HELD_OUT_VARIANTS_2,
                "heldout3": HELD_OUT_VARIANTS_3, "heldout4": HELD_OUT_VARIANTS_4,
                "heldout5": HELD_OUT_VARIANTS_5, "heldout6": HELD_OUT_VARIANTS_6,
+               "heldout7": HELD_OUT_VARIANTS_7,
                "tuning": TUNING_VARIANTS}[which]
     pooled: dict[str, list] = {g: [] for g in GROUPS}
     by_cams: dict[int, list] = {}
@@ -424,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="render, process and score takes of another renderer")
     ap.add_argument("--variety-set",
                     choices=("heldout", "heldout2", "heldout3", "heldout4", "heldout5",
-                             "heldout6", "tuning"),
+                             "heldout6", "heldout7", "tuning"),
                     default="heldout")
     ap.add_argument("--variety-frames", type=int, default=120)
     ap.add_argument("--skip-speed", action="store_true")

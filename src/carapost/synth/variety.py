@@ -10,8 +10,8 @@ the index, so a take is reproducible from it.
 
 Disjoint sets of indices are fixed here: `TUNING_VARIANTS`, the takes used while
 developing the tracker, and `HELD_OUT_VARIANTS` and `HELD_OUT_VARIANTS_2` to
-`HELD_OUT_VARIANTS_6`, takes that are only ever scored (``benchmarks/tracking.py
---variety``) and never used to choose a parameter; the second to sixth sets were each
+`HELD_OUT_VARIANTS_7`, takes that are only ever scored (``benchmarks/tracking.py
+--variety``) and never used to choose a parameter; the second to seventh sets were each
 declared before any of their takes was rendered, and scored once, for figures untouched
 by every earlier round of tuning (which sets have since been looked at is said beside
 each).
@@ -24,7 +24,8 @@ import numpy as np
 from carapost.synth.scene import SynthConfig
 
 __all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "HELD_OUT_VARIANTS_3",
-           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "HELD_OUT_VARIANTS_6", "TUNING_VARIANTS",
+           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "HELD_OUT_VARIANTS_6", "HELD_OUT_VARIANTS_7",
+           "TUNING_VARIANTS",
            "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
@@ -47,6 +48,10 @@ HELD_OUT_VARIANTS_5 = (501, 502, 503, 504)
 #: before any was rendered, after every earlier set had been looked at; scored first on
 #: main as it stood then (bb67900).
 HELD_OUT_VARIANTS_6 = (601, 602, 603, 604)
+#: A seventh held-out set (same presets), declared at the start of the twenty-first
+#: session, before any was rendered, after the brim dots' perspective correction; scored
+#: once on main as it stood then (703674e).
+HELD_OUT_VARIANTS_7 = (701, 702, 703, 704)
 
 _PRESETS = ("speech", "blink", "fast", "speech")
 
