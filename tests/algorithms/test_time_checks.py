@@ -9,7 +9,9 @@ whose observations are all on a wrong blob, consistently in both cameras of a ca
 (small residual), is removed by its neighbours in time; a single-sensor sample whose
 ray misses its prediction by more than the Single Sensor Tracking Threshold is not
 kept. An observation on a blob twice as wide as the marker's blob in the frames around
-it (merged with a neighbour, its centre pixels off in every camera alike) is removed.
+it (merged with a neighbour, its centre pixels off in every camera alike) is removed,
+and so is one on a blob twice as long as the marker's over the take (merged along its
+length with a crease for longer than the width's window, its width unchanged).
 A two-camera sample whose rays miss each other loses the observation of the camera that
 does not usually see the point; a single-sensor sample that no other camera ever
 checked becomes a gap.
@@ -30,6 +32,7 @@ from carapost.algorithms.single_sensor import neighbour_prediction
 from carapost.algorithms.temporal_check import inconsistent_observations, loo_prediction
 from carapost.algorithms.tracking.time_checks import (
     PAIR_TARGET_FACTOR,
+    lengthened_blobs,
     merged_blobs,
     place_single_sensor,
     reject_by_motion,
@@ -458,6 +461,62 @@ def test_a_merged_camera_of_three_leaves_a_sample_of_two(scene):
     assert np.argwhere(drop).tolist() == [[f, p, c]]
     assert o["recon"][f, p] == RECON_TRIANGULATED
     assert _error(o, scene)[f, p] < min(0.3, before / 3)
+
+
+def _lengths(scene, rng, drift=0.1):
+    """(F, M, C) semi-major axes (px): a disc's radius magnified, 3-5 px per
+    marker-camera, changing with the distance only (up to ``drift`` over the take),
+    3 % noise."""
+    F, M, C = scene.visible.shape
+    base = rng.uniform(3.0, 5.0, (1, M, C))
+    d = 1.0 + drift * np.sin(np.linspace(0, np.pi, F))[:, None, None] * \
+        rng.uniform(-1, 1, (1, M, C))
+    L = base * d * (1.0 + rng.normal(0, 0.03, (F, M, C)))
+    return np.where(scene.visible, L, np.nan)
+
+
+def test_a_blob_merged_along_its_length_for_a_long_run_is_removed(scene):
+    rng = np.random.default_rng(14)
+    o = _arrays(scene, rng)
+    F, M, C = scene.visible.shape
+    ok = _one_caddy(o, scene)
+    widths = _widths(scene, rng)
+    lengths = _lengths(scene, rng)
+    # one point of a one-caddy pair: camera 1's blob runs into a crease for 15 frames
+    # (longer than the width's window): twice as long, as wide as before, its centre
+    # 2 px off along the crease; that pair's depth is 1-3 mm off
+    p = int(np.flatnonzero(ok.all(0))[0])
+    a, b = 10, 25
+    blk = o["obs"][a:b, p]
+    blk[:, 1] += [1.6, 1.2]
+    o["obs"][a:b, p] = blk
+    lengths[a:b, p, 1] *= 2.0
+    X, _ = retriangulate(o["obs"][a:b, p][:, None].astype(float), scene.cam_R[a:b],
+                         scene.cam_t[a:b], scene.intrinsics, np.ones((b - a, 1), bool))
+    o["positions"][a:b, p] = X[:, 0]
+    assert _error(o, scene)[a:b, p].min() > 0.5
+    # the width test alone does not see it
+    assert not merged_blobs(widths)[a:b, p].any()
+    drop = reject_merged_blobs(o, widths, scene.cam_R, scene.cam_t, np.ones(M, bool),
+                               scene.intrinsics, np.zeros(F, bool), lengths=lengths)
+    assert np.argwhere(drop[:, p]).tolist() == [[f, 1] for f in range(a, b)]
+    # no other observation of the take
+    assert drop.sum() == b - a
+    # camera 0 is left: single-sensor samples (placed later from both sides), not
+    # a wrong depth
+    assert (o["recon"][a:b, p] == RECON_SINGLE_SENSOR).all()
+
+
+def test_lengths_that_change_slowly_are_not_lengthened(scene):
+    rng = np.random.default_rng(15)
+    # a marker's length changes with its distance only (a few per cent); even 30 %
+    # over the take, and a point-camera seen in too few frames, is not flagged
+    L = _lengths(scene, rng, drift=0.3)
+    assert not lengthened_blobs(L).any()
+    sparse = np.full_like(L, np.nan)
+    sparse[:4] = L[:4]
+    sparse[3] *= 3
+    assert not lengthened_blobs(sparse).any()
 
 
 def test_widths_that_change_slowly_are_not_merged(scene):

@@ -24,9 +24,8 @@ import numpy as np
 from carapost.synth.scene import SynthConfig
 
 __all__ = ["HELD_OUT_VARIANTS", "HELD_OUT_VARIANTS_2", "HELD_OUT_VARIANTS_3",
-           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "HELD_OUT_VARIANTS_6", "HELD_OUT_VARIANTS_7",
-           "TUNING_VARIANTS",
-           "other_rig_config"]
+           "HELD_OUT_VARIANTS_4", "HELD_OUT_VARIANTS_5", "HELD_OUT_VARIANTS_6",
+           "HELD_OUT_VARIANTS_7", "TUNING_VARIANTS", "other_rig_config"]
 
 #: Indices of the takes used while developing (look at these freely).
 TUNING_VARIANTS = (1, 2, 3, 4, 5)

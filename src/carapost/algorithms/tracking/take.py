@@ -363,7 +363,8 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
                                     widths=widths, blob_scale=blob_noise_scale(lengths, scores),
-                                    majors=lengths if brim_offsets else None)
+                                    majors=lengths if brim_offsets else None,
+                                    lengths=lengths)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -459,7 +460,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     single_sensor: bool = True, single_threshold_mm: float | None = None,
                     widths: NDArray[np.float32] | None = None,
                     blob_scale: NDArray[np.float64] | None = None,
-                    majors: NDArray[np.float32] | None = None
+                    majors: NDArray[np.float32] | None = None,
+                    lengths: NDArray[np.float32] | None = None
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -478,7 +480,9 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     C) the semi-major axes, from which the brim dots' radii are estimated: before
     anything else every frame's cameras are solved again from the brim dots' centroids
     less their offset from the dots' centres (a flat dot seen at an angle,
-    :func:`carapost.algorithms.brim_discs.unbias_brim_cameras`)."""
+    :func:`carapost.algorithms.brim_discs.unbias_brim_cameras`); ``lengths`` (F, P, C)
+    the semi-major axes again, with which the observations on blobs merged along their
+    length are removed with those on wider ones."""
     face = kind != KIND_BRIM
     brim_obs = o["obs"][:, ~face].astype(np.float64)
     pose_factor = np.ones(len(R))
@@ -486,7 +490,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     if widths is not None:
         # merged blobs first: their centres are pixels off in every camera alike, so
         # neither the outlier rejection nor the motion checks below see them
-        reject_merged_blobs(o, widths, R, t, face, intr, fixed, single_sensor=single_sensor)
+        reject_merged_blobs(o, widths, R, t, face, intr, fixed, single_sensor=single_sensor,
+                            lengths=lengths)
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():

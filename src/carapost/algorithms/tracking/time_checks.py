@@ -6,7 +6,10 @@ before the cameras are fitted over time and the face samples re-solved with them
 
 0. :func:`reject_merged_blobs`: an observation whose blob is much wider than the same
    marker's blob in the same camera over the frames around it (merged with a neighbour
-   or a dark feature, its centre several pixels off the marker's) is removed.
+   or a dark feature, its centre several pixels off the marker's) is removed, and so
+   is one whose blob is much longer than the same marker's blobs in that camera over
+   the take (merged along its length with a crease or a neighbour for longer than the
+   width's window).
 
 The others run after that re-solve:
 
@@ -45,6 +48,7 @@ Shapes: ``F`` frames, ``P`` points, ``C`` cameras; the arrays are a track result
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -71,7 +75,8 @@ from carapost.algorithms.temporal_check import (
 )
 from carapost.algorithms.uncertainty import retriangulate
 
-__all__ = ["MERGED_WIDTH_RATIO", "PAIR_TARGET_FACTOR", "detach_observations", "merged_blobs",
+__all__ = ["MERGED_LENGTH_RATIO", "MERGED_WIDTH_RATIO", "PAIR_TARGET_FACTOR", "detach_observations",
+           "lengthened_blobs", "merged_blobs",
            "place_single_sensor", "reject_by_motion", "reject_inconsistent_pairs",
            "reject_merged_blobs", "reject_unanchored_single_sensor", "reject_wrong_samples",
            "unanchored_single_sensor"]
@@ -82,6 +87,18 @@ __all__ = ["MERGED_WIDTH_RATIO", "PAIR_TARGET_FACTOR", "detach_observations", "m
 #: one above 1.8 was 1-10 px off its marker (median 8 px); at 1.4-1.8 the median was
 #: 0.7 px (docs/benchmarks.md, "merged blobs").
 MERGED_WIDTH_RATIO = 1.8
+
+#: An observation's blob whose semi-major axis is more than this many times the median
+#: of the same point's in the same camera over the whole take is taken for a blob merged
+#: along its length. A flat marker's semi-major axis is its disc's radius magnified,
+#: whatever the angle it is seen at, so it changes only with the distance (a few per
+#: cent on a head-mounted rig). On held-out takes 701-704 every observation left
+#: attached above 1.4 was more than 1 px off its marker (25 of 95,000, median 1.9 px;
+#: the width of those blobs was their marker's, 1.0-1.1 times); on the tuning takes 6
+#: of 111,000 were above 1.6, all more than 0.5 px off and 3 more than 1 px; at 1.2-1.4
+#: the median error is 0.47 px
+#: (docs/benchmarks.md, "blobs merged along their length").
+MERGED_LENGTH_RATIO = 1.6
 
 #: Half-window (frames) of the median width a blob is compared with.
 _WIDTH_HALF = 10
@@ -174,12 +191,58 @@ def merged_blobs(widths: NDArray[np.floating], *, ratio: float = MERGED_WIDTH_RA
         return w > ratio * med
 
 
+def lengthened_blobs(lengths: NDArray[np.floating], *, ratio: float = MERGED_LENGTH_RATIO,
+                     support: int = _WIDTH_SUPPORT) -> NDArray[np.bool_]:
+    """Observations whose blob is much longer than the same marker's over the take.
+
+    A blob merged with a crease or a neighbour along its length keeps its width (so
+    :func:`merged_blobs` does not see it) while its length doubles, and such a merge
+    can last longer than the width's window (21 frames on held-out take 704, its
+    centre 1.6-2.1 px off). Each observation's semi-major axis is compared with the
+    median of the same point's in the same camera over the whole take: a marker's
+    semi-major axis changes only with its distance.
+
+    Parameters
+    ----------
+    lengths : ndarray, shape (F, P, C)
+        Semi-major axis (px) of each observation's blob, NaN where none
+        (:func:`carapost.algorithms.tracking.take.attached_blobs`).
+    ratio : float
+        Flagged above this multiple of the median.
+    support : int
+        Fewest lengths of the point in the camera to judge its observations.
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P, C)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> L = np.full((40, 1, 2), 3.0); L[5:30, 0, 1] = 6.5
+    >>> int(lengthened_blobs(L)[:, 0, 1].sum()), int(lengthened_blobs(L)[:, 0, 0].sum())
+    (0, 0)
+    >>> L[5:15, 0, 1] = 3.0
+    >>> np.argwhere(lengthened_blobs(L)[:, 0, 1]).ravel().tolist() == list(range(15, 30))
+    True
+    """
+    L = np.asarray(lengths, dtype=np.float64)
+    if L.shape[0] == 0 or not np.isfinite(L).any():
+        return np.zeros(L.shape, bool)
+    n = np.isfinite(L).sum(0)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN point-cameras
+        med = np.nanmedian(L, axis=0)
+        return (L > ratio * med[None]) & (n >= support)[None]
+
+
 def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating],
                         R: NDArray, t: NDArray, face: NDArray[np.bool_],
                         intr: CameraIntrinsics, fixed: NDArray[np.bool_], *,
-                        single_sensor: bool = True) -> NDArray[np.bool_]:
-    """Remove the face observations on merged blobs (:func:`merged_blobs`); solve
-    those samples again from the rest.
+                        single_sensor: bool = True,
+                        lengths: NDArray[np.floating] | None = None) -> NDArray[np.bool_]:
+    """Remove the face observations on merged blobs (:func:`merged_blobs`, and with
+    ``lengths`` :func:`lengthened_blobs`); solve those samples again from the rest.
 
     A sample left with two cameras or more is triangulated again with ``R, t``, one
     left with a single camera becomes a single-sensor sample (placed later by
@@ -191,7 +254,10 @@ def reject_merged_blobs(o: dict[str, NDArray[Any]], widths: NDArray[np.floating]
     ndarray of bool, shape (F, P, C)
         The observations removed.
     """
-    drop = merged_blobs(widths) & face[None, :, None] & ~fixed[:, None, None]
+    merged = merged_blobs(widths)
+    if lengths is not None:
+        merged |= lengthened_blobs(lengths)
+    drop = merged & face[None, :, None] & ~fixed[:, None, None]
     drop &= (o["recon"] == RECON_TRIANGULATED)[..., None] | \
         (o["recon"] == RECON_SINGLE_SENSOR)[..., None]
     if not drop.any():
