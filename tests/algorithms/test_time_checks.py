@@ -390,15 +390,26 @@ def test_single_sensor_threshold(scene):
 
 
 
-def _widths(scene, rng):
-    """(F, M, C) semi-minor axes (px) changing slowly, as a face turning would change
-    them: 1.5-4 px per marker-camera, up to 40 % over the take, 3 % noise."""
+def _axes(scene, rng, lo, hi, drift):
+    """(F, M, C) blob axes (px) changing slowly, as a face turning or moving would change
+    them: ``lo``-``hi`` px per marker-camera, up to ``drift`` over the take, 3 % noise."""
     F, M, C = scene.visible.shape
-    base = rng.uniform(1.5, 4.0, (1, M, C))
-    drift = 1.0 + 0.4 * np.sin(np.linspace(0, np.pi, F))[:, None, None] * \
+    base = rng.uniform(lo, hi, (1, M, C))
+    d = 1.0 + drift * np.sin(np.linspace(0, np.pi, F))[:, None, None] * \
         rng.uniform(-1, 1, (1, M, C))
-    w = base * drift * (1.0 + rng.normal(0, 0.03, (F, M, C)))
-    return np.where(scene.visible, w, np.nan)
+    a = base * d * (1.0 + rng.normal(0, 0.03, (F, M, C)))
+    return np.where(scene.visible, a, np.nan)
+
+
+def _widths(scene, rng):
+    """Semi-minor axes: 1.5-4 px, up to 40 % over the take (the angle changes them)."""
+    return _axes(scene, rng, 1.5, 4.0, 0.4)
+
+
+def _lengths(scene, rng, drift=0.1):
+    """Semi-major axes: a disc's radius magnified, 3-5 px, changing with the distance
+    only (up to ``drift`` over the take)."""
+    return _axes(scene, rng, 3.0, 5.0, drift)
 
 
 def test_observations_on_merged_blobs_are_removed(scene):
@@ -461,18 +472,6 @@ def test_a_merged_camera_of_three_leaves_a_sample_of_two(scene):
     assert np.argwhere(drop).tolist() == [[f, p, c]]
     assert o["recon"][f, p] == RECON_TRIANGULATED
     assert _error(o, scene)[f, p] < min(0.3, before / 3)
-
-
-def _lengths(scene, rng, drift=0.1):
-    """(F, M, C) semi-major axes (px): a disc's radius magnified, 3-5 px per
-    marker-camera, changing with the distance only (up to ``drift`` over the take),
-    3 % noise."""
-    F, M, C = scene.visible.shape
-    base = rng.uniform(3.0, 5.0, (1, M, C))
-    d = 1.0 + drift * np.sin(np.linspace(0, np.pi, F))[:, None, None] * \
-        rng.uniform(-1, 1, (1, M, C))
-    L = base * d * (1.0 + rng.normal(0, 0.03, (F, M, C)))
-    return np.where(scene.visible, L, np.nan)
 
 
 def test_a_blob_merged_along_its_length_for_a_long_run_is_removed(scene):
