@@ -65,9 +65,12 @@ __all__ = [
     "width_noise_scale",
 ]
 
-#: Floor (px) of the per-camera 2D noise: a camera with too few redundant observations
-#: to measure its noise is not trusted more than this.
-MIN_NOISE_PX = 0.05
+#: Floor (px) of the per-camera 2D noise: no blob centre is trusted more than this,
+#: whatever its residuals say. Below what is measured on any rendered take (0.03-0.07
+#: px per camera on the takes of other renderers): at 0.05 the floor clipped the
+#: measurement of clean takes and their sigmas were 1.3-1.6 times too large (held-out
+#: 301-304: 82 % of errors within 1 sigma; docs/benchmarks.md, twenty-first session).
+MIN_NOISE_PX = 0.02
 
 #: Semi-minor axis (px) of the blob at which a camera's noise (`noise_from_residuals`)
 #: is stated; the noise of an observation is that times ``BLOB_WIDTH_REF_PX / b``
