@@ -49,7 +49,7 @@ HELD_OUT_VARIANTS_5 = (501, 502, 503, 504)
 HELD_OUT_VARIANTS_6 = (601, 602, 603, 604)
 #: A seventh held-out set (same presets), declared at the start of the twenty-first
 #: session, before any was rendered, after the brim dots' perspective correction; scored
-#: once on main as it stood then (703674e).
+#: once on main as it stood then (90c98c2).
 HELD_OUT_VARIANTS_7 = (701, 702, 703, 704)
 
 _PRESETS = ("speech", "blink", "fast", "speech")

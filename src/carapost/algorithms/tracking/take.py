@@ -363,8 +363,7 @@ def _take_result(A: dict[str, NDArray[Any]], R: NDArray, t: NDArray, first: int,
     Rs, ts, sigma = _refine_cameras(o, R[sl], t[sl], kind[keep], intr,
                                     np.arange(first, last + 1) == start, *windows,
                                     widths=widths, blob_scale=blob_noise_scale(lengths, scores),
-                                    majors=lengths if brim_offsets else None,
-                                    lengths=lengths)
+                                    lengths=lengths, brim_offsets=brim_offsets)
     return TrackResult(o["positions"], o["recon"], o["residual"], o["obs"], o["source"],
                        o["detection"], o["quality"], Rs, ts, first=first, last=last,
                        frames_done=done, cancelled=cancelled, n_new=int(keep[P:].sum()),
@@ -460,8 +459,8 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
                     single_sensor: bool = True, single_threshold_mm: float | None = None,
                     widths: NDArray[np.float32] | None = None,
                     blob_scale: NDArray[np.float64] | None = None,
-                    majors: NDArray[np.float32] | None = None,
-                    lengths: NDArray[np.float32] | None = None
+                    lengths: NDArray[np.float32] | None = None,
+                    brim_offsets: bool = True
                     ) -> tuple[NDArray, NDArray, NDArray[np.float32]]:
     """Smooth the cameras over time, re-solve the face samples with them (in ``o``, in
     place, the ``fixed`` frame left alone), apply the depth prior from time over
@@ -476,13 +475,13 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     solution leaves out (a wrong match) is removed from the sample. ``widths`` (F, P,
     C): the semi-minor axis of each observation's blob (:func:`attached_blobs`), which
     scales its 2D noise in the sigma; ``blob_scale`` (F, P, C) a further factor of that
-    noise from the blob's score and length (:func:`blob_noise_scale`); ``majors`` (F, P,
-    C) the semi-major axes, from which the brim dots' radii are estimated: before
-    anything else every frame's cameras are solved again from the brim dots' centroids
-    less their offset from the dots' centres (a flat dot seen at an angle,
-    :func:`carapost.algorithms.brim_discs.unbias_brim_cameras`); ``lengths`` (F, P, C)
-    the semi-major axes again, with which the observations on blobs merged along their
-    length are removed with those on wider ones."""
+    noise from the blob's score and length (:func:`blob_noise_scale`); ``lengths`` (F,
+    P, C) the semi-major axes, with which the observations on blobs merged along their
+    length are removed with those on wider ones and, with ``brim_offsets``, the brim
+    dots' radii are estimated: before anything else every frame's cameras are then
+    solved again from the brim dots' centroids less their offset from the dots' centres
+    (a flat dot seen at an angle,
+    :func:`carapost.algorithms.brim_discs.unbias_brim_cameras`)."""
     face = kind != KIND_BRIM
     brim_obs = o["obs"][:, ~face].astype(np.float64)
     pose_factor = np.ones(len(R))
@@ -495,10 +494,10 @@ def _refine_cameras(o: dict[str, NDArray[Any]], R: NDArray, t: NDArray,
     tri = (o["recon"] == RECON_TRIANGULATED) & face[None, :]
     obs = o["obs"].astype(np.float64)
     if window >= 5 and len(R) >= 5 and tri.any():
-        if majors is not None and (~face).any():
+        if brim_offsets and lengths is not None and (~face).any():
             # the face samples are solved again below, so the cameras may change here
             model = _brim_model(o["positions"][:, ~face])
-            corr = unbias_brim_cameras(model, brim_obs, majors[:, ~face], R, t, intr,
+            corr = unbias_brim_cameras(model, brim_obs, lengths[:, ~face], R, t, intr,
                                        keep=fixed)
             if corr is not None:
                 R, t, brim_obs = corr.R, corr.t, corr.obs
